@@ -1,0 +1,231 @@
+"""Scene and sensor files: loading, defaults and validation (see README, "Configuration").
+
+>>> scene = load_scene("scenes/demo.yaml")          # doctest: +SKIP
+>>> scene["survey"]["altitude"], scene["sensor"]["name"]  # doctest: +SKIP
+
+A loaded scene is a plain nested ``dict`` with every default filled in and every path absolute; the
+sensor is resolved into ``scene["sensor"]``. Any problem raises :class:`ConfigError`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import yaml
+
+from ..errors import ConfigError
+from ..trees.archetypes import DEFAULT_ARCHETYPES, FIELDS as ARCHETYPE_FIELDS
+from .schema import (REQUIRED, Context, Custom, FilePath, ListOf, Number, Text, Vector, parse,
+                     parse_mapping)
+
+__all__ = ["load_scene", "load_sensor", "read_yaml", "ConfigError", "FOREST_BANDS"]
+
+# Australia's National Forest Inventory crown cover classes.
+FOREST_BANDS = {"woodland": (0.20, 0.50), "open": (0.50, 0.80), "closed": (0.80, 1.00)}
+
+SENSOR_SPEC = {
+    "name": Text(REQUIRED),
+    "source": Text(""),
+    "deflector": Text("rotating", choices=("rotating", "oscillating", "risley")),
+    "field_of_view": Number(360.0, gt=0, le=360),
+    "pulse_frequencies": ListOf(Number(integer=False, gt=0), REQUIRED, min_length=1),
+    "scan_frequency_range": Vector(2, Number(ge=0), [10.0, 200.0]),
+    "beam_divergence": Vector(2, Number(ge=0), REQUIRED, scalar_ok=True),
+    "pulse_length": Number(4e-9, gt=0),
+    "wavelength": Number(1550e-9, gt=0),
+    "range_min": Number(0.0, ge=0),
+    "range_max": Number(1000.0, gt=0),
+    "range_precision": Number(0.0, ge=0),
+    "range_accuracy": Number(0.0, ge=0),
+    "max_returns": Number(0, integer=True, ge=0),
+    "detection_threshold": Number(None, ge=0, nullable=True),
+    "risley": {
+        "prism_rates": Vector(2, Number(), [121.6, -77.7]),
+        "prism_deflection": Vector(2, Number(ge=0), [17.6, 17.6]),
+    },
+}
+
+
+def _archetypes(value, ctx: Context, key: str):
+    if value == "default":
+        return [dataclasses.asdict(a) for a in DEFAULT_ARCHETYPES]
+    if not isinstance(value, list) or not value:
+        ctx.fail(key, "must be 'default' or a non-empty list of archetype mappings")
+    spec = {name: Number(f.default, integer=f.metadata["integer"], ge=f.metadata["lo"], le=f.metadata["hi"])
+            for name, f in ARCHETYPE_FIELDS.items()}
+    spec["base"] = Number(None, integer=True, ge=1, le=len(DEFAULT_ARCHETYPES), nullable=True)
+    out = []
+    for i, item in enumerate(value):
+        where = f"{key}[{i}]"
+        given = parse_mapping({k: v for k, v in spec.items()}, item, ctx, where)
+        base = given.pop("base")
+        merged = dataclasses.asdict(DEFAULT_ARCHETYPES[base - 1]) if base else {}
+        explicit = {k: given[k] for k in item if k != "base"}
+        out.append({**{k: given[k] for k in ARCHETYPE_FIELDS}, **merged, **explicit})
+    return out
+
+
+def _sensor(value, ctx: Context, key: str):
+    if isinstance(value, str):
+        path = Path(FilePath(REQUIRED).parse(value, ctx, key))
+        return load_sensor(path)
+    if isinstance(value, dict):
+        sensor = parse_mapping(SENSOR_SPEC, value, ctx, key)
+        _check_sensor(sensor, ctx, key + ".")
+        sensor["file"] = None
+        return sensor
+    ctx.fail(key, "must be a sensor file path or a mapping")
+
+
+def _legs(value, ctx: Context, key: str):
+    if value is None:
+        return None
+    leg = Custom(lambda v, c, k: [Vector(2).parse(p, c, f"{k}[{j}]") for j, p in enumerate(_pair(v, c, k))])
+    return ListOf(leg, min_length=1).parse(value, ctx, key)
+
+
+def _pair(v, ctx, key):
+    if not isinstance(v, list) or len(v) != 2:
+        ctx.fail(key, f"a leg must be [[x0, y0], [x1, y1]], got {v!r}")
+    return v
+
+
+SCENE_SPEC = {
+    "name": Text(None, nullable=True),
+    "seed": Number(0, integer=True, ge=0),
+    "area": {"size": Vector(2, Number(gt=0), [100.0, 100.0])},
+    "origin": {"crs": Text(None, nullable=True), "offset": Vector(3, Number(), [0.0, 0.0, 0.0])},
+    "terrain": {
+        "type": Text("flat", choices=("flat", "noise", "mesh")),
+        "amplitude": Number(1.5, ge=0),
+        "wavelength": Number(25.0, gt=0),
+        "path": FilePath(None, nullable=True),
+    },
+    "forest": {
+        "type": Text("open", choices=tuple(FOREST_BANDS)),
+        "canopy_cover": Number(None, gt=0, le=1, nullable=True),
+        "trees": Number(None, integer=True, ge=0, nullable=True),
+        "min_spacing": Number(3.0, ge=0),
+        "tilt": Number(5.0, ge=0, le=45),
+        "archetypes": Custom(_archetypes, "default"),
+    },
+    "understory": {k: Number(d, integer=True, ge=0) for k, d in
+                   (("bushes", 120), ("rocks", 40), ("deadwood", 25), ("stumps", 15))},
+    "sensor": Custom(_sensor, REQUIRED),
+    "survey": {
+        "altitude": Number(30.0, gt=0),
+        "speed": Number(2.0, gt=0),
+        "pulse_frequency": Number(None, gt=0, nullable=True),
+        "scan_frequency": Number(None, gt=0, nullable=True),
+        "line_spacing": Number(12.0, gt=0),
+        "heading": Number(0.0),
+        "margin": Number(10.0, ge=0),
+        "lines": Custom(_legs, None),
+    },
+    "simulation": {
+        "beam_samples": Number(19, integer=True, ge=1, le=1000),
+        "variant": Text("auto"),
+        "pulses_per_batch": Number(400_000, integer=True, gt=0),
+    },
+    "output": {
+        "dir": FilePath(None, nullable=True, must_exist=False),
+        "formats": ListOf(Text(choices=("pcd", "las", "laz")), ["pcd", "las"], min_length=1),
+    },
+}
+
+
+def read_yaml(path) -> tuple[object, Context]:
+    """Read one YAML file; a missing file or a syntax error is a :class:`ConfigError`."""
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(_display(path), "", "file not found" if not path.exists() else "not a file")
+    try:
+        data = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None)
+        where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark else ""
+        raise ConfigError(path, "", f"YAML syntax error: {where}{getattr(e, 'problem', None) or e}") from None
+    except UnicodeDecodeError:
+        raise ConfigError(path, "", "not a text file") from None
+    return data, Context(_display(path))
+
+
+def _display(path: Path) -> Path:
+    """The path as a user would write it: relative to the working folder when inside it."""
+    try:
+        return path.resolve().relative_to(Path.cwd())
+    except ValueError:
+        return path
+
+
+def load_sensor(path) -> dict:
+    """Load and validate a sensor file (``sensors/*.yaml``)."""
+    data, ctx = read_yaml(path)
+    sensor = parse_mapping(SENSOR_SPEC, data, ctx)
+    _check_sensor(sensor, ctx, "")
+    sensor["file"] = str(ctx.file.resolve())
+    return sensor
+
+
+def _check_sensor(sensor: dict, ctx: Context, prefix: str):
+    lo, hi = sensor["scan_frequency_range"]
+    if lo > hi:
+        ctx.fail(prefix + "scan_frequency_range", f"must be [low, high], got [{lo:g}, {hi:g}]")
+    if sensor["range_max"] <= sensor["range_min"]:
+        ctx.fail(prefix + "range_max", f"must be > range_min ({sensor['range_min']:g})")
+    if sensor["detection_threshold"] is None:
+        # Default: a full-footprint 20 % Lambertian target at normal incidence is just detected at
+        # range_max (amplitude unit: see scan/radiometry.py).
+        sensor["detection_threshold"] = 0.2 / sensor["range_max"] ** 2
+
+
+def load_scene(path, *, seed: int | None = None, variant: str | None = None, output_dir=None) -> dict:
+    """Load, validate and complete a scene file; command-line overrides are applied last."""
+    data, ctx = read_yaml(path)
+    scene = parse_mapping(SCENE_SPEC, data, ctx)
+    if scene["name"] is None:
+        scene["name"] = ctx.file.stem
+    if seed is not None:
+        scene["seed"] = seed
+    if variant is not None:
+        scene["simulation"]["variant"] = variant
+    if output_dir is not None:
+        scene["output"]["dir"] = str(Path(output_dir).resolve())
+    if scene["output"]["dir"] is None:
+        scene["output"]["dir"] = str(Path("out", scene["name"]).resolve())
+    _check_scene(scene, ctx)
+    scene["file"] = str(ctx.file.resolve())
+    return scene
+
+
+def _check_scene(scene: dict, ctx: Context):
+    forest, survey, sensor = scene["forest"], scene["survey"], scene["sensor"]
+    if forest["canopy_cover"] is not None and forest["trees"] is not None:
+        ctx.fail("forest.trees", "give either forest.canopy_cover or forest.trees, not both")
+    if forest["canopy_cover"] is None and forest["trees"] is None:
+        forest["canopy_cover"] = sum(FOREST_BANDS[forest["type"]]) / 2
+    cover = forest["canopy_cover"]
+    lo, hi = FOREST_BANDS[forest["type"]]
+    if cover is not None and not lo <= cover <= hi:
+        ctx.fail("forest.canopy_cover", f"{cover:g} is outside the {forest['type']} band {lo:g}-{hi:g}")
+    if not sum(a["weight"] for a in forest["archetypes"]) > 0:
+        ctx.fail("forest.archetypes", "at least one archetype needs weight > 0")
+    if scene["terrain"]["type"] == "mesh" and not scene["terrain"]["path"]:
+        ctx.fail("terrain.path", "is required when terrain.type is mesh")
+    freqs = sensor["pulse_frequencies"]
+    if survey["pulse_frequency"] is None:
+        survey["pulse_frequency"] = min(freqs, key=lambda f: abs(f - 200_000))
+    elif survey["pulse_frequency"] not in freqs:
+        ctx.fail("survey.pulse_frequency", f"{survey['pulse_frequency']:g} Hz is not one of the sensor's "
+                 f"pulse frequencies ({', '.join(f'{f:g}' for f in freqs)})")
+    lo, hi = sensor["scan_frequency_range"]
+    if survey["scan_frequency"] is None:
+        survey["scan_frequency"] = min(max(50.0, lo), hi)
+    elif not lo <= survey["scan_frequency"] <= hi:
+        ctx.fail("survey.scan_frequency", f"{survey['scan_frequency']:g} Hz is outside the sensor's range "
+                 f"{lo:g}-{hi:g} Hz")
+    variant = scene["simulation"]["variant"]
+    if variant != "auto" and not (variant.startswith("llvm_") or variant.startswith("cuda_")
+                                  or variant.startswith("scalar_")):
+        ctx.fail("simulation.variant", f"must be auto or a Mitsuba variant such as llvm_ad_mono, got {variant!r}")

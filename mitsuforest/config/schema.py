@@ -1,0 +1,186 @@
+"""A small declarative schema: typed fields with defaults and bounds, nested in mappings.
+
+Each field parses one YAML value and raises :class:`~mitsuforest.errors.ConfigError` naming the
+file, the dotted key path and the reason. Mappings reject unknown keys with a "did you mean".
+"""
+
+from __future__ import annotations
+
+import copy
+import difflib
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+from ..errors import ConfigError
+
+REQUIRED = object()
+
+
+@dataclass
+class Context:
+    """Where values come from: the file (for messages) and its folder (for relative paths)."""
+
+    file: Path
+
+    @property
+    def folder(self) -> Path:
+        return self.file.resolve().parent
+
+    def fail(self, key: str, reason: str):
+        raise ConfigError(self.file, key, reason)
+
+
+def _type_name(value) -> str:
+    return {dict: "a mapping", list: "a list", str: "a string", bool: "true/false"}.get(
+        type(value), type(value).__name__)
+
+
+@dataclass
+class Number:
+    default: Any = REQUIRED
+    integer: bool = False
+    gt: float | None = None
+    ge: float | None = None
+    le: float | None = None
+    lt: float | None = None
+    nullable: bool = False
+
+    def parse(self, value, ctx: Context, key: str):
+        if value is None and self.nullable:
+            return None
+        kind = "an integer" if self.integer else "a number"
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            if isinstance(value, str):
+                try:
+                    value = float(value)  # YAML reads 0.5e-3 as a string
+                except ValueError:
+                    ctx.fail(key, f"must be {kind}, got {value!r}")
+            else:
+                ctx.fail(key, f"must be {kind}, got {_type_name(value)}")
+        if self.integer:
+            if float(value) != int(value):
+                ctx.fail(key, f"must be an integer, got {value}")
+            value = int(value)
+        elif not math.isfinite(value):
+            ctx.fail(key, f"must be finite, got {value}")
+        for bound, ok, word in ((self.gt, lambda b: value > b, ">"), (self.ge, lambda b: value >= b, ">="),
+                                (self.lt, lambda b: value < b, "<"), (self.le, lambda b: value <= b, "<=")):
+            if bound is not None and not ok(bound):
+                ctx.fail(key, f"must be {word} {bound:g}, got {value:g}")
+        return value
+
+
+@dataclass
+class Text:
+    default: Any = REQUIRED
+    choices: tuple[str, ...] | None = None
+    nullable: bool = False
+
+    def parse(self, value, ctx: Context, key: str):
+        if value is None and self.nullable:
+            return None
+        if not isinstance(value, str):
+            ctx.fail(key, f"must be a string, got {_type_name(value)}")
+        if self.choices and value not in self.choices:
+            ctx.fail(key, f"must be one of {', '.join(self.choices)}, got {value!r}" + _did_you_mean(value, self.choices))
+        return value
+
+
+@dataclass
+class FilePath(Text):
+    """A path, resolved against the folder of the file that names it."""
+
+    must_exist: bool = True
+
+    def parse(self, value, ctx: Context, key: str):
+        value = super().parse(value, ctx, key)
+        if value is None:
+            return None
+        path = (ctx.folder / Path(value).expanduser()).resolve()
+        if self.must_exist and not path.exists():
+            ctx.fail(key, f"file not found: {path}")
+        return str(path)
+
+
+@dataclass
+class Vector:
+    """A fixed-length list of numbers, each checked by ``item``."""
+
+    length: int
+    item: Number = field(default_factory=Number)
+    default: Any = REQUIRED
+    scalar_ok: bool = False  # a single number stands for all components
+
+    def parse(self, value, ctx: Context, key: str):
+        if self.scalar_ok and not isinstance(value, list):
+            return [self.item.parse(value, ctx, key)] * self.length
+        if not isinstance(value, list) or len(value) != self.length:
+            ctx.fail(key, f"must be a list of {self.length} numbers, got {value!r}")
+        return [self.item.parse(v, ctx, f"{key}[{i}]") for i, v in enumerate(value)]
+
+
+@dataclass
+class ListOf:
+    item: Any
+    default: Any = REQUIRED
+    min_length: int = 0
+    nullable: bool = False
+
+    def parse(self, value, ctx: Context, key: str):
+        if value is None and self.nullable:
+            return None
+        if not isinstance(value, list):
+            ctx.fail(key, f"must be a list, got {_type_name(value)}")
+        if len(value) < self.min_length:
+            ctx.fail(key, f"must have at least {self.min_length} entries")
+        return [parse(self.item, v, ctx, f"{key}[{i}]") for i, v in enumerate(value)]
+
+
+@dataclass
+class Custom:
+    """A field parsed by a function ``fn(value, ctx, key)``."""
+
+    fn: Callable
+    default: Any = REQUIRED
+
+    def parse(self, value, ctx: Context, key: str):
+        return self.fn(value, ctx, key)
+
+
+def _did_you_mean(word: str, choices) -> str:
+    close = difflib.get_close_matches(str(word), list(choices), n=1, cutoff=0.6)
+    return f" (did you mean {close[0]!r}?)" if close else ""
+
+
+def parse_mapping(spec: dict, value, ctx: Context, key: str = "") -> dict:
+    """Parse a mapping against ``spec``: every key known, defaults filled in, nested mappings recursed."""
+    if value is None:
+        value = {}
+    if not isinstance(value, dict):
+        ctx.fail(key or "(top level)", f"must be a mapping, got {_type_name(value)}")
+    for name in value:
+        if name not in spec:
+            where = f"{key}.{name}" if key else str(name)
+            ctx.fail(where, "unknown key" + _did_you_mean(name, spec))
+    out = {}
+    for name, sub in spec.items():
+        where = f"{key}.{name}" if key else name
+        if name in value:
+            out[name] = parse(sub, value[name], ctx, where)
+        elif isinstance(sub, dict):
+            out[name] = parse_mapping(sub, {}, ctx, where)
+        elif sub.default is REQUIRED:
+            ctx.fail(where, "is required")
+        elif isinstance(sub, Custom):
+            out[name] = sub.parse(copy.deepcopy(sub.default), ctx, where)
+        else:
+            out[name] = copy.deepcopy(sub.default)
+    return out
+
+
+def parse(spec, value, ctx: Context, key: str):
+    if isinstance(spec, dict):
+        return parse_mapping(spec, value, ctx, key)
+    return spec.parse(value, ctx, key)

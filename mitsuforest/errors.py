@@ -1,0 +1,20 @@
+"""Errors a user can act on. The CLI prints them as one line and exits with code 2."""
+
+from __future__ import annotations
+
+
+class UserError(Exception):
+    """A problem with the user's input or environment, reported without a traceback."""
+
+    exit_code = 2
+
+
+class ConfigError(UserError):
+    """An invalid value in a configuration file, reported as ``FILE: key.path: reason``."""
+
+    def __init__(self, file, key: str, reason: str):
+        self.file = str(file)
+        self.key = key
+        self.reason = reason
+        where = f"{self.file}: {key}: " if key else f"{self.file}: "
+        super().__init__(where + reason)

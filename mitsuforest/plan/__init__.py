@@ -1,0 +1,174 @@
+"""Stage 1: a scene file becomes a deterministic placement plan.
+
+>>> plan = make_plan(load_scene("scenes/demo.yaml"))   # doctest: +SKIP
+
+The plan is plain JSON-ready data: the models to build, every placed object with its transform and
+ids, the measured canopy cover and the flight legs. The same scene and seed give the same plan,
+byte for byte, when written with :func:`plan_json`.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+from ..classes import DEADWOOD_TREEID, GROUND_OBJECT_ID
+from ..errors import UserError
+from ..trees.archetypes import Archetype
+from ..trees.leaves import leaf_count
+from ..trees.skeleton import grow
+from ..trees.terrain import make_terrain
+from .cover import CoverGrid, crown_outline
+from .flight import flight_legs
+from .transforms import apply, matrix
+
+__all__ = ["make_plan", "plan_json", "UNDERSTORY_MODELS"]
+
+BUSH_MODELS = 8          # bushes are instances of this many distinct shrubs
+MAX_TREES = 5000
+UNDERSTORY_MODELS = ("bush", "rock", "deadwood", "stump")
+
+
+def make_plan(scene: dict) -> dict:
+    """Place trees and understory, measure canopy cover, lay out the flight legs."""
+    rng = np.random.default_rng(scene["seed"])
+    size = scene["area"]["size"]
+    terrain = make_terrain(scene["terrain"], size, scene["seed"])
+    archetypes = scene["forest"]["archetypes"]
+    models = {f"tree{i + 1:02d}": {"kind": "tree", "archetype": a} for i, a in enumerate(archetypes)}
+    summaries = [_summarise(a) for a in archetypes]
+    crowns = [crown for crown, _ in summaries]
+    for (name, spec), (_, components) in zip(models.items(), summaries):
+        spec["components"] = components
+    trees, cover = _place_trees(scene["forest"], size, crowns, terrain, rng)
+    objects = trees
+    understory, understory_models = _place_understory(scene, size, trees, terrain, rng)
+    models.update(understory_models)
+    objects += understory
+    _assign_ids(objects, models)
+    legs = flight_legs(size, scene["survey"], terrain.mean_height)
+    return {
+        "scene": scene["name"],
+        "seed": scene["seed"],
+        "area": list(size),
+        "forest_type": scene["forest"]["type"],
+        "canopy_cover": round(cover, 6),
+        "terrain": {"type": scene["terrain"]["type"], "mean_height": terrain.mean_height},
+        "ground": {"instance": 0, "object_id": GROUND_OBJECT_ID, "treeid": 0, "classification": 1},
+        "models": models,
+        "objects": objects,
+        "legs": legs,
+    }
+
+
+def plan_json(plan: dict) -> str:
+    """The plan as canonical JSON text (stable key order and float formatting)."""
+    return json.dumps(plan, indent=1, sort_keys=True, default=_jsonable) + "\n"
+
+
+def _jsonable(x):
+    if isinstance(x, np.generic):
+        return x.item()
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    raise TypeError(type(x))
+
+
+def _summarise(archetype: dict) -> tuple[np.ndarray, int]:
+    """Crown points (skeleton widened outward by a leaf length) and component count of an archetype."""
+    a = Archetype(**archetype)
+    branches = grow(a)
+    pts = np.vstack([b.points for b in branches])
+    radial = pts.copy()
+    radial[:, 2] = 0
+    norm = np.linalg.norm(radial, axis=1, keepdims=True)
+    crown = pts + radial / np.maximum(norm, 1e-9) * a.leaf_length
+    has_leaves = leaf_count(a.leaf_area, a.leaf_length, a.leaf_width) > 0
+    return crown, max(b.component for b in branches) + 1 + int(has_leaves)
+
+
+def _tree(archetype_index: int, xy, terrain, tilt_max, rng) -> dict:
+    return {
+        "kind": "tree",
+        "model": f"tree{archetype_index + 1:02d}",
+        "treeid": archetype_index + 1,
+        "position": [float(xy[0]), float(xy[1]), float(terrain.height(xy[0], xy[1])) - 0.05],
+        "rotation": float(rng.uniform(0, 360)),
+        "tilt": [float(rng.uniform(-tilt_max, tilt_max)), float(rng.uniform(-tilt_max, tilt_max))],
+    }
+
+
+def _place_trees(forest: dict, size, crowns, terrain, rng) -> tuple[list[dict], float]:
+    """Dart throwing with ``min_spacing`` until the tree count or the canopy-cover target is met."""
+    weights = np.array([a["weight"] for a in forest["archetypes"]], float)
+    weights /= weights.sum()
+    target_count, target_cover = forest["trees"], forest["canopy_cover"]
+    grid = CoverGrid(size)
+    trees, positions = [], np.empty((0, 2))
+    spacing = forest["min_spacing"]
+    misses = 0
+    while True:
+        if target_count is not None and len(trees) >= target_count:
+            break
+        if target_count is None and (grid.fraction >= target_cover or len(trees) >= MAX_TREES):
+            break
+        xy = rng.uniform([0, 0], size)
+        if len(positions) and np.min(np.hypot(*(positions - xy).T)) < spacing:
+            misses += 1
+            if misses > 20_000:
+                raise UserError(f"forest: cannot place tree {len(trees) + 1} with min_spacing {spacing:g} m "
+                                f"in a {size[0]:g} x {size[1]:g} m plot; lower forest.min_spacing or the target")
+            continue
+        misses = 0
+        k = int(rng.choice(len(weights), p=weights))
+        tree = _tree(k, xy, terrain, forest["tilt"], rng)
+        grid.add(crown_outline(apply(matrix(tree), crowns[k])))
+        trees.append(tree)
+        positions = np.vstack([positions, xy])
+    if target_count is None and grid.fraction < target_cover:
+        raise UserError(f"forest: canopy cover reached only {grid.fraction:.3f} of {target_cover:g}")
+    return trees, grid.fraction
+
+
+def _place_understory(scene: dict, size, trees, terrain, rng):
+    """Bushes, rocks, deadwood and stumps at random, clear of stems and of each other."""
+    counts = scene["understory"]
+    taken = [(np.array(t["position"][:2]), 0.6) for t in trees]  # stems with their flare
+    objects, models = [], {}
+    for i in range(BUSH_MODELS if counts["bushes"] else 0):
+        models[f"bush{i + 1:02d}"] = {"kind": "bush", "seed": int(scene["seed"]) * 1000 + i}
+    clearance = {"bush": 0.8, "rock": 0.6, "stump": 0.4, "deadwood": 0.3}
+    for kind, key in (("bush", "bushes"), ("rock", "rocks"), ("deadwood", "deadwood"), ("stump", "stumps")):
+        for i in range(counts[key]):
+            xy = _free_spot(size, taken, clearance[kind], rng, kind)
+            if kind == "bush":
+                model = f"bush{int(rng.integers(0, BUSH_MODELS)) + 1:02d}"
+            else:
+                model = f"{kind}{i + 1:03d}"
+                models[model] = {"kind": kind, "seed": int(rng.integers(0, 2**31 - 1))}
+            taken.append((xy, clearance[kind]))
+            objects.append({
+                "kind": kind, "model": model, "treeid": DEADWOOD_TREEID if kind == "deadwood" else 0,
+                "position": [float(xy[0]), float(xy[1]), float(terrain.height(xy[0], xy[1]))],
+                "rotation": float(rng.uniform(0, 360)), "tilt": [0.0, 0.0],
+            })
+    return objects, models
+
+
+def _free_spot(size, taken, radius, rng, kind):
+    for _ in range(10_000):
+        xy = rng.uniform([0, 0], size)
+        if all(np.hypot(*(xy - p)) >= radius + r for p, r in taken):
+            return xy
+    raise UserError(f"understory: no free place left for another {kind}; lower the understory counts")
+
+
+def _assign_ids(objects: list[dict], models: dict) -> None:
+    """Instance ids 1.. per object; object ids per component, counting on from the ground's."""
+    next_object_id = GROUND_OBJECT_ID + 1
+    for instance, obj in enumerate(objects, start=1):
+        obj["instance"] = instance
+        obj["object_id"] = next_object_id
+        obj["components"] = models[obj["model"]].get("components", 1)
+        next_object_id += obj["components"]

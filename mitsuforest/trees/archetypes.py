@@ -1,0 +1,74 @@
+"""Parameters of the procedural Eucalyptus trees and the ten default archetypes.
+
+Lengths are metres, angles degrees, areas square metres. The generator (:mod:`.skeleton`) reads
+nothing but these fields, so an archetype is fully described by them; its hash keys the disk cache.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+from dataclasses import dataclass, field
+
+
+def _p(default, meaning, lo=None, hi=None, integer=False):
+    return field(default=default, metadata={"meaning": meaning, "lo": lo, "hi": hi, "integer": integer})
+
+
+@dataclass(frozen=True)
+class Archetype:
+    """One procedural Eucalyptus tree (Weber & Penn-style recursive branching)."""
+
+    height: float = _p(20.0, "total tree height (m)", 2.0, 80.0)
+    dbh: float = _p(0.30, "stem diameter at breast height, 1.3 m (m)", 0.02, 3.0)
+    taper: float = _p(0.9, "stem form exponent: r(z) ~ (1 - z/H)^taper (1 cone, 0.5 paraboloid)", 0.2, 2.0)
+    crown_ratio: float = _p(0.45, "live crown length / height (crown starts at (1 - ratio) * height)", 0.1, 0.95)
+    crown_diameter: float = _p(9.0, "target crown width (m)", 0.5, 40.0)
+    fork_height: float = _p(0.65, "relative height of the fork into co-dominant leaders (0 = none)", 0.0, 0.95)
+    forks: int = _p(2, "co-dominant leaders above the fork, the stem included", 1, 5, True)
+    branches: int = _p(14, "first-order branches on the stem and leaders", 0, 200, True)
+    branch_angle: float = _p(45.0, "first-order branch angle from vertical (deg)", 5.0, 90.0)
+    branch_radius_ratio: float = _p(0.4, "first-order branch base radius / parent radius there", 0.05, 0.9)
+    curvature: float = _p(20.0, "upward bend along a first-order branch (deg)", -60.0, 90.0)
+    children: int = _p(5, "second-order branches per first-order branch", 0, 50, True)
+    twigs: int = _p(4, "third-order twigs per second-order branch (0 = two branching orders)", 0, 50, True)
+    leaf_area: float = _p(35.0, "one-sided leaf area of the tree (m2)", 0.0, 2000.0)
+    leaf_length: float = _p(0.13, "leaf blade length (m); Eucalyptus lanceolate 0.10-0.15", 0.01, 0.5)
+    leaf_width: float = _p(0.025, "leaf blade width (m)", 0.002, 0.2)
+    leaf_inclination: float = _p(65.0, "mean leaf blade angle from horizontal (deg); 90 = hanging", 0.0, 90.0)
+    leaf_clumping: float = _p(0.5, "fraction of each terminal twig, from its tip, that carries leaves", 0.05, 1.0)
+    min_radius: float = _p(0.003, "smallest twig radius (m)", 0.0002, 0.05)
+    lean: float = _p(3.0, "random stem lean and sweep (deg)", 0.0, 30.0)
+    seed: int = _p(0, "seed of this archetype's own random choices", 0, 2**31 - 1, True)
+    weight: float = _p(1.0, "relative frequency with which the archetype is drawn", 0.0, 1e6)
+
+    def key(self) -> str:
+        """A short hash of the geometry parameters (``weight`` does not change the tree)."""
+        data = {k: v for k, v in dataclasses.asdict(self).items() if k != "weight"}
+        return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()[:16]
+
+
+FIELDS = {f.name: f for f in dataclasses.fields(Archetype)}
+
+# Ten archetypes spanning the sizes of the Synthetic Forest paper's models (wood 0.3-1.4 m3,
+# heights 14-29 m). Spotted gum / manna gum / stringybark-like forms: tall straight stems, a crown in
+# the upper third to half, forking leaders and clumped pendulous foliage.
+DEFAULT_ARCHETYPES: tuple[Archetype, ...] = (
+    Archetype(height=21.0, dbh=0.30, crown_diameter=9.0, crown_ratio=0.45, branches=14, leaf_area=34, seed=1),
+    Archetype(height=24.0, dbh=0.33, crown_diameter=10.0, crown_ratio=0.40, branches=15, forks=3, leaf_area=40, seed=2),
+    Archetype(height=25.0, dbh=0.34, crown_diameter=9.5, crown_ratio=0.50, branches=16, taper=0.85, leaf_area=42, seed=3),
+    Archetype(height=15.0, dbh=0.22, crown_diameter=7.5, crown_ratio=0.55, branches=12, fork_height=0.55, leaf_area=24, seed=4),
+    Archetype(height=28.0, dbh=0.38, crown_diameter=11.0, crown_ratio=0.42, branches=18, taper=0.85, leaf_area=50, seed=5),
+    Archetype(height=26.0, dbh=0.36, crown_diameter=10.5, crown_ratio=0.38, branches=16, forks=3, leaf_area=46, seed=6),
+    Archetype(height=22.0, dbh=0.29, crown_diameter=8.5, crown_ratio=0.48, branches=14, branch_angle=38, leaf_area=32, seed=7),
+    Archetype(height=20.0, dbh=0.32, crown_diameter=9.5, crown_ratio=0.55, branches=15, branch_angle=50, leaf_area=36, seed=8),
+    Archetype(height=17.0, dbh=0.25, crown_diameter=8.0, crown_ratio=0.50, branches=12, fork_height=0.5, leaf_area=26, seed=9),
+    Archetype(height=23.0, dbh=0.32, crown_diameter=9.5, crown_ratio=0.44, branches=15, curvature=30, leaf_area=38, seed=10),
+)
+
+
+def describe() -> str:
+    """A table of every parameter, its default and meaning (for ``--help`` and the docs)."""
+    rows = [f"{name:20s} {f.default!s:>8}  {f.metadata['meaning']}" for name, f in FIELDS.items()]
+    return "\n".join(rows)

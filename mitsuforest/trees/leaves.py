@@ -1,0 +1,36 @@
+"""Leaves: lanceolate blades of two triangles, clumped at twig ends and hanging at an angle."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def leaf_count(leaf_area: float, length: float, width: float) -> int:
+    """Leaves needed for a one-sided ``leaf_area``: a blade is a rhombus of area length·width/2."""
+    return int(round(leaf_area / (0.5 * length * width)))
+
+
+def leaf_blades(anchors: np.ndarray, length: float, width: float, inclination: float, rng) -> tuple[np.ndarray, np.ndarray]:
+    """Blades hanging from ``anchors``.
+
+    :param anchors: (k, 3) petiole points on twigs.
+    :param inclination: mean blade angle below horizontal (deg); spread ±15°.
+    :returns: vertices (4k, 3) and faces (2k, 3): base, left, tip, right per blade.
+    """
+    k = len(anchors)
+    az = rng.uniform(0, 2 * np.pi, k)
+    dip = np.deg2rad(np.clip(rng.normal(inclination, 15, k), 0, 90))
+    axis = np.column_stack([np.cos(az) * np.cos(dip), np.sin(az) * np.cos(dip), -np.sin(dip)])
+    # The blade's width axis is horizontal-ish and rolled at random about the blade axis.
+    side = np.column_stack([-np.sin(az), np.cos(az), np.zeros(k)])
+    roll = rng.normal(0, 0.5, k)[:, None]
+    side = side * np.cos(roll) + np.cross(axis, side) * np.sin(roll)
+    scale = rng.uniform(0.8, 1.2, k)[:, None]
+    base = anchors + axis * 0.01
+    tip = base + axis * length * scale
+    mid = base + axis * 0.4 * length * scale
+    left, right = mid - side * width * scale / 2, mid + side * width * scale / 2
+    vertices = np.stack([base, left, tip, right], axis=1).reshape(-1, 3)
+    i = 4 * np.arange(k)[:, None]
+    faces = np.concatenate([i + [0, 1, 2], i + [0, 2, 3]], axis=1).reshape(-1, 3)
+    return vertices, faces

@@ -1,0 +1,99 @@
+"""Models: the meshes of one tree archetype or understory object, split into labelled components.
+
+A :class:`Model` is placed any number of times by the plan. Its parts are the meshes the scene loads
+(``wood`` and ``leaves`` for a tree); each triangle carries the index of its component (the stem, a
+first-order branch with its descendants, the leaves, a rock ...), so a hit's triangle gives its label.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..classes import TREE_LEAVES, TREE_WOOD
+from .archetypes import Archetype
+from .leaves import leaf_blades, leaf_count
+from .skeleton import grow, terminal_branches
+from .tubes import frustum_volume, tube
+from .volume import WoodVolume, wood_volume
+
+
+@dataclass
+class Part:
+    name: str
+    vertices: np.ndarray   # (n, 3) float64, model frame: base at the origin, +z up
+    faces: np.ndarray      # (m, 3) uint32
+    component: np.ndarray  # (m,) uint16, index into Model.components
+
+
+@dataclass
+class Component:
+    kind: str              # stem, branch, leaves, bush, rock, stump, deadwood
+    classification: int
+
+
+@dataclass
+class Model:
+    name: str
+    parts: list[Part]
+    components: list[Component]
+    volume: WoodVolume | None = None
+    clearance: float = 0.0           # radius around the base kept free of other objects (m)
+    meta: dict = field(default_factory=dict)
+
+    @property
+    def triangles(self) -> int:
+        return int(sum(len(p.faces) for p in self.parts))
+
+    def vertices(self) -> np.ndarray:
+        return np.vstack([p.vertices for p in self.parts])
+
+
+def merge(meshes, components) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Concatenate ``[(vertices, faces), ...]`` with one component index per mesh."""
+    verts, faces, comp, base = [], [], [], 0
+    for (v, f), c in zip(meshes, components):
+        verts.append(v)
+        faces.append(f + base)
+        comp.append(np.full(len(f), c, np.uint16))
+        base += len(v)
+    return np.vstack(verts), np.vstack(faces).astype(np.uint32), np.concatenate(comp)
+
+
+def tree_model(archetype: Archetype, name: str) -> Model:
+    """Mesh one archetype: a wood part (one closed tube per branch) and a leaf part, with volumes."""
+    rng = np.random.default_rng(archetype.seed + 10_000)
+    branches = grow(archetype)
+    tubes = [tube(b.points, b.radii) for b in branches]
+    volume = wood_volume(tubes, sum(frustum_volume(b.points, b.radii) for b in branches),
+                         names=[f"{name} branch {i}" for i in range(len(tubes))])
+    n_comp = max(b.component for b in branches) + 1
+    wood = Part("wood", *merge(tubes, [b.component for b in branches]))
+    leaves = _leaves(archetype, branches, rng)
+    components = [Component("stem", TREE_WOOD)] + [Component("branch", TREE_WOOD)] * (n_comp - 1)
+    parts = [wood]
+    if leaves is not None:
+        v, f = leaves
+        parts.append(Part("leaves", v, f.astype(np.uint32), np.full(len(f), n_comp, np.uint16)))
+        components.append(Component("leaves", TREE_LEAVES))
+    return Model(name, parts, components, volume, clearance=float(branches[0].radii[0]),
+                 meta={"height": archetype.height, "dbh": archetype.dbh})
+
+
+def _leaves(a: Archetype, branches, rng):
+    count = leaf_count(a.leaf_area, a.leaf_length, a.leaf_width)
+    twigs = terminal_branches(branches)
+    if count == 0 or not twigs:
+        return None
+    which = rng.integers(0, len(twigs), count)
+    s = 1 - a.leaf_clumping * rng.random(count) ** 1.5  # denser toward the tips
+    anchors = np.empty((count, 3))
+    for k, twig in enumerate(twigs):
+        sel = which == k
+        seg = np.linalg.norm(np.diff(twig.points, axis=0), axis=1)
+        cum = np.concatenate([[0.0], np.cumsum(seg)]) / seg.sum()
+        for axis in range(3):
+            anchors[sel, axis] = np.interp(s[sel], cum, twig.points[:, axis])
+    anchors += rng.normal(0, 0.03, anchors.shape)
+    return leaf_blades(anchors, a.leaf_length, a.leaf_width, a.leaf_inclination, rng)

@@ -1,0 +1,177 @@
+"""The branching skeleton of a procedural Eucalyptus: polylines with radii.
+
+Weber & Penn-style recursion, specialised to Eucalyptus form: a straight tapering stem that forks into
+co-dominant leaders at ``fork_height``; first-order branches only in the live crown (the lower stem
+self-prunes), ascending and bending upward; second-order branches and third-order twigs along them;
+leaves hang from the outer part of the terminal twigs. Radii follow the parent where a branch starts
+(``branch_radius_ratio``, then halving per order) and taper linearly to ``min_radius`` at the tip.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .archetypes import Archetype
+
+GOLDEN_ANGLE = np.pi * (3 - np.sqrt(5))
+
+
+@dataclass
+class Branch:
+    points: np.ndarray   # (n, 3) centreline, tree frame (stem base at the origin, +z up)
+    radii: np.ndarray    # (n,)
+    order: int           # 0 stem, 1 first-order branch or leader, 2, 3
+    component: int       # 0 the stem; 1.. one per first-order branch with all its descendants
+
+    def at(self, s: float) -> tuple[np.ndarray, np.ndarray, float]:
+        """Position, unit direction and radius at arc-length fraction ``s`` in [0, 1]."""
+        seg = np.linalg.norm(np.diff(self.points, axis=0), axis=1)
+        cum = np.concatenate([[0.0], np.cumsum(seg)])
+        x = s * cum[-1]
+        i = min(int(np.searchsorted(cum, x, side="right")) - 1, len(seg) - 1)
+        f = (x - cum[i]) / seg[i]
+        p = self.points[i] + f * (self.points[i + 1] - self.points[i])
+        d = (self.points[i + 1] - self.points[i]) / seg[i]
+        r = self.radii[i] + f * (self.radii[i + 1] - self.radii[i])
+        return p, d, float(r)
+
+    @property
+    def length(self) -> float:
+        return float(np.linalg.norm(np.diff(self.points, axis=0), axis=1).sum())
+
+
+def _rotate(v: np.ndarray, axis: np.ndarray, angle: float) -> np.ndarray:
+    axis = axis / np.linalg.norm(axis)
+    return v * np.cos(angle) + np.cross(axis, v) * np.sin(angle) + axis * np.dot(axis, v) * (1 - np.cos(angle))
+
+
+def _orthogonal(d: np.ndarray) -> np.ndarray:
+    a = np.array([0.0, 0.0, 1.0]) if abs(d[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    u = np.cross(d, a)
+    return u / np.linalg.norm(u)
+
+
+def _direction(parent_dir: np.ndarray, angle: float, roll: float) -> np.ndarray:
+    """A direction ``angle`` away from ``parent_dir``, rolled by ``roll`` about it."""
+    side = _rotate(_orthogonal(parent_dir), parent_dir, roll)
+    return _rotate(parent_dir, np.cross(parent_dir, side), angle)
+
+
+def _curve(start, direction, length, r0, r1, segments, bend, rng, wobble=0.04):
+    """A polyline bending its direction toward +z by ``bend`` radians in total."""
+    pts = [np.asarray(start, float)]
+    d = np.asarray(direction, float)
+    step = length / segments
+    up = np.array([0.0, 0.0, 1.0])
+    for _ in range(segments):
+        axis = np.cross(d, up)
+        if np.linalg.norm(axis) > 1e-9:
+            d = _rotate(d, axis, bend / segments)
+        d = d + rng.normal(0, wobble, 3)
+        d /= np.linalg.norm(d)
+        pts.append(pts[-1] + step * d)
+    radii = np.linspace(r0, r1, segments + 1)
+    return np.array(pts), radii
+
+
+def stem_radius(a: Archetype, z) -> np.ndarray:
+    """Stem radius at height ``z``: the taper profile through dbh at 1.3 m, with a basal flare."""
+    z = np.asarray(z, float)
+    rel = np.clip((a.height - z) / (a.height - 1.3), 0.0, None) ** a.taper
+    flare = 1.0 + 0.25 * np.exp(-z / 0.4)
+    return np.maximum(0.5 * a.dbh * rel * flare, a.min_radius)
+
+
+def _segments(length: float, radius: float) -> int:
+    """Segments by curvature scale: thick wood bends slowly, so long segments are fine."""
+    return int(np.clip(np.ceil(length / np.clip(6 * radius, 0.15, 0.6)), 1, 60))
+
+
+def _crown_profile(a: Archetype, z: float) -> float:
+    """Crown radius available at height z (a half-ellipse over the live crown)."""
+    base = a.height * (1 - a.crown_ratio)
+    mid, half = base + 0.45 * (a.height - base), 0.5 * (a.height - base)
+    u = np.clip((z - mid) / (half * 1.1), -1, 1)
+    return 0.5 * a.crown_diameter * np.sqrt(1 - u * u)
+
+
+def grow(a: Archetype) -> list[Branch]:
+    """All branches of one tree, stem first; deterministic in the archetype's parameters."""
+    rng = np.random.default_rng(a.seed)
+    branches: list[Branch] = []
+    # Stem: straight with a slight random lean and sweep.
+    z = np.linspace(0, a.height, _segments(a.height, a.dbh) + 1)
+    lean = np.deg2rad(a.lean) * rng.normal(0, 0.5, 2)
+    sweep = np.deg2rad(a.lean) * rng.normal(0, 0.5, 2)
+    u = z / a.height
+    xy = np.outer(u, lean) * a.height * 0.3 + np.outer(np.sin(np.pi * u), sweep) * a.height * 0.15
+    stem = Branch(np.column_stack([xy, z]), stem_radius(a, z), 0, 0)
+    branches.append(stem)
+    parents = [stem]
+    component = 1
+    # Co-dominant leaders from the fork up to near the top.
+    if a.forks > 1 and a.fork_height > 0:
+        zf = a.fork_height * a.height
+        for k in range(a.forks - 1):
+            p, d, r = stem.at(a.fork_height)
+            direction = _direction(d, np.deg2rad(rng.uniform(18, 28)), k * 2 * np.pi / (a.forks - 1) + rng.uniform(0, 1))
+            length = (a.height - zf) * rng.uniform(0.85, 0.97)
+            pts, radii = _curve(p, direction, length, 0.8 * r, a.min_radius * 2, _segments(length, r),
+                                np.deg2rad(15), rng, wobble=0.02)
+            leader = Branch(pts, radii, 1, component)
+            component += 1
+            branches.append(leader)
+            parents.append(leader)
+    # First-order branches in the live crown, spread over the stem and leaders by length in the crown.
+    crown_base = a.height * (1 - a.crown_ratio)
+    roll = rng.uniform(0, 2 * np.pi)
+    for i in range(a.branches):
+        parent = parents[i % len(parents)]
+        s_lo = 0.0 if parent.order else crown_base / a.height
+        s = s_lo + (0.93 - s_lo) * (i + rng.uniform(0.2, 0.8)) / a.branches
+        p, d, r = parent.at(s)
+        roll += GOLDEN_ANGLE + rng.normal(0, 0.3)
+        angle = np.deg2rad(a.branch_angle + rng.normal(0, 8))
+        direction = _direction(np.array([0.0, 0.0, 1.0]), angle, roll)
+        reach = max(_crown_profile(a, p[2]), 0.4) * rng.uniform(0.75, 1.05)
+        length = reach / max(np.sin(angle), 0.3)
+        r0 = max(a.branch_radius_ratio * r * rng.uniform(0.8, 1.1), 2 * a.min_radius)
+        start = p + direction * 0.5 * r  # start inside the parent, half-way to its surface
+        pts, radii = _curve(start, direction, length, r0, a.min_radius * 1.5, _segments(length, r0),
+                            np.deg2rad(a.curvature), rng)
+        first = Branch(pts, radii, 1, component)
+        branches.append(first)
+        _children(a, first, rng, branches, order=2)
+        component += 1
+    for leader in parents[1:]:
+        _children(a, leader, rng, branches, order=2, count=max(a.children // 2, 1))
+    return branches
+
+
+def _children(a: Archetype, parent: Branch, rng, out: list[Branch], order: int, count: int | None = None):
+    count = (a.children if order == 2 else a.twigs) if count is None else count
+    if count == 0 or order > 3:
+        return
+    roll = rng.uniform(0, 2 * np.pi)
+    for j in range(count):
+        s = 0.25 + 0.7 * (j + rng.uniform(0.1, 0.9)) / count
+        p, d, r = parent.at(s)
+        roll += GOLDEN_ANGLE * 2 + rng.normal(0, 0.4)
+        direction = _direction(d, np.deg2rad(rng.uniform(30, 50)), roll)
+        scale = 0.45 if order == 2 else 0.35
+        length = max(parent.length * scale * (1.1 - 0.5 * s) * rng.uniform(0.8, 1.2), 0.15)
+        r0 = max(0.55 * r, a.min_radius)
+        start = p + direction * 0.5 * r
+        pts, radii = _curve(start, direction, length, r0, a.min_radius, _segments(length, r0),
+                            np.deg2rad(10 if order == 2 else -10), rng)
+        child = Branch(pts, radii, order, parent.component)
+        out.append(child)
+        _children(a, child, rng, out, order + 1)
+
+
+def terminal_branches(branches: list[Branch]) -> list[Branch]:
+    """Branches that carry leaves: the highest order present, and leaders' tips."""
+    top = max(b.order for b in branches)
+    return [b for b in branches if b.order == top or (b.order == 1 and top == 1)]
