@@ -1,0 +1,113 @@
+"""The ``mitsuforest`` command line: render, plan, trees, info.
+
+User errors (bad files, bad values, refused overwrites) print one line ``mitsuforest: ...`` and exit
+with code 2, without a traceback; Ctrl-C exits with 130 and leaves no finished-looking output.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from . import __version__
+from .errors import UserError
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="mitsuforest", description="Labelled UAV LiDAR scans of synthetic forests.")
+    p.add_argument("--version", action="version", version=f"mitsuforest {__version__}")
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    r = sub.add_parser("render", help="plan, build, scan and write a scene",
+                       description="Render a scene file: plan, trees, Mitsuba scene, scan, labelled outputs.")
+    r.add_argument("scene", type=Path, help="scene file (scenes/*.yaml)")
+    r.add_argument("-o", "--output", type=Path, help="output folder (default: the scene's output.dir)")
+    r.add_argument("--variant", help="Mitsuba variant, e.g. llvm_ad_mono or cuda_ad_mono (default: scene's, auto)")
+    r.add_argument("--seed", type=int, help="override the scene's seed")
+    r.add_argument("--overwrite", action="store_true", help="replace earlier results in the output folder")
+    r.add_argument("--quiet", action="store_true", help="no progress bars or summaries")
+
+    pl = sub.add_parser("plan", help="write the placement plan only",
+                        description="Place trees and understory, measure canopy cover, write <name>_plan.json.")
+    pl.add_argument("scene", type=Path, help="scene file")
+    pl.add_argument("-o", "--output", type=Path, help="output folder (default: the scene's output.dir)")
+    pl.add_argument("--seed", type=int, help="override the scene's seed")
+
+    t = sub.add_parser("trees", help="write the tree archetypes' meshes, volumes and a picture",
+                       description="Write each archetype's wood and leaf meshes (PLY), volumes.csv and trees.png.")
+    t.add_argument("-o", "--output", type=Path, default=Path("out/trees"), help="output folder (default: out/trees)")
+    t.add_argument("--scene", type=Path, help="take the archetypes from this scene file (default: the built-in ten)")
+
+    i = sub.add_parser("info", help="summarise a point file", description="Summarise a PCD, LAS or LAZ file.")
+    i.add_argument("file", type=Path, help="a .pcd, .las or .laz file")
+    return p
+
+
+def main(argv=None) -> int:
+    args = _parser().parse_args(argv)
+    try:
+        return _COMMANDS[args.command](args) or 0
+    except UserError as e:
+        print(f"mitsuforest: {e}", file=sys.stderr)
+        return e.exit_code
+    except KeyboardInterrupt:
+        print("mitsuforest: interrupted; no finished output was written (partial files removed). "
+              "Run the same command again to redo it.", file=sys.stderr)
+        return 130
+
+
+def _render(args) -> int:
+    from .render import render
+    log = (lambda *a: None) if args.quiet else (lambda msg: print(msg, file=sys.stderr))
+    result = render(args.scene, output_dir=args.output, seed=args.seed, variant=args.variant,
+                    overwrite=args.overwrite, progress=not args.quiet, log=log)
+    if not args.quiet:
+        print(f"wrote {len(result.files)} files to {Path(result.scene['output']['dir'])}")
+    return 0
+
+
+def _plan(args) -> int:
+    from .config import load_scene
+    from .plan import make_plan, plan_json
+    from .write.atomic import write_text
+    scene = load_scene(args.scene, seed=args.seed, output_dir=args.output)
+    plan = make_plan(scene)
+    out = Path(scene["output"]["dir"])
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / f"{scene['name']}_plan.json"
+    write_text(path, plan_json(plan))
+    kinds = {}
+    for obj in plan["objects"]:
+        kinds[obj["kind"]] = kinds.get(obj["kind"], 0) + 1
+    print(f"{scene['name']}: {kinds.get('tree', 0)} trees, canopy cover {plan['canopy_cover']:.1%} "
+          f"({scene['forest']['type']}), objects: " + ", ".join(f"{k} {v}" for k, v in kinds.items())
+          + f"; {len(plan['legs'])} flight legs, {plan['legs'][-1]['t1']:.0f} s of flight")
+    print(f"wrote {path}")
+    return 0
+
+
+def _trees(args) -> int:
+    import dataclasses
+    from .trees.archetypes import DEFAULT_ARCHETYPES
+    from .trees.gallery import write_gallery
+    if args.scene:
+        from .config import load_scene
+        archetypes = load_scene(args.scene)["forest"]["archetypes"]
+    else:
+        archetypes = [dataclasses.asdict(a) for a in DEFAULT_ARCHETYPES]
+    write_gallery(archetypes, args.output)
+    print(f"wrote {len(archetypes)} trees, volumes.csv and trees.png to {args.output}")
+    return 0
+
+
+def _info(args) -> int:
+    from .write.info import summary
+    print(summary(args.file))
+    return 0
+
+
+_COMMANDS = {"render": _render, "plan": _plan, "trees": _trees, "info": _info}
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,124 @@
+"""The whole pipeline: plan → trees → scene → scan → labels → write.
+
+>>> result = render("scenes/demo.yaml", output_dir="out/demo")   # doctest: +SKIP
+>>> result.points["classification"]                              # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import importlib.metadata
+import platform
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from . import __version__
+from .config import load_scene
+from .errors import UserError
+from .plan import make_plan, plan_json
+from .scan import scan
+from .scene import build_scene
+from .trees import build_models
+from .write import Staging, existing_outputs, point_statistics, write_render_outputs
+
+DEPENDENCIES = ("mitsuba", "drjit", "numpy", "trimesh", "manifold3d", "laspy", "scipy", "pyyaml")
+
+
+@dataclass
+class RenderResult:
+    scene: dict
+    plan: dict
+    points: np.ndarray              # georeferenced (origin offset added), float64 coordinates
+    manifest: dict
+    files: list[Path] = field(default_factory=list)
+
+
+def georeference(points: np.ndarray, offset) -> np.ndarray:
+    """Add the float64 origin offset to local-frame points (a copy)."""
+    out = points.copy()
+    for axis, o in zip("xyz", offset):
+        out[axis] += o
+    return out
+
+
+def render(scene, *, output_dir=None, seed=None, variant=None, overwrite=False, progress=True,
+           write=True, log=print) -> RenderResult:
+    """Render a scene file (path) or a loaded scene (dict) and write its outputs."""
+    if not isinstance(scene, dict):
+        scene = load_scene(scene, seed=seed, variant=variant, output_dir=output_dir)
+    name, out = scene["name"], Path(scene["output"]["dir"])
+    if write and not overwrite and existing_outputs(out, name):
+        raise UserError(f"{out} already holds results of '{name}' ({', '.join(existing_outputs(out, name)[:3])}, ...);"
+                        " pass --overwrite to replace them")
+    timings = {}
+    clock = time.perf_counter()
+
+    def lap(stage):
+        nonlocal clock
+        now = time.perf_counter()
+        timings[stage] = round(now - clock, 3)
+        clock = now
+
+    plan = make_plan(scene)
+    lap("plan")
+    log(f"plan: {sum(o['kind'] == 'tree' for o in plan['objects'])} trees, canopy cover "
+        f"{plan['canopy_cover']:.1%}, {len(plan['objects'])} objects, {len(plan['legs'])} legs")
+    models = build_models(plan)
+    lap("trees")
+    scan_scene = build_scene(plan, models, scene)
+    lap("scene")
+    log(f"scene: {scan_scene.objects} objects ({scan_scene.culled} out of reach), "
+        f"{scan_scene.triangles:,} distinct triangles, variant {scan_scene.variant}")
+    result = scan(scene, plan, scan_scene, progress=progress)
+    lap("scan")
+    offset = scene["origin"]["offset"]
+    points = georeference(result.points, offset)
+    stats = point_statistics(result.points, scene["area"]["size"], scene["seed"])
+    lap("labels")
+    manifest = _manifest(scene, plan, scan_scene, result, stats, timings)
+    render_result = RenderResult(scene, plan, points, manifest)
+    if write:
+        staging = Staging(out, name)
+        try:
+            write_render_outputs(staging, scene=scene, plan=plan, models=models, points=points,
+                                 manifest=manifest, offset=offset, formats=scene["output"]["formats"],
+                                 plan_text=plan_json(plan))
+            lap("write")
+            manifest["timings_s"]["write"] = timings["write"]
+            render_result.files = staging.commit()
+        except BaseException:
+            staging.discard()
+            raise
+    log(f"scan: {result.pulses_cast:,} pulses cast in {timings['scan']:.1f} s "
+        f"({result.pulses_cast / max(timings['scan'], 1e-9):,.0f} pulses/s), {len(points):,} points, "
+        f"{stats['density_per_m2']:.0f} points/m2")
+    return render_result
+
+
+def _versions() -> dict:
+    out = {"mitsuforest": __version__, "python": platform.python_version()}
+    for dist in DEPENDENCIES:
+        try:
+            out[dist] = importlib.metadata.version(dist)
+        except importlib.metadata.PackageNotFoundError:
+            out[dist] = None
+    return out
+
+
+def _manifest(scene, plan, scan_scene, result, stats, timings) -> dict:
+    return {
+        "versions": _versions(),
+        "scene": scene,
+        "seed": scene["seed"],
+        "variant": scan_scene.variant,
+        "machine": {"platform": platform.platform(), "processor": platform.processor()},
+        "timings_s": timings,
+        "canopy_cover": plan["canopy_cover"],
+        "scene_objects": {"modelled": scan_scene.objects, "culled": scan_scene.culled,
+                          "distinct_triangles": scan_scene.triangles},
+        "pulses": {"emitted": result.pulses_emitted, "fired": result.pulses_fired, "cast": result.pulses_cast,
+                   "rays": result.rays},
+        **stats,
+    }

@@ -1,0 +1,108 @@
+"""From sub-ray returns to echoes: the pulse's waveform, reduced to its separable peaks.
+
+Model (one-way range axis). The emitted pulse is Gaussian in time with FWHM ``pulse_length``; on the
+range axis its FWHM is the resolving distance ``ΔR = c·pulse_length / 2`` (σ = ΔR / 2.3548). The
+received waveform is the sum of the sub-rays' powers, each laid at its hit range and shaped by the
+pulse. Returns closer together than ΔR cannot be separated by a detector, so sub-ray returns are
+sorted by range and chained while consecutive ranges are within ΔR: each chain is one echo. Two
+equal surfaces further apart than ΔR always give two waveform maxima (two Gaussians separate once
+their distance exceeds 2σ = 0.85·ΔR), so every chain is a peak of the waveform. An echo's amplitude is
+the waveform's value at the chain's energy-weighted mean range; echoes below the detection threshold
+are dropped; the first ``max_returns`` in range order are kept (0 = no limit).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+SPEED_OF_LIGHT = 299_792_458.0
+FWHM_PER_SIGMA = 2.0 * np.sqrt(2.0 * np.log(2.0))
+
+
+def resolving_distance(pulse_length: float) -> float:
+    """Range separation below which two returns merge into one echo: ``c·τ/2`` (m)."""
+    return SPEED_OF_LIGHT * pulse_length / 2
+
+
+@dataclass
+class Echoes:
+    pulse: np.ndarray              # (E,) row of the pulse in the input arrays
+    return_number: np.ndarray      # (E,) uint8, 1.. in range order
+    number_of_returns: np.ndarray  # (E,) uint8
+    range: np.ndarray              # (E,) float64, energy-weighted mean range (m)
+    amplitude: np.ndarray          # (E,) float64 (unit: see radiometry.py)
+    dominant: np.ndarray           # (E,) flat index (pulse * S + sub-ray) of the strongest sub-ray
+    member: np.ndarray             # (M,) flat indices of the sub-rays forming kept echoes
+    member_echo: np.ndarray        # (M,) the echo each member belongs to
+    member_weight: np.ndarray      # (M,) the member's share of its echo's energy
+
+    def weighted_mean(self, values: np.ndarray, row_of_ray: np.ndarray | None = None) -> np.ndarray:
+        """Energy-weighted mean over each echo's sub-rays of ``values`` -> (E, k).
+
+        :param values: (P*S, k) per sub-ray, or (H, k) per hit with ``row_of_ray`` (P*S,) mapping each
+            flat sub-ray index to its row.
+        """
+        rows = self.member if row_of_ray is None else row_of_ray[self.member]
+        v = values[rows] * self.member_weight[:, None]
+        return np.column_stack([np.bincount(self.member_echo, v[:, k], len(self.pulse))
+                                for k in range(values.shape[1])])
+
+
+def detect_echoes(ranges: np.ndarray, power: np.ndarray, resolving: float, threshold: float = 0.0,
+                  max_returns: int = 0, range_min: float = 0.0, range_max: float = np.inf) -> Echoes:
+    """Echoes of P pulses of S sub-rays each.
+
+    :param ranges: (P, S) hit range of each sub-ray (m), ``inf`` where it hit nothing.
+    :param power: (P, S) received power of each sub-ray.
+    :param resolving: the resolving distance ΔR (m); see :func:`resolving_distance`.
+    """
+    n_pulses, samples = ranges.shape
+    ranges = np.where((ranges >= range_min) & (ranges <= range_max), ranges, np.inf)
+    order = np.argsort(ranges, axis=1, kind="stable")
+    r = np.take_along_axis(ranges, order, 1)
+    valid = np.isfinite(r)
+    starts = valid.copy()
+    with np.errstate(invalid="ignore"):  # inf - inf between misses
+        starts[:, 1:] &= ~(valid[:, :-1] & (np.diff(r, axis=1) <= resolving))
+    rows, cols = np.nonzero(valid)                    # row-major: by pulse, then by range
+    flat = rows * samples + order[rows, cols]
+    rv = r[rows, cols]
+    pv = power.reshape(-1)[flat].astype(np.float64)
+    group = np.cumsum(starts[rows, cols]) - 1
+    n_groups = int(group[-1]) + 1 if len(group) else 0
+    energy = np.bincount(group, pv, n_groups)
+    count = np.bincount(group, None, n_groups)
+    uniform = energy <= 0                             # all-grazing chains: plain mean
+    w = np.where(uniform[group], 1.0 / count[group], pv / np.where(uniform, 1, energy)[group])
+    mean_range = np.bincount(group, w * rv, n_groups)
+    sigma = resolving / FWHM_PER_SIGMA
+    shape = np.exp(-0.5 * ((rv - mean_range[group]) / sigma) ** 2) if sigma > 0 else (rv == mean_range[group])
+    amplitude = np.bincount(group, pv * shape, n_groups)
+    group_pulse = np.zeros(n_groups, np.int64)
+    group_pulse[group] = rows
+    first = np.flatnonzero(starts[rows, cols])
+    strongest = np.maximum.reduceat(pv, first) if len(first) else np.zeros(0)
+    at_max = np.flatnonzero(pv == strongest[group])
+    _, pick = np.unique(group[at_max], return_index=True)
+    dominant = flat[at_max[pick]]
+
+    detected = (amplitude > 0) & (amplitude >= threshold)
+    kept = np.flatnonzero(detected)
+    kept_pulse = group_pulse[kept]
+    pulse_start = np.searchsorted(kept_pulse, kept_pulse)   # kept is sorted by pulse
+    rank = np.arange(len(kept)) - pulse_start
+    if max_returns:
+        keep = rank < max_returns
+        kept, kept_pulse, rank = kept[keep], kept_pulse[keep], rank[keep]
+    per_pulse = np.bincount(kept_pulse, minlength=n_pulses)
+    new_index = np.full(n_groups, -1, np.int64)
+    new_index[kept] = np.arange(len(kept))
+    member_echo = new_index[group]
+    m = member_echo >= 0
+    return Echoes(
+        pulse=kept_pulse, return_number=(rank + 1).astype(np.uint8),
+        number_of_returns=per_pulse[kept_pulse].astype(np.uint8), range=mean_range[kept],
+        amplitude=amplitude[kept], dominant=dominant[kept], member=flat[m], member_echo=member_echo[m],
+        member_weight=w[m])

@@ -1,0 +1,154 @@
+"""Stage 3: the Mitsuba scene of a plan, and the table that turns a ray hit into ids.
+
+Each model's meshes are loaded once as a ``shapegroup``; every placed object is an ``instance`` of
+it; the ground is a plain mesh. Nothing else is modelled: no emitters, no sensor, no integrator —
+the scan kernel only reads hit distances and ids. Objects that no pulse of any leg can reach are
+left out (see :func:`reachable`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..plan.transforms import apply, matrix
+from ..trees.terrain import make_terrain
+from .meshes import face_normals, mitsuba_mesh
+from .variant import select_variant
+
+__all__ = ["ScanScene", "build_scene", "select_variant", "reachable"]
+
+
+@dataclass
+class HitTable:
+    """Flat lookup arrays from (instance registry id, shape index, primitive) to labels and normals.
+
+    ``object_of_registry[r]`` is the row of the object whose instance shape has registry id ``r``
+    (-1 for none). Rows index the ``object_*`` arrays. ``part_base[model_part_row[obj] + shape_index]``
+    is the first row of that part's triangles in ``triangle_component`` and ``triangle_normal``.
+    """
+
+    object_of_registry: np.ndarray   # (R,) int32
+    ground_registry: int
+    object_instance: np.ndarray      # (O,) uint32
+    object_id_base: np.ndarray       # (O,) uint32
+    object_treeid: np.ndarray        # (O,) uint16
+    object_rotation: np.ndarray      # (O, 3, 3) float32
+    object_part_row: np.ndarray      # (O,) int64: first row of the object's model in part_base
+    object_class_row: np.ndarray     # (O,) int64: first row of the model's components in component_class
+    part_base: np.ndarray            # (parts,) int64
+    triangle_component: np.ndarray   # (T,) uint16
+    triangle_normal: np.ndarray      # (T, 3) float32, model frame
+    component_class: np.ndarray      # (C,) uint8
+    ground_normal: np.ndarray        # (G, 3) float32
+    ground_object_id: int
+
+
+@dataclass
+class ScanScene:
+    mitsuba: object          # mi.Scene
+    table: HitTable
+    bbox: np.ndarray         # (2, 3) local-frame bounds of everything modelled
+    variant: str
+    objects: int             # placed objects modelled
+    culled: int              # placed objects left out as unreachable
+    triangles: int           # distinct triangles loaded (instanced copies counted once)
+
+
+def reachable(obj_bounds: np.ndarray, legs: list[dict], sensor: dict) -> bool:
+    """Whether any pulse of any leg can reach an object's bounding box (2, 3).
+
+    A downward cone of half-angle FOV/2 from a leg reaches height z out to (altitude - z)·tan(FOV/2)
+    horizontally; a field of view of 180° or more reaches everything within ``range_max``.
+    """
+    centre = obj_bounds.mean(axis=0)[:2]
+    radius = np.linalg.norm(obj_bounds[1, :2] - obj_bounds[0, :2]) / 2
+    half = np.deg2rad(sensor["field_of_view"] / 2)
+    for leg in legs:
+        a, b = np.array(leg["start"]), np.array(leg["end"])
+        ab = b[:2] - a[:2]
+        f = np.clip(np.dot(centre - a[:2], ab) / max(np.dot(ab, ab), 1e-12), 0, 1)
+        distance = np.linalg.norm(a[:2] + f * ab - centre) - radius
+        depth = a[2] - obj_bounds[0, 2]
+        reach = sensor["range_max"] if half >= np.pi / 2 or depth <= 0 else min(sensor["range_max"], depth * np.tan(half))
+        if distance <= reach:
+            return True
+    return False
+
+
+def build_scene(plan: dict, models: dict, scene: dict, variant: str | None = None) -> ScanScene:
+    """Load the plan's objects into Mitsuba (activating the variant) and build the hit table."""
+    import mitsuba as mi
+    import drjit as dr
+
+    variant = select_variant(variant or scene["simulation"]["variant"])
+    terrain = make_terrain(scene["terrain"], plan["area"], plan["seed"])
+    ground_v, ground_f = terrain.mesh()
+    keep, culled = [], 0
+    for obj in plan["objects"]:
+        m = matrix(obj)
+        v = apply(m, models[obj["model"]].vertices())
+        bounds = np.array([v.min(0), v.max(0)])
+        if reachable(bounds, plan["legs"], scene["sensor"]):
+            keep.append((obj, m, bounds))
+        else:
+            culled += 1
+    used = sorted({obj["model"] for obj, _, _ in keep})
+    d = {"type": "scene"}
+    for name in used:
+        d[f"model_{name}"] = {"type": "shapegroup", **{
+            f"p{i:02d}": mitsuba_mesh(f"{name}_{p.name}", p.vertices, p.faces)
+            for i, p in enumerate(models[name].parts)}}
+    for obj, m, _ in keep:
+        d[f"object_{obj['instance']:07d}"] = {"type": "instance", "shape": {"type": "ref", "id": f"model_{obj['model']}"},
+                                               "to_world": mi.ScalarTransform4f(m.tolist())}
+    d["ground"] = mitsuba_mesh("ground", ground_v, ground_f)
+    mi_scene = mi.load_dict(d)
+    table = _hit_table(mi_scene, dr, mi, plan, models, used, keep, ground_v, ground_f)
+    all_bounds = [b for _, _, b in keep] + [np.array([ground_v.min(0), ground_v.max(0)])]
+    bbox = np.array([np.min([b[0] for b in all_bounds], 0), np.max([b[1] for b in all_bounds], 0)])
+    triangles = sum(models[n].triangles for n in used) + len(ground_f)
+    return ScanScene(mi_scene, table, bbox, variant, len(keep), culled, triangles)
+
+
+def _hit_table(mi_scene, dr, mi, plan, models, used, keep, ground_v, ground_f) -> HitTable:
+    registry = np.array(dr.reinterpret_array(mi.UInt32, mi_scene.shapes_dr()), np.int64)
+    ids = [s.id() for s in mi_scene.shapes()]
+    by_instance = {obj["instance"]: row for row, (obj, _, _) in enumerate(keep)}
+    object_of_registry = np.full(int(registry.max()) + 1, -1, np.int32)
+    ground_registry = -1
+    for reg, sid in zip(registry, ids):
+        if sid == "ground":
+            ground_registry = int(reg)
+        elif sid.startswith("object_"):
+            object_of_registry[reg] = by_instance[int(sid.split("_")[1])]
+    part_row, class_row, part_base, comps, normals, classes = {}, {}, [], [], [], []
+    tri_count = comp_count = 0
+    for name in used:
+        model = models[name]
+        part_row[name], class_row[name] = len(part_base), comp_count
+        for p in model.parts:
+            part_base.append(tri_count)
+            comps.append(p.component)
+            normals.append(face_normals(p.vertices, p.faces))
+            tri_count += len(p.faces)
+        classes += [c.classification for c in model.components]
+        comp_count += len(model.components)
+    objs = [obj for obj, _, _ in keep]
+    return HitTable(
+        object_of_registry=object_of_registry,
+        ground_registry=ground_registry,
+        object_instance=np.array([o["instance"] for o in objs], np.uint32),
+        object_id_base=np.array([o["object_id"] for o in objs], np.uint32),
+        object_treeid=np.array([o["treeid"] for o in objs], np.uint16),
+        object_rotation=np.array([m[:3, :3] for _, m, _ in keep], np.float32).reshape(-1, 3, 3),
+        object_part_row=np.array([part_row[o["model"]] for o in objs], np.int64),
+        object_class_row=np.array([class_row[o["model"]] for o in objs], np.int64),
+        part_base=np.array(part_base, np.int64),
+        triangle_component=np.concatenate(comps) if comps else np.zeros(0, np.uint16),
+        triangle_normal=np.vstack(normals) if normals else np.zeros((0, 3), np.float32),
+        component_class=np.array(classes, np.uint8),
+        ground_normal=face_normals(ground_v, ground_f),
+        ground_object_id=plan["ground"]["object_id"],
+    )

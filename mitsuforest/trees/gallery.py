@@ -1,0 +1,69 @@
+"""``mitsuforest trees``: the archetypes' meshes, a volume table and a side-by-side picture."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import trimesh
+from PIL import Image
+
+from ..write.atomic import atomic_path, write_text
+from . import build_model
+
+
+def write_gallery(archetypes: list[dict], folder, progress=print) -> list[dict]:
+    """Write ``treeNN_wood.ply``, ``treeNN_leaves.ply``, ``volumes.csv`` and ``trees.png`` into ``folder``."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    rows, pictures = [], []
+    for i, a in enumerate(archetypes):
+        name = f"tree{i + 1:02d}"
+        model = build_model({"kind": "tree", "archetype": a, "name": name})
+        for part in model.parts:
+            mesh = trimesh.Trimesh(part.vertices, part.faces, process=False)
+            with atomic_path(folder / f"{name}_{part.name}.ply") as tmp:
+                mesh.export(tmp, file_type="ply")
+        v = model.volume
+        rows.append({"model": name, "height_m": a["height"], "dbh_m": a["dbh"], "volume_union_m3": v.union,
+                     "volume_analytic_m3": v.analytic, "volume_naive_m3": v.naive, "parts": v.parts,
+                     "wood_triangles": len(model.parts[0].faces),
+                     "leaf_triangles": sum(len(p.faces) for p in model.parts[1:])})
+        pictures.append(_side_picture(model))
+        progress(f"{name}: {v.union:.4f} m3 wood (union), {model.triangles:,} triangles")
+    header = list(rows[0])
+    write_text(folder / "volumes.csv", ",".join(header) + "\n" + "".join(
+        ",".join(f"{r[k]:.9g}" if isinstance(r[k], float) else str(r[k]) for k in header) + "\n" for r in rows))
+    with atomic_path(folder / "trees.png") as tmp:
+        _side_by_side(pictures).save(tmp, format="PNG")
+    return rows
+
+
+def _side_picture(model, pixels_per_m=14, samples=250_000):
+    """Surface samples of wood (brown) and leaves (green), seen from the side, as an RGBA image."""
+    rng = np.random.default_rng(0)
+    layers = []
+    for part, colour in zip(model.parts, ([110, 70, 40], [70, 150, 60])):
+        mesh = trimesh.Trimesh(part.vertices, part.faces, process=False)
+        pts, _ = trimesh.sample.sample_surface(mesh, samples, seed=rng.integers(1 << 31))
+        layers.append((pts, colour))
+    allpts = np.vstack([p for p, _ in layers])
+    (x0, _, z0), (x1, _, z1) = allpts.min(0), allpts.max(0)
+    w, h = int((x1 - x0) * pixels_per_m) + 3, int((z1 - z0) * pixels_per_m) + 3
+    img = np.full((h, w, 3), 255, np.uint8)
+    for pts, colour in layers:
+        i = ((pts[:, 0] - x0) * pixels_per_m).astype(int) + 1
+        j = h - 2 - ((pts[:, 2] - z0) * pixels_per_m).astype(int)
+        img[j, i] = colour
+    return img
+
+
+def _side_by_side(images, gap=10):
+    h = max(im.shape[0] for im in images)
+    w = sum(im.shape[1] for im in images) + gap * (len(images) + 1)
+    canvas = np.full((h + 2 * gap, w, 3), 255, np.uint8)
+    x = gap
+    for im in images:
+        canvas[gap + h - im.shape[0]:gap + h, x:x + im.shape[1]] = im
+        x += im.shape[1] + gap
+    return Image.fromarray(canvas)

@@ -1,0 +1,57 @@
+"""LAS 1.4 / LAZ (point format 6) through laspy.
+
+Classification uses ASPRS codes where they fit — ground 2, bush 4 (medium vegetation), tree wood and
+leaves 5 (high vegetation) — and the user range for the rest: deadwood 64, rock 65, stump 66. Our own
+classes (1-7, as in the PCD) are in the extra dimension ``label``; ``treeid``, ``instance`` and
+``object_id`` are extra dimensions too. Intensity is scaled to 16 bits by a fixed factor
+(INTENSITY_SCALE, also written in the header's VLR and the file description): the float amplitude
+is kept exact in the extra dimension ``amplitude``. Coordinates are stored at 0.1 mm with the
+georeference in the header offsets.
+"""
+
+from __future__ import annotations
+
+import json
+
+import laspy
+import numpy as np
+
+from ..classes import BUSH, DEADWOOD, GROUND, ROCK, STUMP, TREE_LEAVES, TREE_WOOD
+from .atomic import atomic_path
+
+ASPRS_CODE = {GROUND: 2, TREE_WOOD: 5, TREE_LEAVES: 5, BUSH: 4, DEADWOOD: 64, ROCK: 65, STUMP: 66}
+INTENSITY_SCALE = 1e-6   # amplitude units per LAS intensity count (65535 ≙ a 6.5 % full-beam target at 1 m)
+COORDINATE_SCALE = 1e-4  # m
+
+
+def write_las(path, points: np.ndarray, offset, crs: str | None = None) -> None:
+    """Write georeferenced points (x, y, z already include ``offset``) to ``.las`` or ``.laz``."""
+    header = laspy.LasHeader(point_format=6, version="1.4")
+    header.offsets = np.asarray(offset, float)
+    header.scales = np.full(3, COORDINATE_SCALE)
+    header.add_extra_dims([
+        laspy.ExtraBytesParams("label", np.uint8, "mitsuforest class 1-7"),
+        laspy.ExtraBytesParams("treeid", np.uint16, "archetype 1-10, deadwood 11"),
+        laspy.ExtraBytesParams("instance", np.uint32, "object instance id"),
+        laspy.ExtraBytesParams("object_id", np.uint32, "component id"),
+        laspy.ExtraBytesParams("amplitude", np.float32, "echo amplitude (white at 1 m=1)"),
+    ])
+    header.vlrs.append(laspy.VLR("mitsuforest", 1, "intensity and classes", json.dumps(
+        {"intensity_scale": INTENSITY_SCALE, "classification": {str(k): v for k, v in ASPRS_CODE.items()},
+         "crs": crs}).encode()))
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = points["x"], points["y"], points["z"]
+    las.classification = np.vectorize(ASPRS_CODE.get, otypes=[np.uint8])(points["classification"]) \
+        if len(points) else np.zeros(0, np.uint8)
+    las.return_number = points["return_number"]
+    las.number_of_returns = points["number_of_returns"]
+    las.intensity = np.clip(np.round(points["intensity"] / INTENSITY_SCALE), 0, 65535).astype(np.uint16)
+    las.gps_time = points["gps_time"]
+    las.scan_angle = np.round(points["scan_angle"] / 0.006).astype(np.int16)
+    las.label = points["classification"]
+    las.treeid = points["treeid"]
+    las.instance = points["instance"]
+    las.object_id = points["object_id"]
+    las.amplitude = points["intensity"]
+    with atomic_path(path) as tmp:
+        las.write(str(tmp), do_compress=str(path).endswith(".laz"))

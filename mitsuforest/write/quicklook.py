@@ -1,0 +1,55 @@
+"""Quick-look pictures: a top view coloured by class and a side view of a tile coloured by instance."""
+
+from __future__ import annotations
+
+import numpy as np
+from PIL import Image
+
+from .atomic import atomic_path
+
+CLASS_COLOURS = np.array([
+    [0, 0, 0], [166, 124, 82], [120, 72, 40], [60, 160, 60], [200, 60, 200], [150, 150, 150],
+    [230, 150, 40], [150, 210, 90]], np.uint8)  # index = class code; 0 unused
+
+
+def _raster(u, v, value_rgb, order, size, extent, background=255):
+    """Draw points (u, v) in ``order`` (later on top) into an RGB image of ``size`` pixels."""
+    w, h = size
+    (u0, u1), (v0, v1) = extent
+    i = np.clip(((u - u0) / max(u1 - u0, 1e-9) * (w - 1)).astype(int), 0, w - 1)
+    j = np.clip(((v1 - v) / max(v1 - v0, 1e-9) * (h - 1)).astype(int), 0, h - 1)
+    img = np.full((h, w, 3), background, np.uint8)
+    img[j[order], i[order]] = value_rgb[order]
+    return img
+
+
+def instance_colours(instance: np.ndarray) -> np.ndarray:
+    """A stable, distinct colour per instance id (ground, instance 0, grey)."""
+    rng = np.random.default_rng(12345)
+    palette = rng.integers(40, 230, (int(instance.max(initial=0)) + 1, 3)).astype(np.uint8)
+    palette[0] = 170
+    return palette[instance]
+
+
+def top_view(points, extent_xy, pixels_per_m: float = 40.0, max_pixels: int = 2000) -> np.ndarray:
+    (x0, x1), (y0, y1) = extent_xy
+    scale = min(pixels_per_m, max_pixels / max(x1 - x0, y1 - y0, 1e-9))
+    size = (max(int((x1 - x0) * scale), 2), max(int((y1 - y0) * scale), 2))
+    order = np.argsort(points["z"], kind="stable")  # highest drawn last
+    return _raster(points["x"], points["y"], CLASS_COLOURS[points["classification"]], order, size, extent_xy)
+
+
+def side_view(points, x_range, pixels_per_m: float = 30.0) -> np.ndarray:
+    """Points with x in ``x_range`` seen from the south: y would be depth, so draw x against z."""
+    sel = points[(points["x"] >= x_range[0]) & (points["x"] < x_range[1])]
+    if len(sel) == 0:
+        return np.full((10, 10, 3), 255, np.uint8)
+    z0, z1 = float(sel["z"].min()), float(sel["z"].max())
+    size = (max(int((x_range[1] - x_range[0]) * pixels_per_m), 2), max(int((z1 - z0) * pixels_per_m), 2))
+    order = np.argsort(-sel["y"], kind="stable")  # nearest (smallest y) drawn last
+    return _raster(sel["x"], sel["z"], instance_colours(sel["instance"]), order, size, (x_range, (z0, z1)))
+
+
+def write_png(path, image: np.ndarray) -> None:
+    with atomic_path(path) as tmp:
+        Image.fromarray(image).save(tmp, format="PNG")
