@@ -21,7 +21,7 @@ from .plan import make_plan, plan_json
 from .scan import scan
 from .scene import build_scene
 from .trees import build_models
-from .write import Staging, existing_outputs, point_statistics, write_render_outputs
+from .write import Staging, existing_outputs, point_statistics, write_manifest, write_render_outputs
 
 DEPENDENCIES = ("mitsuba", "drjit", "numpy", "trimesh", "manifold3d", "laspy", "scipy", "pyyaml")
 
@@ -76,17 +76,17 @@ def render(scene, *, output_dir=None, seed=None, variant=None, overwrite=False, 
     offset = scene["origin"]["offset"]
     points = georeference(result.points, offset)
     stats = point_statistics(result.points, scene["area"]["size"], scene["seed"])
-    lap("labels")
+    lap("statistics")
     manifest = _manifest(scene, plan, scan_scene, result, stats, timings)
     render_result = RenderResult(scene, plan, points, manifest)
     if write:
         staging = Staging(out, name)
         try:
-            write_render_outputs(staging, scene=scene, plan=plan, models=models, points=points,
-                                 manifest=manifest, offset=offset, formats=scene["output"]["formats"],
-                                 plan_text=plan_json(plan))
+            write_render_outputs(staging, scene=scene, plan=plan, models=models, points=points, offset=offset,
+                                 formats=scene["output"]["formats"], plan_text=plan_json(plan))
             lap("write")
-            manifest["timings_s"]["write"] = timings["write"]
+            manifest["timings_s"] = dict(timings)
+            write_manifest(staging, manifest)
             render_result.files = staging.commit()
         except BaseException:
             staging.discard()
@@ -114,7 +114,7 @@ def _manifest(scene, plan, scan_scene, result, stats, timings) -> dict:
         "seed": scene["seed"],
         "variant": scan_scene.variant,
         "machine": {"platform": platform.platform(), "processor": platform.processor()},
-        "timings_s": timings,
+        "timings_s": dict(timings),
         "canopy_cover": plan["canopy_cover"],
         "scene_objects": {"modelled": scan_scene.objects, "culled": scan_scene.culled,
                           "distinct_triangles": scan_scene.triangles},

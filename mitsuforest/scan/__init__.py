@@ -1,11 +1,10 @@
 """Stage 4: fly the survey and turn pulses into labelled echoes.
 
 Per leg, time slots are processed in batches of ``simulation.pulses_per_batch``: the deflector decides
-which pulses fire, pulses that cannot reach the scene's box are dropped, the rest are traced as
-``beam_samples`` sub-rays each, and every sub-ray hit becomes received power (radiometry.py); the
-waveform model (waveform.py) groups them into echoes whose position is the energy-weighted mean of
-their hit points, displaced by ranging noise along the beam, and whose labels come from the
-strongest sub-ray.
+which pulses fire, pulses that cannot reach the scene's box are dropped, and the rest go to the
+:class:`~mitsuforest.scan.tracer.PulseTracer` (sub-rays, radiometry, waveform, labels). Memory is
+bounded by the batch size; each batch has its own noise generator seeded by (seed, leg, first pulse),
+so the same scene, seed and batch size give the same points, byte for byte.
 """
 
 from __future__ import annotations
@@ -15,21 +14,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..labels import label_hits
-from .beam import beam_pattern
-from .kernel import RayCaster
-from .pulses import leg_pulse_count, leg_pulses, reaches_box
-from .radiometry import received_power, reflectance_table
-from .waveform import detect_echoes, resolving_distance
+from .pulses import Pulses, leg_pulse_count, leg_pulses, reaches_box
+from .tracer import POINT_DTYPE, PulseTracer
 
 __all__ = ["scan", "ScanResult", "POINT_DTYPE"]
-
-POINT_DTYPE = np.dtype([
-    ("treeid", "<u2"), ("x", "<f8"), ("y", "<f8"), ("z", "<f8"), ("classification", "u1"),
-    ("instance", "<u4"), ("object_id", "<u4"), ("number_of_returns", "u1"), ("return_number", "u1"),
-    ("intensity", "<f4"), ("gps_time", "<f8"), ("scan_angle", "<f4"), ("pulse_id", "<u8"), ("range", "<f4"),
-])
-
 
 @dataclass
 class ScanResult:
@@ -45,13 +33,9 @@ class ScanResult:
 def scan(scene: dict, plan: dict, scan_scene, progress: bool = True) -> ScanResult:
     """Simulate the whole survey of ``plan`` over ``scan_scene`` (see module docstring)."""
     sensor, survey, sim = scene["sensor"], scene["survey"], scene["simulation"]
-    offsets, weights = beam_pattern(sim["beam_samples"])
-    half = np.asarray(sensor["beam_divergence"], float) / 2
-    caster = RayCaster(scan_scene.mitsuba, np.tan(offsets * half))
-    rho = reflectance_table(sensor["wavelength"])
-    margin = sensor["range_max"] * half.max() * 1.5 + 0.01
+    tracer = PulseTracer(scan_scene, sensor, sim["beam_samples"])
+    margin = sensor["range_max"] * max(sensor["beam_divergence"]) * 0.75 + 0.01
     box = scan_scene.bbox + [[-margin] * 3, [margin] * 3]
-    resolving = resolving_distance(sensor["pulse_length"])
     result = ScanResult(points=np.zeros(0, POINT_DTYPE))
     chunks, first_id = [], 0
     start = time.perf_counter()
@@ -65,11 +49,9 @@ def scan(scene: dict, plan: dict, scan_scene, progress: bool = True) -> ScanResu
             keep = reaches_box(pulses.origin, pulses.direction, box, sensor["range_max"])
             pulses = _subset(pulses, keep)
             result.pulses_cast += len(pulses.time)
-            result.rays += len(pulses.time) * len(weights)
+            result.rays += len(pulses.time) * tracer.samples
             rng = np.random.default_rng([scene["seed"], leg_no, first])
-            if len(pulses.time):
-                chunks.append(_echo_points(caster, scan_scene.table, pulses, weights, rho, resolving, sensor,
-                                           rng, first_id))
+            chunks.append(tracer.trace(pulses, rng, first_id))
             if bar:
                 bar.update(count)
         if bar:
@@ -91,47 +73,5 @@ def _bar(progress: bool, total: int, label: str):
     return tqdm(total=total, desc=label, unit=" pulses", unit_scale=True, leave=False, dynamic_ncols=True)
 
 
-def _subset(pulses, keep):
-    return type(pulses)(**{k: v[keep] for k, v in vars(pulses).items()})
-
-
-def _echo_points(caster, table, pulses, weights, rho, resolving, sensor, rng, first_id) -> np.ndarray:
-    samples = len(weights)
-    n = len(pulses.time)
-    hits = caster.cast(pulses.origin, pulses.direction, pulses.across)
-    labels = label_hits(table, hits["instance"], hits["shape"], hits["shape_index"], hits["prim"])
-    ray = hits["ray"].astype(np.int64)
-    t = hits["t"].astype(np.float64)
-    pulse = ray // samples
-    incoming = (hits["point"] - pulses.origin[pulse]) / np.maximum(t, 1e-9)[:, None]
-    cos = np.einsum("ij,ij->i", incoming, labels.normal)
-    power = received_power(weights[ray % samples], rho[labels.classification], cos, t)
-    ranges = np.full(n * samples, np.inf)
-    ranges[ray] = t
-    dense_power = np.zeros(n * samples)
-    dense_power[ray] = power
-    echoes = detect_echoes(ranges.reshape(n, samples), dense_power.reshape(n, samples), resolving,
-                           sensor["detection_threshold"], sensor["max_returns"], sensor["range_min"],
-                           sensor["range_max"])
-    row_of_ray = np.full(n * samples, -1, np.int64)
-    row_of_ray[ray] = np.arange(len(ray))
-    position = echoes.weighted_mean(hits["point"], row_of_ray)
-    noise = rng.normal(0.0, sensor["range_precision"], len(echoes.pulse)) if sensor["range_precision"] > 0 \
-        else np.zeros(len(echoes.pulse))
-    axis = pulses.direction[echoes.pulse]
-    position += axis * noise[:, None]
-    dom = row_of_ray[echoes.dominant]
-    out = np.zeros(len(echoes.pulse), POINT_DTYPE)
-    out["x"], out["y"], out["z"] = position.T
-    out["treeid"] = labels.treeid[dom]
-    out["classification"] = labels.classification[dom]
-    out["instance"] = labels.instance[dom]
-    out["object_id"] = labels.object_id[dom]
-    out["return_number"] = echoes.return_number
-    out["number_of_returns"] = echoes.number_of_returns
-    out["intensity"] = echoes.amplitude
-    out["gps_time"] = pulses.time[echoes.pulse]
-    out["scan_angle"] = np.rad2deg(pulses.scan_angle[echoes.pulse])
-    out["pulse_id"] = first_id + pulses.index[echoes.pulse]
-    out["range"] = echoes.range + noise
-    return out
+def _subset(pulses: Pulses, keep) -> Pulses:
+    return Pulses(**{k: v[keep] for k, v in vars(pulses).items()})

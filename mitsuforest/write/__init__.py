@@ -21,7 +21,7 @@ from .quicklook import side_view, top_view, write_png
 from .tables import write_ids, write_trajectory, write_volumes
 
 __all__ = ["Staging", "output_files", "existing_outputs", "write_pcd", "read_pcd", "write_las",
-           "point_statistics", "write_render_outputs"]
+           "point_statistics", "write_render_outputs", "write_manifest"]
 
 SUFFIXES = (".pcd", ".las", ".laz", "_volumes.csv", "_ids.csv", "_plan.json", "_trajectory.csv",
             "_manifest.json", "_top.png", "_side.png")
@@ -92,9 +92,8 @@ def point_statistics(points: np.ndarray, area, seed: int = 0) -> dict:
     return stats
 
 
-def write_render_outputs(staging: Staging, *, scene, plan, models, points, manifest, offset, formats,
-                         plan_text: str) -> None:
-    """Write every file of one render into ``staging`` (points georeferenced: offset already added)."""
+def write_render_outputs(staging: Staging, *, scene, plan, models, points, offset, formats, plan_text: str) -> None:
+    """Write the files of one render but its manifest into ``staging`` (points already georeferenced)."""
     if "pcd" in formats:
         write_pcd(staging.file(".pcd"), points)
     for fmt in ("las", "laz"):
@@ -105,6 +104,9 @@ def write_render_outputs(staging: Staging, *, scene, plan, models, points, manif
     write_text(staging.file("_plan.json"), plan_text)
     write_trajectory(staging.file("_trajectory.csv"), plan["legs"], offset)
     _quicklooks(staging, points, scene, offset)
+
+
+def write_manifest(staging: Staging, manifest: dict) -> None:
     write_text(staging.file("_manifest.json"), json.dumps(manifest, indent=1, sort_keys=True, default=str) + "\n")
 
 

@@ -1,0 +1,157 @@
+"""What a render writes: independent readers, label consistency, determinism, atomicity."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import laspy
+import numpy as np
+import pytest
+from helpers import ROOT, scene_file
+
+from mitsuforest.cli import main
+from mitsuforest.write import output_files, read_pcd
+
+FIELDS = ["treeid", "x", "y", "z", "classification", "instance", "object_id", "number_of_returns",
+          "return_number", "intensity"]
+OFFSET = [320000.0, 5812000.0, 100.0]
+
+
+def _small_scene(tmp_path, **survey):
+    return scene_file(tmp_path, sensor="riegl_vux-1uav22.yaml", area={"size": [12, 12]},
+                      forest={"trees": 2, "min_spacing": 5.0}, origin={"offset": OFFSET, "crs": "EPSG:28355"},
+                      understory={"bushes": 2, "rocks": 2, "deadwood": 2, "stumps": 1},
+                      survey={"pulse_frequency": 100000, "lines": [[[6, -3], [6, 15]]], **survey},
+                      simulation={"beam_samples": 7})
+
+
+@pytest.fixture(scope="module")
+def rendered(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("render")
+    path = _small_scene(tmp)
+    assert main(["render", str(path), "-o", str(tmp / "a"), "--quiet"]) == 0
+    assert main(["render", str(path), "-o", str(tmp / "b"), "--quiet"]) == 0
+    return tmp
+
+
+def test_all_files_written(rendered):
+    names = sorted(p.name for p in (rendered / "a").iterdir())
+    assert names == sorted(f for f in output_files("test") if not f.endswith(".laz"))
+
+
+def test_pcd_header_and_independent_reader(rendered):
+    from pypcd4 import PointCloud
+    path = rendered / "a" / "test.pcd"
+    head = path.read_bytes()[:600].decode("ascii", "replace")
+    assert "FIELDS " + " ".join(FIELDS) in head and "DATA binary" in head and "VIEWPOINT 0 0 0 1 0 0 0" in head
+    ours = read_pcd(path)
+    pc = PointCloud.from_path(path)
+    assert list(pc.fields[:10]) == FIELDS and pc.points == len(ours) > 1000
+    theirs = pc.numpy(pc.fields)
+    for i, name in enumerate(pc.fields):
+        assert np.array_equal(theirs[:, i], ours[name].astype(np.float64)), name
+    assert ours["x"].dtype == np.float64 and ours["x"].min() > OFFSET[0] - 5
+
+
+def test_las_round_trip(rendered):
+    pcd = read_pcd(rendered / "a" / "test.pcd")
+    las = laspy.read(str(rendered / "a" / "test.las"))
+    assert las.header.version.major == 1 and las.header.version.minor == 4 and las.header.point_format.id == 6
+    assert np.allclose(las.header.offsets, OFFSET)
+    assert np.abs(np.asarray(las.x) - pcd["x"]).max() < 1e-4
+    assert np.abs(np.asarray(las.z) - pcd["z"]).max() < 1e-4
+    for name in ("treeid", "instance", "object_id"):
+        assert np.array_equal(np.asarray(las[name]), pcd[name])
+    assert np.array_equal(np.asarray(las.label), pcd["classification"])
+    assert np.array_equal(np.asarray(las.return_number), pcd["return_number"])
+    assert np.array_equal(np.asarray(las.number_of_returns), pcd["number_of_returns"])
+    assert np.array_equal(np.asarray(las.amplitude), pcd["intensity"])
+    asprs = {1: 2, 2: 5, 3: 5, 4: 64, 5: 65, 6: 66, 7: 4}
+    assert all(asprs[c] == a for c, a in zip(pcd["classification"], np.asarray(las.classification)))
+
+
+def test_labels_are_consistent(rendered):
+    p = read_pcd(rendered / "a" / "test.pcd")
+    tree = np.isin(p["classification"], [2, 3])
+    assert set(np.unique(p["treeid"][tree])) <= set(range(1, 11))
+    assert set(np.unique(p["treeid"][~tree & (p["classification"] != 4)])) == {0}
+    assert set(np.unique(p["treeid"][p["classification"] == 4])) <= {11}
+    assert np.all(p["return_number"] <= p["number_of_returns"]) and p["return_number"].min() == 1
+    assert np.all(p["instance"][p["classification"] == 1] == 0)
+    ids = {int(r.split(",")[0]): r.split(",") for r in (rendered / "a" / "test_ids.csv").read_text().splitlines()[1:]}
+    for oid, inst, cls, treeid in zip(p["object_id"], p["instance"], p["classification"], p["treeid"]):
+        row = ids[int(oid)]  # every point's object id is listed with the same labels
+        assert (int(row[1]), int(row[3]), int(row[2])) == (inst, cls, treeid)
+    # Wood and leaf points of one tree share its instance.
+    for inst in np.unique(p["instance"][tree]):
+        assert set(p["classification"][p["instance"] == inst]) <= {2, 3}
+
+
+def test_same_scene_and_seed_give_identical_bytes(rendered):
+    for name in ("test.pcd", "test.las", "test_plan.json", "test_ids.csv", "test_volumes.csv"):
+        assert (rendered / "a" / name).read_bytes() == (rendered / "b" / name).read_bytes(), name
+
+
+def test_manifest_and_tables(rendered):
+    m = json.loads((rendered / "a" / "test_manifest.json").read_text())
+    assert m["versions"]["mitsuba"].startswith("3.9") and m["variant"] == "llvm_ad_mono"
+    assert set(m["timings_s"]) >= {"plan", "trees", "scene", "scan", "write"}
+    assert m["points"] == len(read_pcd(rendered / "a" / "test.pcd"))
+    assert m["density_per_m2"] == pytest.approx(m["points"] / 144)
+    assert 0.001 < m["mean_spacing_m"] < 0.5
+    assert sum(m["returns_histogram"].values()) == m["pulses_with_returns"]
+    vol = (rendered / "a" / "test_volumes.csv").read_text().splitlines()
+    assert vol[0].startswith("row,model,instance,volume_union_m3")
+    assert sum(r.startswith("tree,") for r in vol) == 2 and sum(r.startswith("deadwood,") for r in vol) == 2
+    traj = np.loadtxt(rendered / "a" / "test_trajectory.csv", delimiter=",", skiprows=1)
+    assert np.allclose(traj[:, 3], OFFSET[2] + 30) and np.allclose(np.diff(traj[:, 0]), 0.1)
+
+
+def test_info_summarises_pcd_and_las(rendered, capsys):
+    for name in ("test.pcd", "test.las"):
+        assert main(["info", str(rendered / "a" / name)]) == 0
+        out = capsys.readouterr().out
+        assert "points" in out and "classes: ground" in out and "pulses by number of returns: 1:" in out
+
+
+def test_refuses_to_overwrite_older_results(rendered, capsys):
+    before = (rendered / "a" / "test.pcd").stat().st_mtime_ns
+    assert main(["render", str(rendered / "scene.yaml"), "-o", str(rendered / "a"), "--quiet"]) == 2
+    assert "pass --overwrite" in capsys.readouterr().err
+    assert (rendered / "a" / "test.pcd").stat().st_mtime_ns == before
+
+
+def _start(path, out):
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    return subprocess.Popen([sys.executable, "-m", "mitsuforest", "render", str(path), "-o", str(out)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+
+
+def _wait_for_scan(proc, timeout=60):
+    """Read stderr until the scan starts (the 'scene:' line); the render then runs for many seconds."""
+    start = time.time()
+    while time.time() - start < timeout:
+        line = proc.stderr.readline()
+        if line.startswith("scene:"):
+            return
+    raise AssertionError("the render did not reach the scan")
+
+
+@pytest.mark.parametrize("how", ["kill", "interrupt"])
+def test_stopped_render_leaves_nothing_that_looks_complete(tmp_path, how):
+    path = _small_scene(tmp_path, pulse_frequency=300000, lines=None, line_spacing=4)
+    out = tmp_path / "out"
+    proc = _start(path, out)
+    _wait_for_scan(proc)
+    time.sleep(1.0)
+    proc.send_signal(signal.SIGKILL if how == "kill" else signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    leftovers = [p.name for p in out.iterdir()] if out.exists() else []
+    assert not set(leftovers) & set(output_files("test"))
+    if how == "interrupt":
+        assert proc.returncode == 130
+        assert "interrupted" in err and "Run the same command again" in err
+        assert leftovers == []

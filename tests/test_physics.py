@@ -1,0 +1,109 @@
+"""Pure physics: beam pattern, deflectors, pulse timing, radiometry and the waveform model."""
+
+import numpy as np
+import pytest
+
+from mitsuforest.scan.beam import beam_pattern, footprint_radius, ring_counts
+from mitsuforest.scan.deflector import oscillating, risley, rotating
+from mitsuforest.scan.pulses import leg_pulse_count, leg_pulses, platform_position, reaches_box
+from mitsuforest.scan.radiometry import received_power
+from mitsuforest.scan.waveform import detect_echoes, resolving_distance
+
+
+@pytest.mark.parametrize("samples", [1, 7, 19, 37, 61])
+def test_beam_weights_integrate_the_gaussian(samples):
+    offsets, weights = beam_pattern(samples)
+    assert len(weights) == samples
+    assert weights.sum() == pytest.approx(1.0, abs=1e-12)
+    assert np.allclose(weights.reshape(-1) @ offsets, 0, atol=1e-12)  # centred
+    if samples >= 7:
+        # Second moment of I ∝ exp(-2r²/w²) is w²/2: the pattern's RMS footprint is the 1/e² radius.
+        rms = np.sqrt(2 * weights @ (offsets ** 2).sum(1))
+        assert rms == pytest.approx(1.0, rel=0.05 if samples < 19 else 0.005)
+    assert ring_counts(19) == [1, 6, 12]
+
+
+def test_footprint_radius():
+    assert footprint_radius(30.0, 0.5e-3) == pytest.approx(0.0075)
+    # Sub-ray directions scaled by β/2 land at the 1/e² radius R·β/2 on a plane at range R.
+    offsets, w = beam_pattern(61)
+    spots = 30.0 * np.tan(offsets * 0.5e-3 / 2)
+    assert np.sqrt(2 * w @ (spots ** 2).sum(1)) == pytest.approx(0.0075, rel=0.005)
+
+
+def test_rotating_deflector_angles_and_field_of_view():
+    t = np.arange(0, 0.02, 1e-5)
+    d, theta, fired = rotating(t, 50.0, 330.0)
+    assert np.allclose(np.linalg.norm(d, axis=1), 1)
+    assert np.allclose(np.diff(np.unwrap(theta)), 2 * np.pi * 50 * 1e-5)
+    assert fired.mean() == pytest.approx(330 / 360, abs=1e-3)
+    assert np.allclose(d[0], [0, 0, -1])  # starts at nadir
+
+
+def test_oscillating_and_risley_patterns():
+    t = np.arange(0, 1, 1e-4)
+    _, theta, fired = oscillating(t, 10.0, 60.0)
+    assert fired.all() and theta.max() == pytest.approx(np.deg2rad(30), rel=1e-3)
+    d, off, fired = risley(t, [121.57, -77.73], [17.6, 17.6], 70.4)
+    assert fired.all() and off.max() <= np.deg2rad(35.2) + 1e-9
+    assert np.allclose(np.linalg.norm(d, axis=1), 1)
+    # Non-repetitive: pulses 1 s apart do not retrace the same directions.
+    assert np.abs(d[:5000] - d[5000:]).max() > 0.1
+
+
+def test_pulse_timing_and_platform():
+    leg = {"start": [0, 0, 30], "end": [0, 100, 30], "t0": 10.0, "t1": 60.0}
+    assert leg_pulse_count(leg, 200000) == 50 * 200000
+    p = platform_position(leg, np.array([10.0, 35.0, 60.0]))
+    assert np.allclose(p, [[0, 0, 30], [0, 50, 30], [0, 100, 30]])
+    sensor = {"deflector": "rotating", "field_of_view": 360.0}
+    pulses = leg_pulses(leg, sensor, {"pulse_frequency": 1000, "scan_frequency": 10}, 0, 1000)
+    assert np.allclose(np.diff(pulses.time), 1e-3) and pulses.time[0] == 10.0
+    assert np.allclose(np.einsum("ij,ij->i", pulses.direction, pulses.across), 0, atol=1e-12)
+
+
+def test_box_reach():
+    box = np.array([[0, 0, 0], [10, 10, 5]], float)
+    o = np.array([[5, 5, 30], [5, 5, 30], [50, 5, 30]], float)
+    d = np.array([[0, 0, -1], [0, 0, 1], [0, 0, -1]], float)
+    assert reaches_box(o, d, box, 1000).tolist() == [True, False, False]
+    assert reaches_box(o[:1], d[:1], box, 20).tolist() == [False]
+
+
+def test_received_power():
+    assert received_power(1.0, 0.5, 1.0, 10.0) == pytest.approx(0.005)
+    assert received_power(1.0, 0.5, -0.5, 20.0) == pytest.approx(0.000625)
+
+
+def test_waveform_merges_within_resolving_distance_and_numbers_returns():
+    dr = resolving_distance(4e-9)
+    assert dr == pytest.approx(0.5996, abs=1e-4)
+    inf = np.inf
+    ranges = np.array([[10.0, 10.2, 12.0, inf], [5.0, 5.0 + 0.9 * dr, 5.0 + 1.8 * dr, inf], [inf] * 4])
+    power = np.full(ranges.shape, 0.25)
+    e = detect_echoes(ranges, power, dr)
+    assert e.pulse.tolist() == [0, 0, 1]
+    assert e.return_number.tolist() == [1, 2, 1] and e.number_of_returns.tolist() == [2, 2, 1]
+    assert e.range[0] == pytest.approx(10.1)
+    # A chain of returns each within ΔR of the next is one broad echo.
+    assert e.range[2] == pytest.approx(5.0 + 0.9 * dr)
+
+
+def test_threshold_and_max_returns():
+    ranges = np.array([[10.0, 20.0, 30.0, 40.0]])
+    power = np.array([[1e-3, 1e-6, 1e-3, 1e-3]])
+    e = detect_echoes(ranges, power, 0.6, threshold=1e-5)
+    assert e.range.tolist() == [10.0, 30.0, 40.0]
+    e = detect_echoes(ranges, power, 0.6, threshold=1e-5, max_returns=2)
+    assert e.range.tolist() == [10.0, 30.0] and e.number_of_returns.tolist() == [2, 2]
+    e = detect_echoes(ranges, power, 0.6, range_min=15.0)
+    assert e.range.tolist() == [20.0, 30.0, 40.0]
+
+
+def test_echo_amplitude_and_dominant_subray():
+    ranges = np.array([[10.0, 10.0, 10.0]])
+    power = np.array([[0.1, 0.5, 0.2]])
+    e = detect_echoes(ranges, power, 0.6)
+    assert e.amplitude[0] == pytest.approx(0.8)  # coincident returns add up
+    assert e.dominant[0] == 1
+    assert e.weighted_mean(np.array([[0.0], [1.0], [2.0]]))[0, 0] == pytest.approx((0.5 + 0.4) / 0.8)

@@ -1,0 +1,86 @@
+"""Placement plans: determinism, the paper's three forests, ids, spacing, flight legs."""
+
+import numpy as np
+import pytest
+from helpers import ROOT
+
+from mitsuforest.cli import main
+from mitsuforest.config import FOREST_BANDS, load_scene
+from mitsuforest.plan import make_plan, plan_json
+from mitsuforest.plan.flight import flight_legs
+
+PAPER = {"woodland": (70, 0.38), "open": (121, 0.63), "closed": (216, 0.84)}
+
+
+@pytest.mark.parametrize("name", sorted(PAPER))
+def test_paper_scenes_match_table_3(name):
+    scene = load_scene(ROOT / "scenes" / f"{name}.yaml")
+    plan = make_plan(scene)
+    trees, cover = PAPER[name]
+    assert sum(o["kind"] == "tree" for o in plan["objects"]) == trees
+    assert abs(plan["canopy_cover"] - cover) <= 0.03
+    lo, hi = FOREST_BANDS[name]
+    assert lo <= plan["canopy_cover"] <= hi
+
+
+def test_same_seed_same_bytes_other_seed_other_forest():
+    path = ROOT / "scenes" / "demo.yaml"
+    a, b = plan_json(make_plan(load_scene(path))), plan_json(make_plan(load_scene(path)))
+    c = plan_json(make_plan(load_scene(path, seed=8)))
+    assert a == b
+    assert a != c
+
+
+def test_canopy_cover_target_is_met(tmp_path):
+    scene = load_scene(ROOT / "scenes" / "demo.yaml")
+    scene["forest"].update(trees=None, canopy_cover=0.55, min_spacing=2.0)
+    plan = make_plan(scene)
+    assert 0.55 <= plan["canopy_cover"] < 0.70
+
+
+def test_ids_spacing_tilt_and_terrain():
+    scene = load_scene(ROOT / "scenes" / "open.yaml")
+    plan = make_plan(scene)
+    objs = plan["objects"]
+    assert [o["instance"] for o in objs] == list(range(1, len(objs) + 1))
+    starts = np.array([o["object_id"] for o in objs])
+    ends = starts + [o["components"] for o in objs]
+    assert starts[0] == plan["ground"]["object_id"] + 1 and np.all(starts[1:] == ends[:-1])  # unique, no gaps
+    trees = [o for o in objs if o["kind"] == "tree"]
+    xy = np.array([o["position"][:2] for o in trees])
+    d = np.hypot(*(xy[:, None] - xy[None]).transpose(2, 0, 1)) + np.eye(len(xy)) * 1e9
+    assert d.min() >= scene["forest"]["min_spacing"]
+    assert all(abs(t) <= 5 for o in trees for t in o["tilt"])
+    assert {o["treeid"] for o in trees} <= set(range(1, 11))
+    assert {o["treeid"] for o in objs if o["kind"] == "deadwood"} == {11}
+    assert {o["treeid"] for o in objs if o["kind"] in ("bush", "rock", "stump")} == {0}
+    counts = {k: sum(o["kind"] == k for o in objs) for k in ("bush", "rock", "deadwood", "stump")}
+    assert counts == {"bush": 120, "rock": 40, "deadwood": 25, "stump": 15}
+    for o in objs:  # understory keeps clear of stems
+        if o["kind"] != "tree":
+            assert np.hypot(*(xy - o["position"][:2]).T).min() >= 0.6
+
+
+def test_noise_terrain_carries_objects():
+    scene = load_scene(ROOT / "scenes" / "demo.yaml")
+    scene["terrain"].update(type="noise", amplitude=3.0)
+    plan = make_plan(scene)
+    z = [o["position"][2] for o in plan["objects"]]
+    assert np.ptp(z) > 0.5
+
+
+def test_lawnmower_legs_cover_the_plot():
+    survey = {"lines": None, "heading": 0.0, "margin": 10.0, "line_spacing": 12.0, "speed": 2.0, "altitude": 30.0}
+    legs = flight_legs([100, 100], survey, ground_height=0.0)
+    xs = sorted(leg["start"][0] for leg in legs)
+    assert xs[0] <= 0 and xs[-1] >= 100 and np.allclose(np.diff(xs), 12)
+    assert all(leg["start"][2] == 30 for leg in legs)
+    assert legs[0]["t1"] - legs[0]["t0"] == pytest.approx(120 / 2.0)
+    assert legs[0]["start"][1] == -10 and legs[0]["end"][1] == 110 and legs[1]["start"][1] == 110
+
+
+def test_plan_command(tmp_path, capsys):
+    assert main(["plan", str(ROOT / "scenes" / "closed.yaml"), "-o", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert "closed: 216 trees, canopy cover" in out
+    assert (tmp_path / "closed_plan.json").exists()

@@ -1,0 +1,173 @@
+"""The scan against analytic answers (physics.md, steps 1-9), on the CPU variant."""
+
+import numpy as np
+import pytest
+from helpers import analytic_scene, plane_model, pulses, scene_file
+
+from mitsuforest.classes import GROUND, ROCK
+from mitsuforest.render import render
+from mitsuforest.scan import PulseTracer, scan
+from mitsuforest.scan.radiometry import reflectance_table
+from mitsuforest.scan.waveform import resolving_distance
+
+RNG = np.random.default_rng(0)
+
+
+@pytest.fixture(scope="module")
+def flat(tmp_path_factory):
+    """Flat ground at z = 0 over 40 m x 40 m, ideal sensor."""
+    return analytic_scene(scene_file(tmp_path_factory.mktemp("flat")))
+
+
+def _trace(setup, p, samples=1, **sensor_changes):
+    scene, _, _, scan_scene = setup
+    sensor = {**scene["sensor"], **sensor_changes}
+    return PulseTracer(scan_scene, sensor, samples).trace(p, RNG)
+
+
+def test_range_to_plane_is_exact(flat):
+    xy = RNG.uniform(16, 24, (200, 2))
+    angles = np.deg2rad(RNG.uniform(-25, 25, 200))  # lands within 16 m of the plot's centre line
+    d = np.column_stack([np.sin(angles), np.zeros(200), -np.cos(angles)])
+    pts = _trace(flat, pulses(np.column_stack([xy, np.full(200, 30.0)]), d))
+    assert len(pts) == 200
+    assert np.abs(pts["range"] - 30 / np.cos(angles)).max() < 1e-3
+    assert np.abs(pts["z"]).max() < 1e-3
+    assert set(pts["classification"]) == {GROUND}
+
+
+def test_intensity_follows_cosine_and_inverse_square(flat):
+    rho = reflectance_table(flat[0]["sensor"]["wavelength"])[GROUND]
+    theta = np.deg2rad([0, 20, 40, 60, 70])
+    d = np.column_stack([np.sin(theta), np.zeros(5), -np.cos(theta)])
+    pts = _trace(flat, pulses(np.tile([10.0, 20, 10], (5, 1)), d))
+    expected_cos = pts["intensity"] * pts["range"] ** 2 / rho
+    assert np.allclose(expected_cos, np.cos(theta), rtol=0.01)
+    near, far = (_trace(flat, pulses([[20, 20, h]], [0, 0, -1]))["intensity"][0] for h in (15.0, 30.0))
+    assert near / far == pytest.approx(4.0, rel=1e-3)
+
+
+def test_grazing_incidence_gives_finite_values(flat):
+    theta = np.deg2rad([85, 87, 89, 89.5, 89.9])
+    d = np.column_stack([np.sin(theta), np.zeros(5), -np.cos(theta)])
+    pts = _trace(flat, pulses(np.tile([0.5, 20, 0.05], (5, 1)), d), samples=19, beam_divergence=[1e-3, 1e-3])
+    for name in ("x", "y", "z", "intensity", "range"):
+        assert np.isfinite(pts[name]).all()
+    assert (pts["intensity"] >= 0).all()
+
+
+def test_edge_and_vertex_hits_are_neither_lost_nor_doubled(tmp_path):
+    # A noise terrain of zero amplitude is a flat 1 m grid mesh: shoot through its vertices and edges.
+    setup = analytic_scene(scene_file(tmp_path, terrain={"type": "noise", "amplitude": 0.0}))
+    grid = np.stack(np.meshgrid(np.arange(5, 35, 1.0), np.arange(5, 35, 1.0)), -1).reshape(-1, 2)
+    targets = np.vstack([grid, grid + [0.5, 0.0], grid + [0.5, 0.5]])  # vertices, edges, diagonals
+    pts = _trace(setup, pulses(np.column_stack([targets, np.full(len(targets), 30.0)]), [0, 0, -1]))
+    assert len(pts) == len(targets)
+    assert np.array_equal(np.sort(pts["pulse_id"]), np.arange(len(targets)))
+    assert np.abs(pts["z"]).max() < 1e-4
+
+
+def test_two_half_planes_resolved_by_pulse_length(tmp_path):
+    """A plane covering x < 20 at height d over the ground; a 19-sub-ray beam straddles its edge."""
+    pulse_length = 4e-9
+    delta = resolving_distance(pulse_length)  # 0.60 m
+    counts = {}
+    for d in (0.3 * delta, 1.5 * delta):
+        model = plane_model("half", 20.0, ROCK)
+        setup = analytic_scene(scene_file(tmp_path / f"d{d:.2f}"), [(model, (10.0, 20.0, d), 0.0, (0, 0), 0)])
+        p = pulses([[20.0, 20.0, 30.0]], [0, 0, -1])
+        pts = _trace(setup, p, samples=19, beam_divergence=[0.2, 0.2], pulse_length=pulse_length)
+        counts[d] = (len(pts), sorted(pts["classification"]))
+    assert counts[0.3 * delta][0] == 1
+    assert counts[1.5 * delta] == (2, sorted([GROUND, ROCK]))
+
+
+def test_points_lie_on_the_surface_not_on_the_central_ray(tmp_path):
+    """A wide beam on a 45° slope: each point is on the plane, off the beam axis."""
+    model = plane_model("slope", 30.0, ROCK)
+    setup = analytic_scene(scene_file(tmp_path), [(model, (20.0, 20.0, 10.0), 0.0, (0, 45), 0)])
+    pts = _trace(setup, pulses([[20.0, 20.0, 30.0]], [0, 0, -1]), samples=19, beam_divergence=[0.05, 0.05])
+    normal = np.array([np.sin(np.pi / 4), 0, np.cos(np.pi / 4)])
+    xyz = np.column_stack([pts["x"], pts["y"], pts["z"]])
+    assert np.abs((xyz - [20, 20, 10]) @ normal).max() < 1e-3
+
+
+def test_return_numbers_have_no_gaps(demo_result):
+    pts = demo_result.points
+    order = np.lexsort((pts["return_number"], pts["pulse_id"]))
+    p = pts[order]
+    _, first, counts = np.unique(p["pulse_id"], return_index=True, return_counts=True)
+    expected = np.arange(len(p)) - np.repeat(first, counts) + 1
+    assert np.array_equal(p["return_number"], expected)
+    assert np.array_equal(p["number_of_returns"], np.repeat(counts, counts))
+    assert (np.bincount(p["number_of_returns"])[2:].sum()) > 0  # the forest gives multiple returns
+
+
+def test_strip_density_and_spacing_on_flat_ground(tmp_path):
+    """Line scanner over flat ground: points within |x| <= X of the track = f_p (L/v) atan(X/A) / π."""
+    altitude, speed, f_p, f_s = 30.0, 2.0, 100000, 50
+    path = scene_file(tmp_path, area={"size": [80, 20]},
+                      survey={"lines": [[[40, -5], [40, 25]]], "altitude": altitude, "speed": speed,
+                              "pulse_frequency": f_p, "scan_frequency": f_s})
+    scene, plan, _, scan_scene = analytic_scene(path)
+    result = scan(scene, plan, scan_scene, progress=False)
+    pts = result.points
+    leg = plan["legs"][0]
+    assert result.pulses_emitted == int((leg["t1"] - leg["t0"]) * f_p)
+    inside = (pts["y"] > 2) & (pts["y"] < 18)
+    for half_width in (5.0, 20.0):
+        count = np.sum(inside & (np.abs(pts["x"] - 40) <= half_width))
+        expected = f_p * (16.0 / speed) * np.arctan(half_width / altitude) / np.pi
+        assert count == pytest.approx(expected, rel=0.01)
+    # Nadir spacing across track and line spacing along track.
+    nadir = pts[np.abs(pts["x"] - 40) < 0.5]
+    line = nadir[np.abs(nadir["gps_time"] - nadir["gps_time"][len(nadir) // 2]) < 0.5 / f_s]
+    across = np.median(np.diff(np.sort(line["x"])))
+    assert across == pytest.approx(altitude * 2 * np.pi * f_s / f_p, rel=0.02)
+    first = nadir[np.abs(nadir["x"] - 40) < 0.01]
+    along = np.median(np.diff(np.sort(first["y"])))
+    assert along == pytest.approx(speed / f_s, rel=0.02)
+
+
+def test_field_of_view_limits_fired_pulses(tmp_path):
+    path = scene_file(tmp_path, sensor="riegl_vux-1uav.yaml", survey={"pulse_frequency": 50000})
+    scene, plan, _, scan_scene = analytic_scene(path)
+    plan["legs"] = plan["legs"][:1]
+    result = scan(scene, plan, scan_scene, progress=False)
+    assert result.pulses_fired == pytest.approx(result.pulses_emitted * 330 / 360, rel=1e-3)
+
+
+def test_origin_offset_changes_nothing_but_the_offset(tmp_path):
+    base = scene_file(tmp_path / "a", area={"size": [10, 10]}, understory={"rocks": 3},
+                      simulation={"beam_samples": 7}, sensor="riegl_vux-1uav22.yaml",
+                      survey={"pulse_frequency": 100000, "line_spacing": 20, "margin": 0})
+    offset = [5e5, 6e6, 100.0]
+    shifted = scene_file(tmp_path / "b", area={"size": [10, 10]}, understory={"rocks": 3},
+                         simulation={"beam_samples": 7}, sensor="riegl_vux-1uav22.yaml",
+                         survey={"pulse_frequency": 100000, "line_spacing": 20, "margin": 0},
+                         origin={"offset": offset})
+    a = render(base, write=False, progress=False, log=lambda *_: None).points
+    b = render(shifted, write=False, progress=False, log=lambda *_: None).points
+    assert len(a) == len(b) > 1000
+    for axis, o in zip("xyz", offset):
+        assert np.abs((b[axis] - o) - a[axis]).max() < 1e-3
+    assert np.array_equal(a["object_id"], b["object_id"])
+
+
+def test_rays_at_known_trees_return_their_ids(demo_setup):
+    scene, plan, models, scan_scene = demo_setup
+    from mitsuforest.plan.transforms import matrix
+    trees = [o for o in plan["objects"] if o["kind"] == "tree"]
+    origins, targets = [], []
+    for tree in trees:
+        m = matrix(tree)
+        at = m[:3, :3] @ [0, 0, 1.3] + m[:3, 3]
+        origins.append(at + [1.0, 0, 0])
+        targets.append(at)
+    d = np.array(targets) - np.array(origins)
+    pts = PulseTracer(scan_scene, {**scene["sensor"], "range_min": 0.0}, 1).trace(pulses(origins, d), RNG)
+    first = pts[pts["return_number"] == 1]
+    assert np.array_equal(first["instance"], [t["instance"] for t in trees])
+    assert np.array_equal(first["treeid"], [t["treeid"] for t in trees])
+    assert np.array_equal(first["object_id"], [t["object_id"] for t in trees])  # the stem, component 0
+    assert set(first["classification"]) == {2}
