@@ -1,4 +1,4 @@
-"""The ``mitsuforest`` command line: render, plan, trees, info.
+"""The ``mitsuforest`` command line: render, plan, trees, export, info.
 
 User errors (bad files, bad values, refused overwrites) print one line ``mitsuforest: ...`` and exit
 with code 2, without a traceback; Ctrl-C exits with 130 and leaves no finished-looking output.
@@ -38,6 +38,13 @@ def _parser() -> argparse.ArgumentParser:
                        description="Write each archetype's wood and leaf meshes (PLY), volumes.csv and trees.png.")
     t.add_argument("-o", "--output", type=Path, default=Path("out/trees"), help="output folder (default: out/trees)")
     t.add_argument("--scene", type=Path, help="take the archetypes from this scene file (default: the built-in ten)")
+
+    e = sub.add_parser("export", help="write the planned scene as meshes, a transforms table and a HELIOS++ scene",
+                       description="Write each model's parts (OBJ), the ground, <name>_transforms.csv and "
+                                   "<name>_helios_scene.xml (one part per object, id = instance).")
+    e.add_argument("scene", type=Path, help="scene file")
+    e.add_argument("-o", "--output", type=Path, required=True, help="output folder")
+    e.add_argument("--seed", type=int, help="override the scene's seed")
 
     i = sub.add_parser("info", help="summarise a point file", description="Summarise a PCD, LAS or LAZ file.")
     i.add_argument("file", type=Path, help="a .pcd, .las or .laz file")
@@ -101,13 +108,24 @@ def _trees(args) -> int:
     return 0
 
 
+def _export(args) -> int:
+    from .config import load_scene
+    from .plan import make_plan
+    from .trees import build_models
+    from .write.export import export_scene
+    scene = load_scene(args.scene, seed=args.seed)
+    plan = make_plan(scene)
+    export_scene(scene, plan, build_models(plan), args.output)
+    return 0
+
+
 def _info(args) -> int:
     from .write.info import summary
     print(summary(args.file))
     return 0
 
 
-_COMMANDS = {"render": _render, "plan": _plan, "trees": _trees, "info": _info}
+_COMMANDS = {"render": _render, "plan": _plan, "trees": _trees, "export": _export, "info": _info}
 
 if __name__ == "__main__":
     raise SystemExit(main())

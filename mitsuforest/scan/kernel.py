@@ -45,6 +45,10 @@ class RayCaster:
         dr, mi = self.dr, self.mi
         S = self.samples
         n = len(origin) * S
+        if n == 0:
+            empty = np.zeros(0, np.uint32)
+            return {"ray": empty, "t": np.zeros(0, np.float32), "point": np.zeros((0, 3)), "instance": empty,
+                    "shape": empty, "shape_index": empty, "prim": empty}
         cols = [mi.Float(_aligned(a[:, k].astype(np.float32))) for a in (origin, direction, across) for k in range(3)]
         idx = dr.arange(mi.UInt32, n)
         pulse = idx // S

@@ -58,7 +58,7 @@ DEFAULT_ARCHETYPES: tuple[Archetype, ...] = (
     Archetype(height=21.0, dbh=0.30, crown_diameter=9.0, crown_ratio=0.45, branches=14, leaf_area=34, seed=1),
     Archetype(height=24.0, dbh=0.33, crown_diameter=10.0, crown_ratio=0.40, branches=15, forks=3, leaf_area=40, seed=2),
     Archetype(height=25.0, dbh=0.34, crown_diameter=9.5, crown_ratio=0.50, branches=16, taper=0.85, leaf_area=42, seed=3),
-    Archetype(height=15.0, dbh=0.22, crown_diameter=7.5, crown_ratio=0.55, branches=12, fork_height=0.55, leaf_area=24, seed=4),
+    Archetype(height=15.0, dbh=0.235, crown_diameter=7.5, crown_ratio=0.55, branches=12, fork_height=0.55, leaf_area=24, seed=4),
     Archetype(height=28.0, dbh=0.38, crown_diameter=11.0, crown_ratio=0.42, branches=18, taper=0.85, leaf_area=50, seed=5),
     Archetype(height=26.0, dbh=0.36, crown_diameter=10.5, crown_ratio=0.38, branches=16, forks=3, leaf_area=46, seed=6),
     Archetype(height=22.0, dbh=0.29, crown_diameter=8.5, crown_ratio=0.48, branches=14, branch_angle=38, leaf_area=32, seed=7),

@@ -147,7 +147,24 @@ def grow(a: Archetype) -> list[Branch]:
         component += 1
     for leader in parents[1:]:
         _children(a, leader, rng, branches, order=2, count=max(a.children // 2, 1))
+    _fit_height(branches, a.height * (1 - a.crown_ratio), a.height)
     return branches
+
+
+def _fit_height(branches: list[Branch], crown_base: float, height: float) -> None:
+    """Compress the crown vertically above ``crown_base`` so that the tree's top is ``height``.
+
+    Upper branches grow past the stem tip; squeezing only the crown keeps ``height`` the tree's
+    total height without changing the clear bole or the crown's footprint.
+    """
+    top = max(float(b.points[:, 2].max()) for b in branches)
+    if top <= height:
+        return
+    factor = (height - crown_base) / (top - crown_base)
+    for b in branches:
+        z = b.points[:, 2]
+        above = z > crown_base
+        z[above] = crown_base + (z[above] - crown_base) * factor
 
 
 def _children(a: Archetype, parent: Branch, rng, out: list[Branch], order: int, count: int | None = None):
