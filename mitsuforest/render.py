@@ -1,7 +1,7 @@
 """The whole pipeline: plan → trees → scene → scan → labels → write.
 
 >>> result = render("scenes/demo.yaml", output_dir="out/demo")   # doctest: +SKIP
->>> result.points["classification"]                              # doctest: +SKIP
+>>> result.manifest["points"], [f.name for f in result.files]    # doctest: +SKIP
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from .plan import make_plan, plan_json
 from .scan import scan
 from .scene import build_scene
 from .trees import build_models
-from .write import Staging, existing_outputs, point_statistics, write_manifest, write_render_outputs
+from .write import PointWriter, Staging, existing_outputs, write_manifest, write_render_outputs
 
 DEPENDENCIES = ("mitsuba", "drjit", "numpy", "trimesh", "manifold3d", "laspy", "scipy", "pyyaml")
 
@@ -30,24 +30,21 @@ DEPENDENCIES = ("mitsuba", "drjit", "numpy", "trimesh", "manifold3d", "laspy", "
 class RenderResult:
     scene: dict
     plan: dict
-    points: np.ndarray              # georeferenced (origin offset added), float64 coordinates
     manifest: dict
+    points: np.ndarray | None = None   # georeferenced, float64 coordinates (when kept)
     files: list[Path] = field(default_factory=list)
 
 
-def georeference(points: np.ndarray, offset) -> np.ndarray:
-    """Add the float64 origin offset to local-frame points (a copy)."""
-    out = points.copy()
-    for axis, o in zip("xyz", offset):
-        out[axis] += o
-    return out
-
-
 def render(scene, *, output_dir=None, seed=None, variant=None, overwrite=False, progress=True,
-           write=True, log=print) -> RenderResult:
-    """Render a scene file (path) or a loaded scene (dict) and write its outputs."""
+           write=True, keep_points=None, log=print) -> RenderResult:
+    """Render a scene file (path) or a loaded scene (dict).
+
+    :param write: write the output files (see README, Outputs) into ``output.dir``.
+    :param keep_points: also return every point in memory; by default only when not writing.
+    """
     if not isinstance(scene, dict):
         scene = load_scene(scene, seed=seed, variant=variant, output_dir=output_dir)
+    keep_points = (not write) if keep_points is None else keep_points
     name, out = scene["name"], Path(scene["output"]["dir"])
     if write and not overwrite and existing_outputs(out, name):
         raise UserError(f"{out} already holds results of '{name}' ({', '.join(existing_outputs(out, name)[:3])}, ...);"
@@ -71,30 +68,31 @@ def render(scene, *, output_dir=None, seed=None, variant=None, overwrite=False, 
     lap("scene")
     log(f"scene: {scan_scene.objects} objects ({scan_scene.culled} out of reach), "
         f"{scan_scene.triangles:,} distinct triangles, variant {scan_scene.variant}")
-    result = scan(scene, plan, scan_scene, progress=progress)
-    lap("scan")
-    offset = scene["origin"]["offset"]
-    points = georeference(result.points, offset)
-    stats = point_statistics(result.points, scene["area"]["size"], scene["seed"])
-    lap("statistics")
-    manifest = _manifest(scene, plan, scan_scene, result, stats, timings)
-    render_result = RenderResult(scene, plan, points, manifest)
-    if write:
-        staging = Staging(out, name)
-        try:
-            write_render_outputs(staging, scene=scene, plan=plan, models=models, points=points, offset=offset,
-                                 formats=scene["output"]["formats"], plan_text=plan_json(plan))
+    staging = Staging(out, name) if write else None
+    writer = PointWriter(staging, scene, keep=keep_points)
+    try:
+        result = scan(scene, plan, scan_scene, progress=progress, on_points=writer.add)
+        writer.close()
+        lap("scan")
+        stats = writer.statistics()
+        manifest = _manifest(scene, plan, scan_scene, result, stats, timings)
+        files = []
+        if write:
+            write_render_outputs(staging, scene=scene, plan=plan, models=models, writer=writer,
+                                 plan_text=plan_json(plan))
             lap("write")
             manifest["timings_s"] = dict(timings)
             write_manifest(staging, manifest)
-            render_result.files = staging.commit()
-        except BaseException:
+            files = staging.commit()
+    except BaseException:
+        writer.abort()
+        if staging:
             staging.discard()
-            raise
-    log(f"scan: {result.pulses_cast:,} pulses cast in {timings['scan']:.1f} s "
-        f"({result.pulses_cast / max(timings['scan'], 1e-9):,.0f} pulses/s), {len(points):,} points, "
+        raise
+    log(f"scan: {result.pulses_cast:,} pulses cast in {result.seconds:.1f} s "
+        f"({result.pulses_cast / max(result.seconds, 1e-9):,.0f} pulses/s), {stats['points']:,} points, "
         f"{stats['density_per_m2']:.0f} points/m2")
-    return render_result
+    return RenderResult(scene, plan, manifest, writer.points, files)
 
 
 def _versions() -> dict:

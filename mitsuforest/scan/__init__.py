@@ -21,7 +21,8 @@ __all__ = ["scan", "ScanResult", "POINT_DTYPE"]
 
 @dataclass
 class ScanResult:
-    points: np.ndarray                     # POINT_DTYPE, local frame coordinates
+    points: np.ndarray | None = None       # POINT_DTYPE, local frame (None when streamed to on_points)
+    points_made: int = 0
     pulses_emitted: int = 0                # time slots flown (fired or not)
     pulses_fired: int = 0                  # inside the field of view
     pulses_cast: int = 0                   # fired and able to reach the scene
@@ -30,14 +31,19 @@ class ScanResult:
     returns_histogram: dict = field(default_factory=dict)  # number_of_returns -> pulses
 
 
-def scan(scene: dict, plan: dict, scan_scene, progress: bool = True) -> ScanResult:
-    """Simulate the whole survey of ``plan`` over ``scan_scene`` (see module docstring)."""
+def scan(scene: dict, plan: dict, scan_scene, progress: bool = True, on_points=None) -> ScanResult:
+    """Simulate the whole survey of ``plan`` over ``scan_scene`` (see module docstring).
+
+    :param on_points: called with each batch's points (local frame, POINT_DTYPE) as they are made;
+        without it, the points are collected in ``ScanResult.points``.
+    """
     sensor, survey, sim = scene["sensor"], scene["survey"], scene["simulation"]
     tracer = PulseTracer(scan_scene, sensor, sim["beam_samples"])
     margin = sensor["range_max"] * max(sensor["beam_divergence"]) * 0.75 + 0.01
     box = scan_scene.bbox + [[-margin] * 3, [margin] * 3]
-    result = ScanResult(points=np.zeros(0, POINT_DTYPE))
+    result = ScanResult()
     chunks, first_id = [], 0
+    histogram = np.zeros(256, np.int64)
     start = time.perf_counter()
     for leg_no, leg in enumerate(plan["legs"]):
         total = leg_pulse_count(leg, survey["pulse_frequency"])
@@ -51,18 +57,24 @@ def scan(scene: dict, plan: dict, scan_scene, progress: bool = True) -> ScanResu
             result.pulses_cast += len(pulses.time)
             result.rays += len(pulses.time) * tracer.samples
             rng = np.random.default_rng([scene["seed"], leg_no, first])
-            chunks.append(tracer.trace(pulses, rng, first_id))
+            points = tracer.trace(pulses, rng, first_id)
+            result.points_made += len(points)
+            first_returns = points["number_of_returns"][points["return_number"] == 1]
+            np.add.at(histogram, first_returns, 1)
+            if on_points is None:
+                chunks.append(points)
+            else:
+                on_points(points)
             if bar:
                 bar.update(count)
         if bar:
             bar.close()
         result.pulses_emitted += total
         first_id += total
-    result.points = np.concatenate(chunks) if chunks else np.zeros(0, POINT_DTYPE)
+    if on_points is None:
+        result.points = np.concatenate(chunks) if chunks else np.zeros(0, POINT_DTYPE)
     result.seconds = time.perf_counter() - start
-    first_returns = result.points["return_number"] == 1
-    counts = np.bincount(result.points["number_of_returns"][first_returns])
-    result.returns_histogram = {int(k): int(v) for k, v in enumerate(counts) if v}
+    result.returns_histogram = {int(k): int(v) for k, v in enumerate(histogram) if v}
     return result
 
 

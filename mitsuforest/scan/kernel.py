@@ -58,6 +58,8 @@ class RayCaster:
         e2 = dr.cross(d, e1)
         d = dr.normalize(d + dr.gather(mi.Float, self.tan_x, sample) * e1 + dr.gather(mi.Float, self.tan_y, sample) * e2)
         ray = mi.Ray3f(o, d)
+        # coherent=True traces ~30 % faster on CPU but returned different first hits for ~3 % of
+        # sub-rays of an instanced forest (Mitsuba 3.9.1 / Embree): keep incoherent, exact traversal.
         pi = self.scene.ray_intersect_preliminary(ray, coherent=False)
         hit = dr.compress(pi.is_valid())
         t = dr.gather(mi.Float, pi.t, hit)

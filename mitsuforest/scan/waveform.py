@@ -50,6 +50,19 @@ class Echoes:
                                 for k in range(values.shape[1])])
 
 
+@dataclass
+class _Groups:
+    """Candidate echoes before detection: one per chain of sub-ray returns."""
+
+    pulse: np.ndarray
+    range: np.ndarray
+    amplitude: np.ndarray
+    dominant: np.ndarray
+    member: np.ndarray
+    member_group: np.ndarray
+    member_weight: np.ndarray
+
+
 def detect_echoes(ranges: np.ndarray, power: np.ndarray, resolving: float, threshold: float = 0.0,
                   max_returns: int = 0, range_min: float = 0.0, range_max: float = np.inf) -> Echoes:
     """Echoes of P pulses of S sub-rays each.
@@ -60,49 +73,87 @@ def detect_echoes(ranges: np.ndarray, power: np.ndarray, resolving: float, thres
     """
     n_pulses, samples = ranges.shape
     ranges = np.where((ranges >= range_min) & (ranges <= range_max), ranges, np.inf)
-    order = np.argsort(ranges, axis=1, kind="stable")
-    r = np.take_along_axis(ranges, order, 1)
+    valid = np.isfinite(ranges)
+    hit = valid.any(axis=1)
+    near = np.where(valid, ranges, np.inf).min(axis=1)
+    far = np.where(valid, ranges, -np.inf).max(axis=1)
+    single = hit & (far - near <= resolving)         # every return in one chain: no sorting needed
+    several = hit & ~single
+    sigma = resolving / FWHM_PER_SIGMA
+    parts = [_chains(np.flatnonzero(rows), ranges, power, resolving, sigma, sorted_=sorted_)
+             for rows, sorted_ in ((single, False), (several, True)) if rows.any()]
+    g = _merge(parts) if parts else None
+    if g is None:
+        empty = np.zeros(0, np.int64)
+        return Echoes(empty, empty.astype(np.uint8), empty.astype(np.uint8), np.zeros(0), np.zeros(0),
+                      empty, empty, empty, np.zeros(0))
+    detected = (g.amplitude > 0) & (g.amplitude >= threshold)
+    kept = np.flatnonzero(detected)
+    kept_pulse = g.pulse[kept]
+    rank = np.arange(len(kept)) - np.searchsorted(kept_pulse, kept_pulse)   # kept is sorted by pulse
+    if max_returns:
+        keep = rank < max_returns
+        kept, kept_pulse, rank = kept[keep], kept_pulse[keep], rank[keep]
+    per_pulse = np.bincount(kept_pulse, minlength=n_pulses)
+    new_index = np.full(len(g.pulse), -1, np.int64)
+    new_index[kept] = np.arange(len(kept))
+    member_echo = new_index[g.member_group]
+    m = member_echo >= 0
+    return Echoes(
+        pulse=kept_pulse, return_number=(rank + 1).astype(np.uint8),
+        number_of_returns=per_pulse[kept_pulse].astype(np.uint8), range=g.range[kept],
+        amplitude=g.amplitude[kept], dominant=g.dominant[kept], member=g.member[m], member_echo=member_echo[m],
+        member_weight=g.member_weight[m])
+
+
+def _chains(rows: np.ndarray, ranges, power, resolving, sigma, sorted_: bool) -> _Groups:
+    """Chains of returns of the pulses ``rows``; ``sorted_=False`` when each pulse is one chain."""
+    samples = ranges.shape[1]
+    r_all = ranges[rows]
+    if sorted_:
+        order = np.argsort(r_all, axis=1, kind="stable")
+        r = np.take_along_axis(r_all, order, 1)
+    else:
+        order = np.broadcast_to(np.arange(samples), r_all.shape)
+        r = r_all
     valid = np.isfinite(r)
     starts = valid.copy()
-    with np.errstate(invalid="ignore"):  # inf - inf between misses
-        starts[:, 1:] &= ~(valid[:, :-1] & (np.diff(r, axis=1) <= resolving))
-    rows, cols = np.nonzero(valid)                    # row-major: by pulse, then by range
-    flat = rows * samples + order[rows, cols]
-    rv = r[rows, cols]
+    if sorted_:
+        with np.errstate(invalid="ignore"):  # inf - inf between misses
+            starts[:, 1:] &= ~(valid[:, :-1] & (np.diff(r, axis=1) <= resolving))
+    else:
+        starts[:, 1:] &= ~valid[:, :-1].cumsum(axis=1).astype(bool)  # only each pulse's first return
+    local, cols = np.nonzero(valid)                   # row-major: by pulse, then by range
+    flat = rows[local] * samples + order[local, cols]
+    rv = r[local, cols]
     pv = power.reshape(-1)[flat].astype(np.float64)
-    group = np.cumsum(starts[rows, cols]) - 1
+    group = np.cumsum(starts[local, cols]) - 1
     n_groups = int(group[-1]) + 1 if len(group) else 0
     energy = np.bincount(group, pv, n_groups)
     count = np.bincount(group, None, n_groups)
     uniform = energy <= 0                             # all-grazing chains: plain mean
     w = np.where(uniform[group], 1.0 / count[group], pv / np.where(uniform, 1, energy)[group])
     mean_range = np.bincount(group, w * rv, n_groups)
-    sigma = resolving / FWHM_PER_SIGMA
     shape = np.exp(-0.5 * ((rv - mean_range[group]) / sigma) ** 2) if sigma > 0 else (rv == mean_range[group])
     amplitude = np.bincount(group, pv * shape, n_groups)
-    group_pulse = np.zeros(n_groups, np.int64)
-    group_pulse[group] = rows
-    first = np.flatnonzero(starts[rows, cols])
+    pulse = np.zeros(n_groups, np.int64)
+    pulse[group] = rows[local]
+    first = np.flatnonzero(starts[local, cols])
     strongest = np.maximum.reduceat(pv, first) if len(first) else np.zeros(0)
     at_max = np.flatnonzero(pv == strongest[group])
     _, pick = np.unique(group[at_max], return_index=True)
-    dominant = flat[at_max[pick]]
+    return _Groups(pulse, mean_range, amplitude, flat[at_max[pick]], flat, group, w)
 
-    detected = (amplitude > 0) & (amplitude >= threshold)
-    kept = np.flatnonzero(detected)
-    kept_pulse = group_pulse[kept]
-    pulse_start = np.searchsorted(kept_pulse, kept_pulse)   # kept is sorted by pulse
-    rank = np.arange(len(kept)) - pulse_start
-    if max_returns:
-        keep = rank < max_returns
-        kept, kept_pulse, rank = kept[keep], kept_pulse[keep], rank[keep]
-    per_pulse = np.bincount(kept_pulse, minlength=n_pulses)
-    new_index = np.full(n_groups, -1, np.int64)
-    new_index[kept] = np.arange(len(kept))
-    member_echo = new_index[group]
-    m = member_echo >= 0
-    return Echoes(
-        pulse=kept_pulse, return_number=(rank + 1).astype(np.uint8),
-        number_of_returns=per_pulse[kept_pulse].astype(np.uint8), range=mean_range[kept],
-        amplitude=amplitude[kept], dominant=dominant[kept], member=flat[m], member_echo=member_echo[m],
-        member_weight=w[m])
+
+def _merge(parts: list[_Groups]) -> _Groups:
+    """Concatenate candidate echoes and order them by pulse, then range."""
+    offsets = np.cumsum([0] + [len(p.pulse) for p in parts[:-1]])
+    cat = {k: np.concatenate([getattr(p, k) for p in parts]) for k in ("pulse", "range", "amplitude", "dominant")}
+    member = np.concatenate([p.member for p in parts])
+    member_group = np.concatenate([p.member_group + o for p, o in zip(parts, offsets)])
+    member_weight = np.concatenate([p.member_weight for p in parts])
+    order = np.lexsort((cat["range"], cat["pulse"]))
+    position = np.empty_like(order)
+    position[order] = np.arange(len(order))
+    return _Groups(*(cat[k][order] for k in ("pulse", "range", "amplitude", "dominant")),
+                   member, position[member_group], member_weight)

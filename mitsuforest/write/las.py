@@ -24,8 +24,8 @@ INTENSITY_SCALE = 1e-6   # amplitude units per LAS intensity count (65535 ≙ a 
 COORDINATE_SCALE = 1e-4  # m
 
 
-def write_las(path, points: np.ndarray, offset, crs: str | None = None) -> None:
-    """Write georeferenced points (x, y, z already include ``offset``) to ``.las`` or ``.laz``."""
+def las_header(offset, crs: str | None = None) -> laspy.LasHeader:
+    """A LAS 1.4 point format 6 header with our extra dimensions and the coding VLR."""
     header = laspy.LasHeader(point_format=6, version="1.4")
     header.offsets = np.asarray(offset, float)
     header.scales = np.full(3, COORDINATE_SCALE)
@@ -39,10 +39,14 @@ def write_las(path, points: np.ndarray, offset, crs: str | None = None) -> None:
     header.vlrs.append(laspy.VLR("mitsuforest", 1, "intensity and classes", json.dumps(
         {"intensity_scale": INTENSITY_SCALE, "classification": {str(k): v for k, v in ASPRS_CODE.items()},
          "crs": crs}).encode()))
+    return header
+
+
+def las_points(header: laspy.LasHeader, points: np.ndarray) -> laspy.LasData:
+    """Georeferenced points (x, y, z include the offset) as a LasData of ``header``'s format."""
     las = laspy.LasData(header)
     las.x, las.y, las.z = points["x"], points["y"], points["z"]
-    las.classification = np.vectorize(ASPRS_CODE.get, otypes=[np.uint8])(points["classification"]) \
-        if len(points) else np.zeros(0, np.uint8)
+    las.classification = _ASPRS_LOOKUP[points["classification"]]
     las.return_number = points["return_number"]
     las.number_of_returns = points["number_of_returns"]
     las.intensity = np.clip(np.round(points["intensity"] / INTENSITY_SCALE), 0, 65535).astype(np.uint16)
@@ -53,5 +57,35 @@ def write_las(path, points: np.ndarray, offset, crs: str | None = None) -> None:
     las.instance = points["instance"]
     las.object_id = points["object_id"]
     las.amplitude = points["intensity"]
+    return las
+
+
+_ASPRS_LOOKUP = np.zeros(256, np.uint8)
+for _code, _asprs in ASPRS_CODE.items():
+    _ASPRS_LOOKUP[_code] = _asprs
+
+
+class LasStream:
+    """A ``.las`` or ``.laz`` file written batch by batch (laspy updates the header on close)."""
+
+    def __init__(self, path, offset, crs: str | None = None):
+        self.header = las_header(offset, crs)
+        self._writer = laspy.open(str(path), mode="w", header=self.header,
+                                  do_compress=str(path).endswith(".laz"))
+
+    def write(self, points: np.ndarray) -> None:
+        if len(points):
+            self._writer.write_points(las_points(self.header, points).points)
+
+    def close(self) -> None:
+        self._writer.close()
+
+    abort = close
+
+
+def write_las(path, points: np.ndarray, offset, crs: str | None = None) -> None:
+    """Write georeferenced points (x, y, z already include ``offset``) to ``.las`` or ``.laz`` at once."""
     with atomic_path(path) as tmp:
-        las.write(str(tmp), do_compress=str(path).endswith(".laz"))
+        stream = LasStream(tmp, offset, crs)
+        stream.write(points)
+        stream.close()

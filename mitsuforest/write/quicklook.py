@@ -31,12 +31,55 @@ def instance_colours(instance: np.ndarray) -> np.ndarray:
     return palette[instance]
 
 
-def top_view(points, extent_xy, pixels_per_m: float = 40.0, max_pixels: int = 2000) -> np.ndarray:
-    (x0, x1), (y0, y1) = extent_xy
-    scale = min(pixels_per_m, max_pixels / max(x1 - x0, y1 - y0, 1e-9))
-    size = (max(int((x1 - x0) * scale), 2), max(int((y1 - y0) * scale), 2))
-    order = np.argsort(points["z"], kind="stable")  # highest drawn last
-    return _raster(points["x"], points["y"], CLASS_COLOURS[points["classification"]], order, size, extent_xy)
+class TopView:
+    """Top view coloured by class, accumulated batch by batch: each pixel shows its highest point."""
+
+    def __init__(self, area, pixels_per_m: float = 20.0, max_pixels: int = 2000):
+        w, h = area
+        self.height_m = h
+        self.scale = min(pixels_per_m, max_pixels / max(w, h, 1e-9))
+        self.size = (max(int(w * self.scale), 2), max(int(h * self.scale), 2))
+        self.top = np.full(self.size[1] * self.size[0], -np.inf)
+        self.cls = np.zeros(self.size[1] * self.size[0], np.uint8)
+
+    def add(self, points) -> None:
+        if len(points) == 0:
+            return
+        w, h = self.size
+        i = np.clip((points["x"] * self.scale).astype(int), 0, w - 1)
+        j = np.clip(((self.height_m - points["y"]) * self.scale).astype(int), 0, h - 1)
+        pix = j * w + i
+        order = np.lexsort((points["z"], pix))
+        last = np.r_[pix[order][1:] != pix[order][:-1], True]   # the highest point of each pixel
+        sel = order[last]
+        higher = points["z"][sel] > self.top[pix[sel]]
+        self.top[pix[sel][higher]] = points["z"][sel][higher]
+        self.cls[pix[sel][higher]] = points["classification"][sel][higher]
+
+    def image(self) -> np.ndarray:
+        img = CLASS_COLOURS[self.cls].reshape(self.size[1], self.size[0], 3).copy()
+        img[~np.isfinite(self.top).reshape(self.size[1], self.size[0])] = 255
+        return img
+
+
+class SideTile:
+    """The points of the central 20 m x 20 m tile (at most), for a side view by instance."""
+
+    def __init__(self, area, tile: float = 20.0):
+        w, h = area
+        self.tile = min(tile, w, h)
+        self.x0, self.y0 = (w - self.tile) / 2, (h - self.tile) / 2
+        self.parts = []
+
+    def add(self, points) -> None:
+        sel = ((points["x"] >= self.x0) & (points["x"] < self.x0 + self.tile)
+               & (points["y"] >= self.y0) & (points["y"] < self.y0 + self.tile))
+        self.parts.append(points[sel][["x", "y", "z", "instance"]])
+
+    def image(self) -> np.ndarray:
+        pts = np.concatenate(self.parts) if self.parts else np.zeros(0, [("x", "f8"), ("y", "f8"), ("z", "f8"),
+                                                                         ("instance", "u4")])
+        return side_view(pts, (self.x0, self.x0 + self.tile))
 
 
 def side_view(points, x_range, pixels_per_m: float = 30.0) -> np.ndarray:

@@ -1,0 +1,117 @@
+"""Streaming point output: each scan batch goes straight to the PCD and LAS files.
+
+Memory stays bounded by the batch size however many points a survey makes. Statistics (counts,
+classes, returns, spacing) and the quick-look rasters are accumulated batch by batch.
+"""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+
+from .las import LasStream
+from .pcd import pcd_header
+from .quicklook import SideTile, TopView
+
+SPACING_TILE = 5.0  # m, side of the tiles in which the mean nearest-neighbour spacing is measured
+
+
+class PointWriter:
+    """Receives local-frame points batch by batch (:meth:`add`) and writes georeferenced files."""
+
+    def __init__(self, staging, scene: dict, keep: bool = False):
+        self.offset = np.asarray(scene["origin"]["offset"], np.float64)
+        self.area = scene["area"]["size"]
+        formats = scene["output"]["formats"] if staging else []
+        self._pcd_data = staging.file(".pcd.data") if staging and "pcd" in formats else None
+        self._pcd_file = open(self._pcd_data, "wb") if self._pcd_data else None
+        self._pcd_target = staging.file(".pcd") if staging else None
+        self._las = [LasStream(staging.file("." + f), self.offset, scene["origin"]["crs"])
+                     for f in ("las", "laz") if f in formats]
+        self._kept = [] if keep else None
+        self.count = 0
+        self.classes = np.zeros(256, np.int64)
+        self.returns = np.zeros(256, np.int64)
+        self.top = TopView(self.area)
+        self.side = SideTile(self.area)
+        rng = np.random.default_rng([scene["seed"], 99])
+        corner = [rng.uniform(0, max(s - SPACING_TILE, 0), 4) for s in self.area]
+        self._tiles = np.column_stack(corner)
+        self._tile_points = [[] for _ in self._tiles]
+        self.dtype = None
+
+    def add(self, points: np.ndarray) -> None:
+        """Add a batch of local-frame points (POINT_DTYPE)."""
+        self.dtype = points.dtype
+        if len(points) == 0:
+            return
+        self.count += len(points)
+        np.add.at(self.classes, points["classification"], 1)
+        first = points["return_number"] == 1
+        np.add.at(self.returns, points["number_of_returns"][first], 1)
+        self.top.add(points)
+        self.side.add(points)
+        for (x0, y0), bucket in zip(self._tiles, self._tile_points):
+            sel = ((points["x"] >= x0) & (points["x"] < x0 + SPACING_TILE)
+                   & (points["y"] >= y0) & (points["y"] < y0 + SPACING_TILE))
+            bucket.append(np.column_stack([points["x"][sel], points["y"][sel], points["z"][sel]]))
+        geo = georeference(points, self.offset)
+        if self._pcd_file:
+            self._pcd_file.write(np.ascontiguousarray(geo).tobytes())
+        for las in self._las:
+            las.write(geo)
+        if self._kept is not None:
+            self._kept.append(geo)
+
+    def close(self) -> None:
+        """Finish the files: the PCD header is written once the point count is known."""
+        for las in self._las:
+            las.close()
+        if self._pcd_file:
+            self._pcd_file.close()
+            with open(self._pcd_target, "wb") as out, open(self._pcd_data, "rb") as data:
+                out.write(pcd_header(self.dtype, self.count).encode("ascii"))
+                shutil.copyfileobj(data, out, 16 << 20)
+            Path(self._pcd_data).unlink()
+
+    def abort(self) -> None:
+        for las in self._las:
+            las.abort()
+        if self._pcd_file:
+            self._pcd_file.close()
+
+    @property
+    def points(self) -> np.ndarray | None:
+        """All points, georeferenced, when the writer was made with ``keep=True``."""
+        if self._kept is None:
+            return None
+        return np.concatenate(self._kept) if self._kept else np.zeros(0, self.dtype)
+
+    def statistics(self) -> dict:
+        """Density over the plot, mean nearest-neighbour spacing, class and returns counts."""
+        from scipy.spatial import cKDTree
+        plot_area = float(self.area[0] * self.area[1])
+        spacings = []
+        for bucket in self._tile_points:
+            xyz = np.vstack(bucket) if bucket else np.zeros((0, 3))
+            if len(xyz) > 1:
+                d, _ = cKDTree(xyz).query(xyz, k=2)
+                spacings.append(d[:, 1])
+        return {
+            "points": int(self.count),
+            "density_per_m2": self.count / plot_area if plot_area else 0.0,
+            "classes": {int(k): int(v) for k, v in enumerate(self.classes) if v},
+            "pulses_with_returns": int(self.returns.sum()),
+            "returns_histogram": {int(k): int(v) for k, v in enumerate(self.returns) if v},
+            "mean_spacing_m": float(np.concatenate(spacings).mean()) if spacings else None,
+        }
+
+
+def georeference(points: np.ndarray, offset) -> np.ndarray:
+    """Add the float64 origin offset to local-frame points (a copy)."""
+    out = points.copy()
+    for axis, o in zip("xyz", offset):
+        out[axis] += o
+    return out
