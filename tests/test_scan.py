@@ -56,6 +56,13 @@ def test_grazing_incidence_gives_finite_values(flat):
     assert (pts["intensity"] >= 0).all()
 
 
+def test_hits_closer_than_range_min_give_no_points(flat):
+    pts = _trace(flat, pulses(np.tile([20.0, 20, 2.0], (5, 1)), [0, 0, -1]), samples=7, range_min=3.0,
+                 beam_divergence=[1e-3, 1e-3])
+    assert len(pts) == 0
+    assert len(_trace(flat, pulses([[20.0, 20, 3.5]], [0, 0, -1]), range_min=3.0)) == 1
+
+
 def test_edge_and_vertex_hits_are_neither_lost_nor_doubled(tmp_path):
     # A noise terrain of zero amplitude is a flat 1 m grid mesh: shoot through its vertices and edges.
     setup = analytic_scene(scene_file(tmp_path, terrain={"type": "noise", "amplitude": 0.0}))

@@ -124,7 +124,7 @@ SCENE_SPEC = {
         "lines": Custom(_legs, None),
     },
     "simulation": {
-        "beam_samples": Number(19, integer=True, ge=1, le=1000),
+        "beam_samples": Number(7, integer=True, ge=1, le=1000),
         "variant": Text("auto"),
         "pulses_per_batch": Number(400_000, integer=True, gt=0),
     },

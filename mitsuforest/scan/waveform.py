@@ -46,8 +46,10 @@ class Echoes:
         """
         rows = self.member if row_of_ray is None else row_of_ray[self.member]
         v = values[rows] * self.member_weight[:, None]
-        return np.column_stack([np.bincount(self.member_echo, v[:, k], len(self.pulse))
-                                for k in range(values.shape[1])])
+        out = np.zeros((len(self.pulse), values.shape[1]))  # bincount of nothing would be int64
+        for k in range(values.shape[1]):
+            out[:, k] = np.bincount(self.member_echo, v[:, k], len(self.pulse))
+        return out
 
 
 @dataclass

@@ -1,0 +1,182 @@
+"""Speed against error: the same pulses over a tile of the open forest at several beam samplings.
+
+Every setting traces exactly the same pulses (one flight leg across the plot's centre, noise off) and
+is compared with a reference render at ``--reference`` sub-rays:
+
+- point error: distance from each point to the nearest true surface sample (hits of 128 sub-rays
+  per pulse at random offsets within the beam), mean and 95th percentile, in mm;
+- returns: total-variation distance between the returns-per-pulse histograms;
+- classes: largest difference in any class's share of the points;
+- intensity: median relative difference of the first-return intensity of pulses both renders see;
+- time and pulses/s of the scan stage (the tracer only: kernel, radiometry, waveform, labels).
+
+A "HELIOS-like" row places the 19-sub-ray echoes as HELIOS++ does (on the central ray, range
+quantised to 7.5 cm) to compare point error with the incumbent's method.
+
+    python benchmarks/speed_vs_error.py               # 10 s of flight (2 M pulses), ~5 min on 2 cores
+    python benchmarks/speed_vs_error.py --quick       # 0.5 s of flight, for CI
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from mitsuforest.config import load_scene
+from mitsuforest.plan import make_plan
+from mitsuforest.scan import PulseTracer
+from mitsuforest.scan.kernel import RayCaster
+from mitsuforest.scan.pulses import Pulses, leg_pulse_count, leg_pulses, reaches_box
+from mitsuforest.scene import build_scene
+from mitsuforest.trees import build_models
+
+ROOT = Path(__file__).resolve().parents[1]
+HELIOS_BIN = 0.075  # m: HELIOS++ samples the waveform in 0.25 ns bins of one-way time
+
+
+def setup(scene_file: Path, seconds: float, variant: str):
+    scene = load_scene(scene_file, variant=variant)
+    w, h = scene["area"]["size"]
+    scene["survey"]["lines"] = [[[w / 2, h / 2 - seconds * scene["survey"]["speed"] / 2],
+                                 [w / 2, h / 2 + seconds * scene["survey"]["speed"] / 2]]]
+    scene["sensor"]["range_precision"] = 0.0
+    plan = make_plan(scene)
+    models = build_models(plan)
+    scan_scene = build_scene(plan, models, scene)
+    leg = plan["legs"][0]
+    pulses = leg_pulses(leg, scene["sensor"], scene["survey"], 0, leg_pulse_count(leg, scene["survey"]["pulse_frequency"]))
+    keep = reaches_box(pulses.origin, pulses.direction, scan_scene.bbox, scene["sensor"]["range_max"])
+    pulses = Pulses(**{k: v[keep] for k, v in vars(pulses).items()})
+    return scene, scan_scene, pulses
+
+
+def trace(scene, scan_scene, pulses, samples, batch):
+    tracer = PulseTracer(scan_scene, scene["sensor"], samples)
+    rng = np.random.default_rng(0)
+    tracer.trace(Pulses(**{k: v[:1000] for k, v in vars(pulses).items()}), rng)  # compile outside the timing
+    start = time.perf_counter()
+    parts = [tracer.trace(Pulses(**{k: v[i:i + batch] for k, v in vars(pulses).items()}), rng)
+             for i in range(0, len(pulses.time), batch)]
+    return np.concatenate(parts), time.perf_counter() - start
+
+
+def surface_samples(scene, scan_scene, pulses, samples, batch):
+    """True surface samples: sub-rays at random offsets drawn from the beam's Gaussian profile, so that no
+    tested pattern shares its sub-rays with the truth."""
+    offsets = np.random.default_rng(1).normal(0.0, 0.5, (samples, 2))  # I ∝ exp(-2r²/w²): σ = w/2 per axis
+    caster = RayCaster(scan_scene.mitsuba, np.tan(offsets * np.asarray(scene["sensor"]["beam_divergence"]) / 2))
+    pts = [caster.cast(pulses.origin[i:i + batch], pulses.direction[i:i + batch], pulses.across[i:i + batch])["point"]
+           for i in range(0, len(pulses.time), batch)]
+    return cKDTree(np.vstack(pts))
+
+
+def helios_like(points, pulses):
+    """Echo points moved onto the central ray at a range quantised to HELIOS++'s 7.5 cm bins."""
+    row = np.searchsorted(pulses.index, points["pulse_id"])
+    r = np.round(points["range"] / HELIOS_BIN) * HELIOS_BIN
+    xyz = pulses.origin[row] + pulses.direction[row] * r[:, None]
+    out = points.copy()
+    out["x"], out["y"], out["z"] = xyz.T
+    return out
+
+
+def returns_histogram(points, pulses_cast):
+    first = points["return_number"] == 1
+    h = np.bincount(points["number_of_returns"][first], minlength=32).astype(float)
+    h[0] = pulses_cast - first.sum()
+    return h / pulses_cast
+
+
+def compare(points, ref, truth, pulses_cast):
+    xyz = np.column_stack([points["x"], points["y"], points["z"]])
+    d, _ = truth.query(xyz)
+    classes = [np.mean(p["classification"] == c) for p in (points, ref) for c in range(1, 8)]
+    a, b = np.array(classes[:7]), np.array(classes[7:])
+    fa = points[points["return_number"] == 1]
+    fb = ref[ref["return_number"] == 1]
+    common, ia, ib = np.intersect1d(fa["pulse_id"], fb["pulse_id"], return_indices=True)
+    rel = np.abs(fa["intensity"][ia] / fb["intensity"][ib] - 1)
+    return {
+        "points": int(len(points)),
+        "point_error_mean_mm": float(d.mean() * 1e3),
+        "point_error_p95_mm": float(np.percentile(d, 95) * 1e3),
+        "returns_tv_distance": float(0.5 * np.abs(returns_histogram(points, pulses_cast)
+                                                  - returns_histogram(ref, pulses_cast)).sum()),
+        "class_share_max_diff": float(np.abs(a - b).max()),
+        "intensity_median_rel_error": float(np.median(rel)) if len(rel) else None,
+        "multi_return_share": float(np.mean(fa["number_of_returns"] > 1)),
+    }
+
+
+def plot(rows, path):
+    try:
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        print("(matplotlib not installed: no plot; pip install matplotlib)")
+        return
+    keys = [("point_error_mean_mm", "point error, mean (mm)"), ("returns_tv_distance", "returns histogram TV distance"),
+            ("class_share_max_diff", "largest class share difference"),
+            ("intensity_median_rel_error", "first-return intensity, median rel. error")]
+    fig, axes = plt.subplots(1, 4, figsize=(16, 3.8))
+    for ax, (key, label) in zip(axes, keys):
+        for r in rows:
+            if r["seconds"] is None or r[key] is None:
+                continue
+            ax.scatter(r["seconds"], r[key], color="k")
+            ax.annotate(r["setting"], (r["seconds"], r[key]), textcoords="offset points", xytext=(4, 4), fontsize=8)
+        ax.set_xlabel("scan time (s)")
+        ax.set_title(label, fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    print(f"wrote {path}")
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--scene", type=Path, default=ROOT / "scenes" / "open.yaml")
+    p.add_argument("--seconds", type=float, default=10.0, help="flight time across the plot centre")
+    p.add_argument("--samples", type=int, nargs="+", default=[1, 7, 19, 37])
+    p.add_argument("--reference", type=int, default=61)
+    p.add_argument("--batch", type=int, default=200_000, help="pulses per launch")
+    p.add_argument("--variant", default="llvm_ad_mono")
+    p.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "out")
+    p.add_argument("--quick", action="store_true", help="0.5 s of flight, samples 1 and 7, reference 19")
+    args = p.parse_args(argv)
+    if args.quick:
+        args.seconds, args.samples, args.reference = 0.5, [1, 7], 19
+    scene, scan_scene, pulses = setup(args.scene, args.seconds, args.variant)
+    n = len(pulses.time)
+    print(f"{n:,} pulses over {args.seconds:g} s of flight, variant {scan_scene.variant}")
+    ref, ref_time = trace(scene, scan_scene, pulses, args.reference, args.batch)
+    truth = surface_samples(scene, scan_scene, pulses, 128, args.batch // 4)
+    rows = []
+    for samples in args.samples:
+        points, seconds = trace(scene, scan_scene, pulses, samples, args.batch)
+        rows.append({"setting": f"{samples} sub-rays", "samples": samples, "seconds": seconds,
+                     "pulses_per_s": n / seconds, "points_per_s": len(points) / seconds,
+                     **compare(points, ref, truth, n)})
+        if samples == 19:
+            rows.append({"setting": "HELIOS-like (19)", "samples": 19, "seconds": None, "pulses_per_s": None,
+                         "points_per_s": None, **compare(helios_like(points, pulses), ref, truth, n)})
+    rows.append({"setting": f"reference {args.reference}", "samples": args.reference, "seconds": ref_time,
+                 "pulses_per_s": n / ref_time, "points_per_s": len(ref) / ref_time, **compare(ref, ref, truth, n)})
+    header = ("setting", "seconds", "pulses_per_s", "points", "point_error_mean_mm", "point_error_p95_mm",
+              "returns_tv_distance", "class_share_max_diff", "intensity_median_rel_error", "multi_return_share")
+    print(" | ".join(header))
+    for r in rows:
+        print(" | ".join("-" if r[k] is None else f"{r[k]:.4g}" if isinstance(r[k], float) else str(r[k]) for k in header))
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "speed_vs_error.json").write_text(json.dumps({"pulses": n, "rows": rows}, indent=1))
+    plot(rows, args.out / "speed_vs_error.png")
+    return rows
+
+
+if __name__ == "__main__":
+    main()
