@@ -144,7 +144,7 @@ def main(argv=None):
     p.add_argument("--seconds", type=float, default=10.0, help="flight time across the plot centre")
     p.add_argument("--samples", type=int, nargs="+", default=[1, 7, 19, 37])
     p.add_argument("--reference", type=int, default=61)
-    p.add_argument("--batch", type=int, default=200_000, help="pulses per launch")
+    p.add_argument("--batch", type=int, default=100_000, help="pulses per launch")
     p.add_argument("--variant", default="llvm_ad_mono")
     p.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "out")
     p.add_argument("--quick", action="store_true", help="0.5 s of flight, samples 1 and 7, reference 19")

@@ -19,7 +19,7 @@ from mitsuforest.classes import GROUND, ROCK, TREE_WOOD
 from mitsuforest.render import render
 from mitsuforest.scan import PulseTracer
 from mitsuforest.scene.analytic import analytic_scene, bare_scene_file, plane_model, pulses
-from mitsuforest.trees.tubes import frustum_volume, tube
+from mitsuforest.trees.tubes import tube
 from mitsuforest.trees.models import Component, Model, Part
 from mitsuforest.trees.volume import union_volume
 

@@ -10,7 +10,7 @@ import time
 import laspy
 import numpy as np
 import pytest
-from helpers import ROOT, scene_file
+from helpers import scene_file
 
 from mitsuforest.cli import main
 from mitsuforest.write import output_files, read_pcd
@@ -155,3 +155,25 @@ def test_stopped_render_leaves_nothing_that_looks_complete(tmp_path, how):
         assert proc.returncode == 130
         assert "interrupted" in err and "Run the same command again" in err
         assert leftovers == []
+
+
+def test_laz_matches_las(rendered, tmp_path):
+    from mitsuforest.write.las import write_las
+    pcd = read_pcd(rendered / "a" / "test.pcd")
+    write_las(tmp_path / "t.laz", pcd, OFFSET)
+    laz = laspy.read(str(tmp_path / "t.laz"))
+    assert (tmp_path / "t.laz").read_bytes()[104] & 0x80  # LAZ marks the point format as compressed
+    assert np.abs(np.asarray(laz.x) - pcd["x"]).max() < 1e-4
+    assert np.array_equal(np.asarray(laz.object_id), pcd["object_id"])
+
+
+def test_open3d_tensor_reader(rendered):
+    """Open3D's reader, where it is installed (heavy and needs libusb, so CI leaves it out)."""
+    o3d = pytest.importorskip("open3d")
+    path = rendered / "a" / "test.pcd"
+    pc = o3d.t.io.read_point_cloud(str(path))
+    ours = read_pcd(path)
+    assert np.array_equal(pc.point["positions"].numpy(), np.column_stack([ours["x"], ours["y"], ours["z"]]))
+    for name in ours.dtype.names:
+        if name not in "xyz":
+            assert np.array_equal(pc.point[name].numpy().ravel(), ours[name]), name

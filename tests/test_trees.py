@@ -8,7 +8,7 @@ import pytest
 from mitsuforest.cli import main
 from mitsuforest.trees import DEFAULT_ARCHETYPES, build_model
 from mitsuforest.trees.models import tree_model
-from mitsuforest.trees.tubes import area_correction, frustum_volume, signed_volume, tube
+from mitsuforest.trees.tubes import area_correction, signed_volume, tube
 from mitsuforest.trees.volume import InvalidPartError, union_volume, wood_volume
 
 

@@ -16,8 +16,7 @@ import yaml
 
 from ..errors import ConfigError
 from ..trees.archetypes import DEFAULT_ARCHETYPES, FIELDS as ARCHETYPE_FIELDS
-from .schema import (REQUIRED, Context, Custom, FilePath, ListOf, Number, Text, Vector, parse,
-                     parse_mapping)
+from .schema import REQUIRED, Context, Custom, FilePath, ListOf, Number, Text, Vector, parse_mapping
 
 __all__ = ["load_scene", "load_sensor", "read_yaml", "ConfigError", "FOREST_BANDS"]
 
@@ -58,7 +57,7 @@ def _archetypes(value, ctx: Context, key: str):
     out = []
     for i, item in enumerate(value):
         where = f"{key}[{i}]"
-        given = parse_mapping({k: v for k, v in spec.items()}, item, ctx, where)
+        given = parse_mapping(spec, item, ctx, where)
         base = given.pop("base")
         merged = dataclasses.asdict(DEFAULT_ARCHETYPES[base - 1]) if base else {}
         explicit = {k: given[k] for k in item if k != "base"}
@@ -126,7 +125,7 @@ SCENE_SPEC = {
     "simulation": {
         "beam_samples": Number(7, integer=True, ge=1, le=1000),
         "variant": Text("auto"),
-        "pulses_per_batch": Number(400_000, integer=True, gt=0),
+        "pulses_per_batch": Number(100_000, integer=True, gt=0),
     },
     "output": {
         "dir": FilePath(None, nullable=True, must_exist=False),

@@ -39,7 +39,7 @@ def make_plan(scene: dict) -> dict:
     models = {f"tree{i + 1:02d}": {"kind": "tree", "archetype": a} for i, a in enumerate(archetypes)}
     summaries = [_summarise(a) for a in archetypes]
     crowns = [crown for crown, _ in summaries]
-    for (name, spec), (_, components) in zip(models.items(), summaries):
+    for spec, (_, components) in zip(models.values(), summaries):
         spec["components"] = components
     trees, cover = _place_trees(scene["forest"], size, crowns, terrain, rng)
     objects = trees

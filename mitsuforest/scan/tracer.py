@@ -43,10 +43,17 @@ class PulseTracer:
 
     def trace(self, pulses: Pulses, rng: np.random.Generator, first_id: int = 0) -> np.ndarray:
         """Echo points (POINT_DTYPE, local frame) of a batch of pulses, in pulse then range order."""
+        return self.finish(pulses, self.cast(pulses), rng, first_id)
+
+    def cast(self, pulses: Pulses) -> dict:
+        """The first hits of every sub-ray of the batch (the Dr.Jit kernel; see kernel.py)."""
+        return self.caster.cast(pulses.origin, pulses.direction, pulses.across)
+
+    def finish(self, pulses: Pulses, hits: dict, rng: np.random.Generator, first_id: int = 0) -> np.ndarray:
+        """Radiometry, waveform and labels of a batch's hits (numpy only: may run beside :meth:`cast`)."""
         s, n, sensor = self.samples, len(pulses.time), self.sensor
         if n == 0:
             return np.zeros(0, POINT_DTYPE)
-        hits = self.caster.cast(pulses.origin, pulses.direction, pulses.across)
         labels = label_hits(self.table, hits["instance"], hits["shape"], hits["shape_index"], hits["prim"])
         ray = hits["ray"].astype(np.int64)
         t = hits["t"].astype(np.float64)

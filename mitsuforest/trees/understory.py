@@ -27,8 +27,8 @@ def bush_model(seed: int, name: str) -> Model:
     """A multi-stemmed shrub 0.6-2 m tall with small leaves in an ellipsoidal crown (one component)."""
     rng = np.random.default_rng(seed)
     height, width = rng.uniform(0.6, 2.0), rng.uniform(0.8, 2.5)
-    stems, anchors = [], []
-    for k in range(rng.integers(3, 8)):
+    stems = []
+    for _ in range(rng.integers(3, 8)):
         d = _direction(np.array([0.0, 0.0, 1.0]), np.deg2rad(rng.uniform(10, 45)), rng.uniform(0, 2 * np.pi))
         length = height * rng.uniform(0.7, 1.0) / max(d[2], 0.5)
         pts, radii = _curve(np.zeros(3), d, length, rng.uniform(0.008, 0.02), 0.003, 4, 0.2, rng)

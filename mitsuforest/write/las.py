@@ -68,10 +68,11 @@ for _code, _asprs in ASPRS_CODE.items():
 class LasStream:
     """A ``.las`` or ``.laz`` file written batch by batch (laspy updates the header on close)."""
 
-    def __init__(self, path, offset, crs: str | None = None):
+    def __init__(self, path, offset, crs: str | None = None, compress: bool | None = None):
+        """:param compress: LAZ compression; by default when ``path`` ends in ``.laz``."""
         self.header = las_header(offset, crs)
-        self._writer = laspy.open(str(path), mode="w", header=self.header,
-                                  do_compress=str(path).endswith(".laz"))
+        compress = str(path).endswith(".laz") if compress is None else compress
+        self._writer = laspy.open(str(path), mode="w", header=self.header, do_compress=compress)
 
     def write(self, points: np.ndarray) -> None:
         if len(points):
@@ -86,6 +87,6 @@ class LasStream:
 def write_las(path, points: np.ndarray, offset, crs: str | None = None) -> None:
     """Write georeferenced points (x, y, z already include ``offset``) to ``.las`` or ``.laz`` at once."""
     with atomic_path(path) as tmp:
-        stream = LasStream(tmp, offset, crs)
+        stream = LasStream(tmp, offset, crs, compress=str(path).endswith(".laz"))
         stream.write(points)
         stream.close()
