@@ -84,3 +84,32 @@ def test_plan_command(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "closed: 216 trees, canopy cover" in out
     assert (tmp_path / "closed_plan.json").exists()
+
+
+@pytest.mark.parametrize("name", ["open", "closed"])
+def test_understory_never_enters_a_stem(name):
+    """No vertex of any bush, rock, stump or log lies inside a tree's stem (checked on the meshes)."""
+    from mitsuforest.plan.transforms import matrix
+    from mitsuforest.trees import build_models
+    from mitsuforest.trees.archetypes import Archetype
+    from mitsuforest.trees.skeleton import stem_radius
+    scene = load_scene(ROOT / "scenes" / f"{name}.yaml")
+    plan = make_plan(scene)
+    models = build_models(plan)
+    trees = [o for o in plan["objects"] if o["kind"] == "tree"]
+    axes = np.array([matrix(t)[:3, :3] @ [0, 0, 1.0] for t in trees])
+    bases = np.array([t["position"] for t in trees])
+    archetypes = [Archetype(**plan["models"][t["model"]]["archetype"]) for t in trees]
+    for obj in plan["objects"]:
+        if obj["kind"] == "tree":
+            continue
+        m = matrix(obj)
+        v = models[obj["model"]].vertices() @ m[:3, :3].T + m[:3, 3]
+        v = v[v[:, 2] < bases[:, 2].max() + 3.0]
+        near = np.flatnonzero(np.hypot(*(bases[:, :2] - obj["position"][:2]).T) < 10)
+        for k in near:
+            rel = v - bases[k]
+            along = rel @ axes[k]
+            radial = np.linalg.norm(rel - along[:, None] * axes[k], axis=1)
+            inside = radial < stem_radius(archetypes[k], np.clip(along, 0, None))
+            assert not inside.any(), (obj["kind"], obj["instance"], trees[k]["instance"])

@@ -131,36 +131,64 @@ def _place_trees(forest: dict, size, crowns, terrain, rng) -> tuple[list[dict], 
     return trees, grid.fraction
 
 
+# Half-widths (m) kept clear around each kind's axis: the largest model of the kind (understory.py)
+# plus a margin. Stems keep 0.6 m (flared base, and 5° tilt over the first 3 m).
+STEM_CLEARANCE = 0.6
+CLEARANCE = {"bush": 1.35, "rock": 1.0, "stump": 0.5, "deadwood": 1.35}  # logs: side branches reach 1.3 m
+
+
 def _place_understory(scene: dict, size, trees, terrain, rng):
-    """Bushes, rocks, deadwood and stumps at random, clear of stems and of each other."""
+    """Bushes, rocks, deadwood and stumps at random, clear of stems and of each other.
+
+    Each object occupies a corridor of half-width CLEARANCE around its axis (a point, or a log's
+    length); a new object is placed only where its corridor meets no other.
+    """
     counts = scene["understory"]
-    taken = [(np.array(t["position"][:2]), 0.6) for t in trees]  # stems with their flare
+    taken = [_Footprint(np.array(t["position"][:2]), 0.0, 0.0, STEM_CLEARANCE) for t in trees]
     objects, models = [], {}
     for i in range(BUSH_MODELS if counts["bushes"] else 0):
         models[f"bush{i + 1:02d}"] = {"kind": "bush", "seed": int(scene["seed"]) * 1000 + i}
-    clearance = {"bush": 0.8, "rock": 0.6, "stump": 0.4, "deadwood": 0.3}
     for kind, key in (("bush", "bushes"), ("rock", "rocks"), ("deadwood", "deadwood"), ("stump", "stumps")):
         for i in range(counts[key]):
-            xy = _free_spot(size, taken, clearance[kind], rng, kind)
+            spec = {"kind": kind, "seed": int(rng.integers(0, 2**31 - 1))}
+            if kind == "deadwood":
+                spec.update(length=float(rng.uniform(1.5, 7.0)), radius=float(rng.uniform(0.04, 0.2)))
+            spot = _free_spot(size, taken, spec.get("length", 0.0), CLEARANCE[kind], rng, kind)
             if kind == "bush":
                 model = f"bush{int(rng.integers(0, BUSH_MODELS)) + 1:02d}"
             else:
                 model = f"{kind}{i + 1:03d}"
-                models[model] = {"kind": kind, "seed": int(rng.integers(0, 2**31 - 1))}
-            taken.append((xy, clearance[kind]))
+                models[model] = spec
+            taken.append(spot)
+            x, y = spot.centre
             objects.append({
                 "kind": kind, "model": model, "treeid": DEADWOOD_TREEID if kind == "deadwood" else 0,
-                "position": [float(xy[0]), float(xy[1]), float(terrain.height(xy[0], xy[1]))],
-                "rotation": float(rng.uniform(0, 360)), "tilt": [0.0, 0.0],
+                "position": [float(x), float(y), float(terrain.height(x, y))],
+                "rotation": spot.yaw, "tilt": [0.0, 0.0],
             })
     return objects, models
 
 
-def _free_spot(size, taken, radius, rng, kind):
+class _Footprint:
+    """A segment of ``length`` through ``centre`` at ``yaw`` (degrees), widened by ``clearance``."""
+
+    def __init__(self, centre, yaw: float, length: float, clearance: float):
+        self.centre, self.yaw, self.clearance = centre, float(yaw), clearance
+        direction = np.array([np.cos(np.deg2rad(yaw)), np.sin(np.deg2rad(yaw))])
+        steps = np.linspace(-0.5, 0.5, max(int(np.ceil(length / 0.2)), 0) + 1) if length else np.zeros(1)
+        self.samples = centre + steps[:, None] * length * direction  # axis points 0.2 m apart at most
+
+    def clear_of(self, other: "_Footprint") -> bool:
+        gap = self.clearance + other.clearance
+        d = self.samples[:, None, :] - other.samples[None, :, :]
+        return bool(np.einsum("ijk,ijk->ij", d, d).min() >= gap * gap)
+
+
+def _free_spot(size, taken, length, clearance, rng, kind) -> _Footprint:
     for _ in range(10_000):
-        xy = rng.uniform([0, 0], size)
-        if all(np.hypot(*(xy - p)) >= radius + r for p, r in taken):
-            return xy
+        spot = _Footprint(rng.uniform([0, 0], size), rng.uniform(0, 360), length, clearance)
+        if all(spot.clear_of(other) for other in taken):
+            return spot
     raise UserError(f"understory: no free place left for another {kind}; lower the understory counts")
 
 

@@ -17,7 +17,8 @@ import numpy as np
 from .pulses import Pulses, leg_pulse_count, leg_pulses, reaches_box
 from .tracer import POINT_DTYPE, PulseTracer
 
-__all__ = ["scan", "ScanResult", "POINT_DTYPE"]
+__all__ = ["scan", "ScanResult", "PulseTracer", "Pulses", "POINT_DTYPE"]
+
 
 @dataclass
 class ScanResult:

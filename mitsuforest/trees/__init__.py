@@ -18,14 +18,16 @@ _BUILDERS = {"bush": bush_model, "rock": rock_model, "stump": stump_model, "dead
 
 
 def build_model(spec: dict) -> Model:
-    """One model from its plan entry: ``{"kind": "tree", "archetype": {...}}`` or ``{"kind": k, "seed": s}``."""
+    """One model from its plan entry: ``{"kind": "tree", "archetype": {...}}`` or ``{"kind": k, "seed": s, ...}``
+    (deadwood also takes ``length`` and ``radius``)."""
     kind, name = spec["kind"], spec["name"]
     if kind == "tree":
         archetype = Archetype(**spec["archetype"])
         params = {k: v for k, v in dataclasses.asdict(archetype).items() if k != "weight"}
         model = cached("tree", params, lambda: tree_model(archetype, name))
     else:
-        model = cached(kind, {"seed": spec["seed"]}, lambda: _BUILDERS[kind](spec["seed"], name))
+        params = {k: v for k, v in spec.items() if k not in ("kind", "name", "components")}
+        model = cached(kind, params, lambda: _BUILDERS[kind](name=name, **params))
     model.name = name
     return model
 

@@ -68,10 +68,12 @@ def stump_model(seed: int, name: str) -> Model:
                    meta={"height": h, "radius": r})
 
 
-def deadwood_model(seed: int, name: str) -> Model:
-    """A fallen log or branch lying on the ground, with 0-3 side branches; carries its wood volume."""
+def deadwood_model(seed: int, name: str, length: float = 4.0, radius: float = 0.1) -> Model:
+    """A fallen log or branch of ``length`` and base ``radius`` lying along x on the ground, with 0-3
+    side branches (each at most 1.5 m long, 30-60° off the log: they reach 1.3 m sideways at most);
+    carries its wood volume."""
     rng = np.random.default_rng(seed)
-    length, r = rng.uniform(1.5, 7.0), rng.uniform(0.04, 0.2)
+    r = radius
     pts, radii = _curve([-length / 2, 0, r * 0.8], [1.0, 0, 0], length, r, r * 0.4, max(int(length / 0.5), 2),
                         0.0, rng, wobble=0.03)
     pts[:, 2] = r * 0.8 - np.linspace(0, 0.1 * r, len(pts))  # resting, slightly sunk into the litter
