@@ -61,7 +61,7 @@ def scan(scene: dict, plan: dict, scan_scene, progress: bool = True, on_points=N
             points = tracer.trace(pulses, rng, first_id)
             result.points_made += len(points)
             first_returns = points["number_of_returns"][points["return_number"] == 1]
-            np.add.at(histogram, first_returns, 1)
+            histogram += np.bincount(first_returns, minlength=256)
             if on_points is None:
                 chunks.append(points)
             else:

@@ -48,9 +48,9 @@ class PointWriter:
         if len(points) == 0:
             return
         self.count += len(points)
-        np.add.at(self.classes, points["classification"], 1)
+        self.classes += np.bincount(points["classification"], minlength=256)
         first = points["return_number"] == 1
-        np.add.at(self.returns, points["number_of_returns"][first], 1)
+        self.returns += np.bincount(points["number_of_returns"][first], minlength=256)
         self.top.add(points)
         self.side.add(points)
         for (x0, y0), bucket in zip(self._tiles, self._tile_points):
