@@ -31,7 +31,7 @@ from mitsuforest.config import load_scene
 from mitsuforest.plan import make_plan
 from mitsuforest.scan import PulseTracer
 from mitsuforest.scan.kernel import RayCaster
-from mitsuforest.scan.pulses import Pulses, leg_pulse_count, leg_pulses, reaches_box
+from mitsuforest.scan.pulses import leg_pulse_count, leg_pulses, reaches_box
 from mitsuforest.scene import build_scene
 from mitsuforest.trees import build_models
 
@@ -51,16 +51,16 @@ def setup(scene_file: Path, seconds: float, variant: str):
     leg = plan["legs"][0]
     pulses = leg_pulses(leg, scene["sensor"], scene["survey"], 0, leg_pulse_count(leg, scene["survey"]["pulse_frequency"]))
     keep = reaches_box(pulses.origin, pulses.direction, scan_scene.bbox, scene["sensor"]["range_max"])
-    pulses = Pulses(**{k: v[keep] for k, v in vars(pulses).items()})
+    pulses = pulses.select(keep)
     return scene, scan_scene, pulses
 
 
 def trace(scene, scan_scene, pulses, samples, batch):
     tracer = PulseTracer(scan_scene, scene["sensor"], samples)
     rng = np.random.default_rng(0)
-    tracer.trace(Pulses(**{k: v[:1000] for k, v in vars(pulses).items()}), rng)  # compile outside the timing
+    tracer.trace(pulses.select(slice(0, 1000)), rng)  # compile outside the timing
     start = time.perf_counter()
-    parts = [tracer.trace(Pulses(**{k: v[i:i + batch] for k, v in vars(pulses).items()}), rng)
+    parts = [tracer.trace(pulses.select(slice(i, i + batch)), rng)
              for i in range(0, len(pulses.time), batch)]
     return np.concatenate(parts), time.perf_counter() - start
 

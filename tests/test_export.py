@@ -9,8 +9,8 @@ from helpers import ROOT
 from mitsuforest.cli import main
 from mitsuforest.config import load_scene
 from mitsuforest.plan import make_plan
+from mitsuforest.plan.transforms import apply, matrix
 from mitsuforest.trees import build_models
-from mitsuforest.write.export import local_vertices
 
 
 def test_export_reproduces_the_planned_scene(tmp_path):
@@ -26,7 +26,7 @@ def test_export_reproduces_the_planned_scene(tmp_path):
         parts = [trimesh.load(tmp_path / "models" / f"{obj['model']}_{p.name}.obj", process=False)
                  for p in models[obj["model"]].parts]
         v = np.vstack([p.vertices for p in parts])
-        assert np.abs(v @ m[:, :3].T + m[:, 3] - local_vertices(obj, models[obj["model"]])).max() < 1e-6
+        assert np.abs(v @ m[:, :3].T + m[:, 3] - apply(matrix(obj), models[obj["model"]].vertices())).max() < 1e-6
     doc = ET.parse(tmp_path / "demo_helios_scene.xml").getroot()
     ids = [p.get("id") for p in doc.iter("part")]
     assert ids == ["0"] + [str(o["instance"]) for o in plan["objects"]]

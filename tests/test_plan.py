@@ -89,7 +89,7 @@ def test_plan_command(tmp_path, capsys):
 @pytest.mark.parametrize("name", ["open", "closed"])
 def test_understory_never_enters_a_stem(name):
     """No vertex of any bush, rock, stump or log lies inside a tree's stem (checked on the meshes)."""
-    from mitsuforest.plan.transforms import matrix
+    from mitsuforest.plan.transforms import apply, matrix
     from mitsuforest.trees import build_models
     from mitsuforest.trees.archetypes import Archetype
     from mitsuforest.trees.skeleton import stem_radius
@@ -103,8 +103,7 @@ def test_understory_never_enters_a_stem(name):
     for obj in plan["objects"]:
         if obj["kind"] == "tree":
             continue
-        m = matrix(obj)
-        v = models[obj["model"]].vertices() @ m[:3, :3].T + m[:3, 3]
+        v = apply(matrix(obj), models[obj["model"]].vertices())
         v = v[v[:, 2] < bases[:, 2].max() + 3.0]
         near = np.flatnonzero(np.hypot(*(bases[:, :2] - obj["position"][:2]).T) < 10)
         for k in near:

@@ -10,7 +10,7 @@ so the same scene, seed and batch size give the same points, byte for byte.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -23,13 +23,11 @@ __all__ = ["scan", "ScanResult", "PulseTracer", "Pulses", "POINT_DTYPE"]
 @dataclass
 class ScanResult:
     points: np.ndarray | None = None       # POINT_DTYPE, local frame (None when streamed to on_points)
-    points_made: int = 0
     pulses_emitted: int = 0                # time slots flown (fired or not)
     pulses_fired: int = 0                  # inside the field of view
     pulses_cast: int = 0                   # fired and able to reach the scene
     rays: int = 0
     seconds: float = 0.0
-    returns_histogram: dict = field(default_factory=dict)  # number_of_returns -> pulses
 
 
 def scan(scene: dict, plan: dict, scan_scene, progress: bool = True, on_points=None) -> ScanResult:
@@ -44,7 +42,6 @@ def scan(scene: dict, plan: dict, scan_scene, progress: bool = True, on_points=N
     box = scan_scene.bbox + [[-margin] * 3, [margin] * 3]
     result = ScanResult()
     chunks, first_id = [], 0
-    histogram = np.zeros(256, np.int64)
     start = time.perf_counter()
     for leg_no, leg in enumerate(plan["legs"]):
         total = leg_pulse_count(leg, survey["pulse_frequency"])
@@ -54,14 +51,11 @@ def scan(scene: dict, plan: dict, scan_scene, progress: bool = True, on_points=N
             pulses = leg_pulses(leg, sensor, survey, first, count)
             result.pulses_fired += len(pulses.time)
             keep = reaches_box(pulses.origin, pulses.direction, box, sensor["range_max"])
-            pulses = _subset(pulses, keep)
+            pulses = pulses.select(keep)
             result.pulses_cast += len(pulses.time)
             result.rays += len(pulses.time) * tracer.samples
             rng = np.random.default_rng([scene["seed"], leg_no, first])
             points = tracer.trace(pulses, rng, first_id)
-            result.points_made += len(points)
-            first_returns = points["number_of_returns"][points["return_number"] == 1]
-            histogram += np.bincount(first_returns, minlength=256)
             if on_points is None:
                 chunks.append(points)
             else:
@@ -75,7 +69,6 @@ def scan(scene: dict, plan: dict, scan_scene, progress: bool = True, on_points=N
     if on_points is None:
         result.points = np.concatenate(chunks) if chunks else np.zeros(0, POINT_DTYPE)
     result.seconds = time.perf_counter() - start
-    result.returns_histogram = {int(k): int(v) for k, v in enumerate(histogram) if v}
     return result
 
 
@@ -85,6 +78,3 @@ def _bar(progress: bool, total: int, label: str):
     from tqdm import tqdm
     return tqdm(total=total, desc=label, unit=" pulses", unit_scale=True, leave=False, dynamic_ncols=True)
 
-
-def _subset(pulses: Pulses, keep) -> Pulses:
-    return Pulses(**{k: v[keep] for k, v in vars(pulses).items()})

@@ -9,6 +9,7 @@ import trimesh
 from PIL import Image
 
 from ..write.atomic import atomic_path, write_text
+from ..write.tables import csv_text
 from . import build_model
 
 
@@ -32,15 +33,15 @@ def write_gallery(archetypes: list[dict], folder, progress=print) -> list[dict]:
         pictures.append(_side_picture(model))
         progress(f"{name}: {v.union:.4f} m3 wood (union), {model.triangles:,} triangles")
     header = list(rows[0])
-    write_text(folder / "volumes.csv", ",".join(header) + "\n" + "".join(
-        ",".join(f"{r[k]:.9g}" if isinstance(r[k], float) else str(r[k]) for k in header) + "\n" for r in rows))
+    write_text(folder / "volumes.csv", csv_text(header, [[f"{r[k]:.9g}" if isinstance(r[k], float) else r[k]
+                                                          for k in header] for r in rows]))
     with atomic_path(folder / "trees.png") as tmp:
         _side_by_side(pictures).save(tmp, format="PNG")
     return rows
 
 
 def _side_picture(model, pixels_per_m=14, samples=250_000):
-    """Surface samples of wood (brown) and leaves (green), seen from the side, as an RGBA image."""
+    """Surface samples of wood (brown) and leaves (green), seen from the side, as an RGB image."""
     rng = np.random.default_rng(0)
     layers = []
     for part, colour in zip(model.parts, ([110, 70, 40], [70, 150, 60])):

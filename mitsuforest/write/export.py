@@ -15,12 +15,12 @@ from __future__ import annotations
 from pathlib import Path
 from xml.sax.saxutils import quoteattr
 
-import numpy as np
 import trimesh
 
 from ..plan.transforms import matrix
 from ..trees.terrain import make_terrain
 from .atomic import atomic_path, write_text
+from .tables import csv_text
 
 
 def _write_obj(path: Path, vertices, faces) -> None:
@@ -50,13 +50,10 @@ def export_scene(scene: dict, plan: dict, models: dict, folder, log=print) -> li
 def _write_transforms(path: Path, plan: dict, offset) -> Path:
     header = ["instance", "object_id", "components", "kind", "model", "treeid"] + \
         [f"m{r}{c}" for r in range(3) for c in range(4)]
-    lines = [f"# local frame; add origin offset {offset[0]:.3f},{offset[1]:.3f},{offset[2]:.3f} for the georeference",
-             ",".join(header)]
-    for obj in plan["objects"]:
-        m = matrix(obj)[:3].ravel()
-        lines.append(",".join([str(obj["instance"]), str(obj["object_id"]), str(obj["components"]), obj["kind"],
-                               obj["model"], str(obj["treeid"])] + [f"{v:.12g}" for v in m]))
-    write_text(path, "\n".join(lines) + "\n")
+    rows = [[obj["instance"], obj["object_id"], obj["components"], obj["kind"], obj["model"], obj["treeid"]]
+            + [f"{v:.12g}" for v in matrix(obj)[:3].ravel()] for obj in plan["objects"]]
+    comment = f"# local frame; add origin offset {offset[0]:.3f},{offset[1]:.3f},{offset[2]:.3f} for the georeference\n"
+    write_text(path, comment + csv_text(header, rows))
     return path
 
 
@@ -94,8 +91,3 @@ def _write_helios(path: Path, scene: dict, plan: dict, models: dict) -> Path:
     write_text(path, text)
     return path
 
-
-def local_vertices(obj: dict, model) -> np.ndarray:
-    """An object's vertices in the local frame (for checks and flattened exports)."""
-    m = matrix(obj)
-    return model.vertices() @ m[:3, :3].T + m[:3, 3]

@@ -11,7 +11,8 @@ from ..errors import UserError
 from .pcd import read_pcd
 
 
-def load_points(path) -> tuple[np.ndarray | dict, list[str]]:
+def load_points(path) -> tuple[dict, list[str]]:
+    """The file's columns by name (our class codes under ``classification``) and its field names."""
     path = Path(path)
     if not path.is_file():
         raise UserError(f"{path}: file not found")
@@ -19,7 +20,7 @@ def load_points(path) -> tuple[np.ndarray | dict, list[str]]:
     try:
         if suffix == ".pcd":
             pts = read_pcd(path)
-            return pts, list(pts.dtype.names)
+            return {n: pts[n] for n in pts.dtype.names}, list(pts.dtype.names)
         if suffix in (".las", ".laz"):
             import laspy
             las = laspy.read(str(path))
@@ -46,7 +47,7 @@ def summary(path) -> str:
     area = (hi[0] - lo[0]) * (hi[1] - lo[1])
     if area > 0:
         lines.append(f"density: {n / area:.1f} points/m2 over the x-y bounding box ({area:.1f} m2)")
-    if "classification" in pts.dtype.names if hasattr(pts, "dtype") else "classification" in pts:
+    if "classification" in pts:
         counts = np.bincount(np.asarray(pts["classification"]).astype(int))
         lines.append("classes: " + ", ".join(f"{CLASS_NAMES.get(k, k)} {v:,} ({v / n:.1%})"
                                               for k, v in enumerate(counts) if v))

@@ -12,7 +12,8 @@ from ..scan.pulses import leg_frame
 from .atomic import write_text
 
 
-def _csv(header, rows) -> str:
+def csv_text(header, rows) -> str:
+    """CSV text with a header row and ``\n`` line ends."""
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(header)
@@ -44,7 +45,7 @@ def volume_rows(plan: dict, models: dict, offset) -> list[list]:
 def write_volumes(path, plan, models, offset) -> None:
     header = ["row", "model", "instance", "volume_union_m3", "volume_analytic_m3", "volume_naive_m3",
               "parts", "treeid", "x", "y", "z"]
-    write_text(path, _csv(header, volume_rows(plan, models, offset)))
+    write_text(path, csv_text(header, volume_rows(plan, models, offset)))
 
 
 def write_ids(path, plan, models, offset) -> None:
@@ -57,7 +58,7 @@ def write_ids(path, plan, models, offset) -> None:
             treeid = obj["treeid"] if comp.classification in (TREE_WOOD, TREE_LEAVES) or obj["kind"] == "deadwood" else 0
             rows.append([obj["object_id"] + k, obj["instance"], treeid, comp.classification, comp.kind,
                          obj["model"], x, y, z])
-    write_text(path, _csv(["object_id", "instance", "treeid", "classification", "kind", "model", "x", "y", "z"], rows))
+    write_text(path, csv_text(["object_id", "instance", "treeid", "classification", "kind", "model", "x", "y", "z"], rows))
 
 
 def trajectory(legs, rate: float = 10.0) -> np.ndarray:
