@@ -107,3 +107,46 @@ def test_echo_amplitude_and_dominant_subray():
     assert e.amplitude[0] == pytest.approx(0.8)  # coincident returns add up
     assert e.dominant[0] == 1
     assert e.weighted_mean(np.array([[0.0], [1.0], [2.0]]))[0, 0] == pytest.approx((0.5 + 0.4) / 0.8)
+
+
+@pytest.mark.parametrize("samples", [1, 7, 19])
+def test_device_waveform_matches_the_numpy_reference(samples):
+    """echoes.py (Dr.Jit, one lane per pulse) against waveform.py on returns built to be hard: ties,
+    chains across several sub-rays, misses, zero-power (grazing) returns, more echoes than max_returns."""
+    import mitsuba as mi
+    mi.set_variant("llvm_ad_mono")
+    import drjit as dr
+
+    from mitsuforest.scan.echoes import pulse_echoes
+    rng = np.random.default_rng(samples)
+    n, resolving = 4000, 0.6
+    ranges = rng.choice([10.0, 10.3, 10.9, 12.0, 12.55, 20.0], (n, samples)) + rng.normal(0, 0.05, (n, samples))
+    ranges[rng.random((n, samples)) < 0.1] = 12.0                      # exact ties
+    ranges[rng.random((n, samples)) < 0.2] = np.inf                    # misses
+    power = rng.uniform(0, 1e-3, (n, samples))
+    power[rng.random((n, samples)) < 0.05] = 0.0                       # grazing
+    power[: n // 10] = 0.0                                             # whole pulses at grazing incidence
+    threshold, max_returns = 2e-4, 3
+    ref = detect_echoes(ranges, power, resolving, threshold, max_returns)
+
+    ranges32 = ranges.astype(np.float32)
+    col = [mi.Float(np.ascontiguousarray(ranges32[:, k])) for k in range(samples)]
+    pcol = [mi.Float(np.ascontiguousarray(power[:, k].astype(np.float32))) for k in range(samples)]
+    off = [[mi.Float(np.full(n, k, np.float32)) for _ in range(3)] for k in range(samples)]
+    slots, returns = pulse_echoes(dr, col, pcol, off, resolving, threshold, max_returns)
+    got = []
+    for slot in slots:
+        kept = np.array(slot["kept"])
+        rows = np.flatnonzero(kept)
+        got.append(np.column_stack([rows, np.array(slot["rank"])[rows] + 1, np.array(slot["range"])[rows],
+                                    np.array(slot["amplitude"])[rows], np.array(slot["dominant"])[rows]]))
+    got = np.vstack(got)
+    got = got[np.lexsort((got[:, 1], got[:, 0]))]
+    assert len(got) == len(ref.pulse) > n // 2
+    assert np.array_equal(got[:, 0], ref.pulse)
+    assert np.array_equal(got[:, 1], ref.return_number)
+    assert np.array_equal(np.array(returns)[ref.pulse], ref.number_of_returns)
+    assert np.allclose(got[:, 2], ref.range, atol=1e-5)
+    assert np.allclose(got[:, 3], ref.amplitude, rtol=1e-4, atol=1e-10)
+    assert np.array_equal(got[:, 4], ref.dominant % samples)
+    assert samples == 1 or (ref.number_of_returns == max_returns).any()

@@ -178,3 +178,24 @@ def test_rays_at_known_trees_return_their_ids(demo_setup):
     assert np.array_equal(first["treeid"], [t["treeid"] for t in trees])
     assert np.array_equal(first["object_id"], [t["object_id"] for t in trees])  # the stem, component 0
     assert set(first["classification"]) == {2}
+
+
+@pytest.mark.parametrize("samples", [1, 7])
+def test_echo_kernel_matches_the_numpy_reference_in_a_forest(demo_setup, samples):
+    """The device path (rays, labels, radiometry, waveform in Dr.Jit) against the numpy reference
+    (sub-ray hits copied back, then label_hits, received_power, detect_echoes) over the demo trees."""
+    from mitsuforest.scan.pulses import leg_pulses
+    scene, plan, _, scan_scene = demo_setup
+    sensor = {**scene["sensor"], "range_precision": 0.0}
+    p = leg_pulses(plan["legs"][0], sensor, scene["survey"], 700_000, 100_000)  # over the plot centre
+    tracer = PulseTracer(scan_scene, sensor, samples)
+    got, ref = tracer.trace(p, RNG), tracer.trace_reference(p, RNG)
+    assert len(got) == len(ref) > 10_000
+    assert (ref["classification"] != GROUND).mean() > 0.2          # the pulses see trees, not just ground
+    if samples > 1:
+        assert (ref["number_of_returns"] > 1).mean() > 0.02
+    for key in ("pulse_id", "return_number", "number_of_returns", "classification", "treeid", "instance", "object_id"):
+        assert np.array_equal(got[key], ref[key]), key
+    for axis in ("x", "y", "z", "range"):
+        assert np.abs(got[axis] - ref[axis]).max() < 1e-4, axis
+    assert np.allclose(got["intensity"], ref["intensity"], rtol=1e-4)

@@ -33,6 +33,30 @@ class RayCaster:
         self.tan_x = mi.Float(_aligned(sample_tangents[:, 0].astype(np.float32)))
         self.tan_y = mi.Float(_aligned(sample_tangents[:, 1].astype(np.float32)))
 
+    def rays(self, origin: np.ndarray, direction: np.ndarray, across: np.ndarray):
+        """The sub-rays of P pulses as one Dr.Jit ray of P*S lanes, lane = pulse*S + sub-ray.
+
+        :returns: ``ray`` (Ray3f), ``origin`` (Point3f), ``direction`` (Vector3f, unit), ``pulse``
+            and ``sample`` (UInt32) per lane.
+        """
+        dr, mi = self.dr, self.mi
+        S = self.samples
+        cols = [mi.Float(_aligned(a[:, k].astype(np.float32))) for a in (origin, direction, across) for k in range(3)]
+        idx = dr.arange(mi.UInt32, len(origin) * S)
+        pulse = idx // S
+        sample = idx - pulse * S
+        g = [dr.gather(mi.Float, c, pulse) for c in cols]
+        o, d, e1 = mi.Point3f(*g[0:3]), mi.Vector3f(*g[3:6]), mi.Vector3f(*g[6:9])
+        e2 = dr.cross(d, e1)
+        d = dr.normalize(d + dr.gather(mi.Float, self.tan_x, sample) * e1 + dr.gather(mi.Float, self.tan_y, sample) * e2)
+        return mi.Ray3f(o, d), o, d, pulse, sample
+
+    def intersect(self, ray):
+        """Each lane's first surface (``PreliminaryIntersection3f``)."""
+        # coherent=True traced ~7-30 % faster on CPU but returned different first hits for some
+        # sub-rays of an instanced forest (Mitsuba 3.9.1 / Embree): keep incoherent, exact traversal.
+        return self.scene.ray_intersect_preliminary(ray, coherent=False)
+
     def cast(self, origin: np.ndarray, direction: np.ndarray, across: np.ndarray) -> dict:
         """First hits of every sub-ray of P pulses.
 
@@ -43,24 +67,12 @@ class RayCaster:
             distance, ``point`` (H, 3), ``instance``, ``shape``, ``shape_index``, ``prim`` (H,) uint32.
         """
         dr, mi = self.dr, self.mi
-        S = self.samples
-        n = len(origin) * S
-        if n == 0:
+        if len(origin) == 0:
             empty = np.zeros(0, np.uint32)
             return {"ray": empty, "t": np.zeros(0, np.float32), "point": np.zeros((0, 3)), "instance": empty,
                     "shape": empty, "shape_index": empty, "prim": empty}
-        cols = [mi.Float(_aligned(a[:, k].astype(np.float32))) for a in (origin, direction, across) for k in range(3)]
-        idx = dr.arange(mi.UInt32, n)
-        pulse = idx // S
-        sample = idx - pulse * S
-        g = [dr.gather(mi.Float, c, pulse) for c in cols]
-        o, d, e1 = mi.Point3f(*g[0:3]), mi.Vector3f(*g[3:6]), mi.Vector3f(*g[6:9])
-        e2 = dr.cross(d, e1)
-        d = dr.normalize(d + dr.gather(mi.Float, self.tan_x, sample) * e1 + dr.gather(mi.Float, self.tan_y, sample) * e2)
-        ray = mi.Ray3f(o, d)
-        # coherent=True traces ~30 % faster on CPU but returned different first hits for ~3 % of
-        # sub-rays of an instanced forest (Mitsuba 3.9.1 / Embree): keep incoherent, exact traversal.
-        pi = self.scene.ray_intersect_preliminary(ray, coherent=False)
+        ray, o, d, _, _ = self.rays(origin, direction, across)
+        pi = self.intersect(ray)
         hit = dr.compress(pi.is_valid())
         t = dr.gather(mi.Float, pi.t, hit)
         p = dr.gather(mi.Point3f, o, hit) + dr.gather(mi.Vector3f, d, hit) * t

@@ -6,7 +6,7 @@ import numpy as np
 
 from ..labels import label_hits
 from .beam import beam_pattern
-from .kernel import RayCaster
+from .echo_kernel import EchoKernel
 from .pulses import Pulses
 from .radiometry import received_power, reflectance_table
 from .waveform import detect_echoes, resolving_distance
@@ -26,6 +26,9 @@ class PulseTracer:
     sub-ray returns into echoes. An echo's point is the energy-weighted mean of its sub-rays' hit
     points, moved along the beam axis by Gaussian ranging noise; its labels are those of its
     strongest sub-ray.
+
+    :meth:`trace` runs all of this in Dr.Jit (echo_kernel.py); :meth:`trace_reference` runs the same
+    model in numpy from the sub-ray hits and is what tests check the kernel against.
     """
 
     def __init__(self, scan_scene, sensor: dict, beam_samples: int):
@@ -33,9 +36,10 @@ class PulseTracer:
         self.table = scan_scene.table
         offsets, self.weights = beam_pattern(beam_samples)
         half = np.asarray(sensor["beam_divergence"], float) / 2
-        self.caster = RayCaster(scan_scene.mitsuba, np.tan(offsets * half))
         self.reflectance = reflectance_table(sensor["wavelength"])
         self.resolving = resolving_distance(sensor["pulse_length"])
+        self.caster = EchoKernel(scan_scene.mitsuba, np.tan(offsets * half), self.weights, self.table,
+                                 self.reflectance, sensor, self.resolving)
 
     @property
     def samples(self) -> int:
@@ -43,14 +47,19 @@ class PulseTracer:
 
     def trace(self, pulses: Pulses, rng: np.random.Generator, first_id: int = 0) -> np.ndarray:
         """Echo points (POINT_DTYPE, local frame) of a batch of pulses, in pulse then range order."""
+        e = self.caster.echoes(pulses.origin, pulses.direction, pulses.across)
+        return self._points(pulses, e["pulse"], e["point"], e["range"], e, rng, first_id)
+
+    def trace_reference(self, pulses: Pulses, rng: np.random.Generator, first_id: int = 0) -> np.ndarray:
+        """:meth:`trace` computed in numpy from the sub-ray hits (slower; the tests' reference)."""
         return self.finish(pulses, self.cast(pulses), rng, first_id)
 
     def cast(self, pulses: Pulses) -> dict:
-        """The first hits of every sub-ray of the batch (the Dr.Jit kernel; see kernel.py)."""
+        """The first hits of every sub-ray of the batch (see kernel.py)."""
         return self.caster.cast(pulses.origin, pulses.direction, pulses.across)
 
     def finish(self, pulses: Pulses, hits: dict, rng: np.random.Generator, first_id: int = 0) -> np.ndarray:
-        """Radiometry, waveform and labels of a batch's hits (numpy only: may run beside :meth:`cast`)."""
+        """Radiometry, waveform and labels of a batch's hits, in numpy."""
         s, n, sensor = self.samples, len(pulses.time), self.sensor
         if n == 0:
             return np.zeros(0, POINT_DTYPE)
@@ -69,22 +78,24 @@ class PulseTracer:
                                sensor["range_max"])
         row_of_ray = np.full(n * s, -1, np.int64)
         row_of_ray[ray] = np.arange(len(ray))
-        position = echoes.weighted_mean(hits["point"], row_of_ray)
-        noise = (rng.normal(0.0, sensor["range_precision"], len(echoes.pulse)) if sensor["range_precision"] > 0
-                 else np.zeros(len(echoes.pulse)))
-        position += pulses.direction[echoes.pulse] * noise[:, None]
         dominant = row_of_ray[echoes.dominant]
-        out = np.zeros(len(echoes.pulse), POINT_DTYPE)
-        out["x"], out["y"], out["z"] = position.T
-        out["treeid"] = labels.treeid[dominant]
-        out["classification"] = labels.classification[dominant]
-        out["instance"] = labels.instance[dominant]
-        out["object_id"] = labels.object_id[dominant]
-        out["return_number"] = echoes.return_number
-        out["number_of_returns"] = echoes.number_of_returns
-        out["intensity"] = echoes.amplitude
-        out["gps_time"] = pulses.time[echoes.pulse]
-        out["scan_angle"] = np.rad2deg(pulses.scan_angle[echoes.pulse])
-        out["pulse_id"] = first_id + pulses.index[echoes.pulse]
-        out["range"] = echoes.range + noise
+        fields = {"return_number": echoes.return_number, "number_of_returns": echoes.number_of_returns,
+                  "amplitude": echoes.amplitude,
+                  **{k: getattr(labels, k)[dominant] for k in ("treeid", "classification", "instance", "object_id")}}
+        return self._points(pulses, echoes.pulse, echoes.weighted_mean(hits["point"], row_of_ray), echoes.range,
+                            fields, rng, first_id)
+
+    def _points(self, pulses, pulse, position, range_m, fields, rng, first_id) -> np.ndarray:
+        """Echo points with Gaussian ranging noise along the beam axis."""
+        sigma = self.sensor["range_precision"]
+        noise = rng.normal(0.0, sigma, len(pulse)) if sigma > 0 else np.zeros(len(pulse))
+        out = np.zeros(len(pulse), POINT_DTYPE)
+        out["x"], out["y"], out["z"] = (position + pulses.direction[pulse] * noise[:, None]).T
+        for key in ("treeid", "classification", "instance", "object_id", "return_number", "number_of_returns"):
+            out[key] = fields[key]
+        out["intensity"] = fields["amplitude"]
+        out["gps_time"] = pulses.time[pulse]
+        out["scan_angle"] = np.rad2deg(pulses.scan_angle[pulse])
+        out["pulse_id"] = first_id + pulses.index[pulse]
+        out["range"] = range_m + noise
         return out

@@ -15,7 +15,7 @@ import numpy as np
 from .models import Component, Model, Part
 from .volume import WoodVolume
 
-GEOMETRY_VERSION = 2  # bump when a change to the generators changes any mesh
+GEOMETRY_VERSION = 4  # bump when a change to the generators changes any mesh
 
 
 def cache_dir() -> Path:

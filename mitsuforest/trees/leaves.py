@@ -32,5 +32,5 @@ def leaf_blades(anchors: np.ndarray, length: float, width: float, inclination: f
     left, right = mid - side * width * scale / 2, mid + side * width * scale / 2
     vertices = np.stack([base, left, tip, right], axis=1).reshape(-1, 3)
     i = 4 * np.arange(k)[:, None]
-    faces = np.concatenate([i + [0, 1, 2], i + [0, 2, 3]], axis=1).reshape(-1, 3)
+    faces = np.concatenate([i + [0, 1, 3], i + [1, 2, 3]], axis=1).reshape(-1, 3)
     return vertices, faces
