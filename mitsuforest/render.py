@@ -22,6 +22,7 @@ from .scan import scan
 from .scene import build_scene
 from .trees import build_models
 from .write import PointWriter, Staging, existing_outputs, write_manifest, write_render_outputs
+from .write.background import Background
 
 DEPENDENCIES = ("mitsuba", "drjit", "numpy", "trimesh", "manifold3d", "laspy", "scipy", "pyyaml")
 
@@ -70,8 +71,12 @@ def render(scene, *, output_dir=None, seed=None, variant=None, overwrite=False, 
         f"{scan_scene.triangles:,} distinct triangles, variant {scan_scene.variant}")
     staging = Staging(out, name) if write else None
     writer = PointWriter(staging, scene, keep=keep_points)
+    sink = Background(writer.add)
     try:
-        result = scan(scene, plan, scan_scene, progress=progress, on_points=writer.add)
+        try:
+            result = scan(scene, plan, scan_scene, progress=progress, on_points=sink)
+        finally:
+            sink.close()
         writer.close()
         lap("scan")
         stats = writer.statistics()

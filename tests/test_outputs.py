@@ -177,3 +177,25 @@ def test_open3d_tensor_reader(rendered):
     for name in ours.dtype.names:
         if name not in "xyz":
             assert np.array_equal(pc.point[name].numpy().ravel(), ours[name]), name
+
+
+def test_background_writer_keeps_order_and_raises_the_workers_error():
+    from mitsuforest.write.background import Background
+    seen = []
+    sink = Background(seen.append)
+    for i in range(50):
+        sink(i)
+    sink.close()
+    assert seen == list(range(50))
+
+    def fail(batch):
+        if batch == 3:
+            raise OSError("disk full")
+        seen.append(batch)
+    seen.clear()
+    sink = Background(fail, depth=1)
+    with pytest.raises(OSError, match="disk full"):
+        for i in range(100):
+            sink(i)
+        sink.close()
+    assert seen == [0, 1, 2]

@@ -52,18 +52,35 @@ def leg_pulses(leg: dict, sensor: dict, survey: dict, first: int, count: int) ->
     frame = leg_frame(leg)
     k, t, d_sensor, angle = k[fired], t[fired], d_sensor[fired], angle[fired]
     direction = d_sensor @ frame
-    across = np.cross(frame[1], direction)
-    norm = np.linalg.norm(across, axis=1, keepdims=True)
-    across = np.where(norm > 1e-9, across / np.maximum(norm, 1e-12), frame[0])
-    return Pulses(k, t, platform_position(leg, t), direction, across, angle)
+    return Pulses(k, t, platform_position(leg, t), direction, _across(frame, direction), angle)
+
+
+def _across(frame: np.ndarray, direction: np.ndarray) -> np.ndarray:
+    """Unit ``along × direction`` (the scan plane's normal in the beam frame); ``frame[0]`` at nadir-parallel."""
+    a = frame[1]
+    dx, dy, dz = direction.T
+    across = np.empty_like(direction)
+    across[:, 0] = a[1] * dz - a[2] * dy
+    across[:, 1] = a[2] * dx - a[0] * dz
+    across[:, 2] = a[0] * dy - a[1] * dx
+    norm = np.sqrt(np.einsum("ij,ij->i", across, across))
+    degenerate = norm <= 1e-9
+    across /= np.where(degenerate, 1.0, norm)[:, None]
+    across[degenerate] = frame[0]
+    return across
 
 
 def reaches_box(origin: np.ndarray, direction: np.ndarray, box: np.ndarray, range_max: float) -> np.ndarray:
     """Whether each ray meets the axis-aligned box (2, 3) within ``range_max`` (slab test)."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        inv = 1.0 / direction
-        t0 = (box[0] - origin) * inv
-        t1 = (box[1] - origin) * inv
-    lo = np.nanmax(np.minimum(t0, t1), axis=1)
-    hi = np.nanmin(np.maximum(t0, t1), axis=1)
-    return (hi >= np.maximum(lo, 0.0)) & (lo <= range_max)
+    n = len(origin)
+    lo, hi = np.zeros(n), np.full(n, float(range_max))
+    for k in range(3):
+        o, d = origin[:, k], direction[:, k]
+        parallel = d == 0
+        with np.errstate(divide="ignore", invalid="ignore"):
+            inv = 1.0 / np.where(parallel, 1.0, d)
+        t0, t1 = (box[0, k] - o) * inv, (box[1, k] - o) * inv
+        inside = (o >= box[0, k]) & (o <= box[1, k])   # a parallel ray meets this slab everywhere or nowhere
+        lo = np.maximum(lo, np.where(parallel, np.where(inside, -np.inf, np.inf), np.minimum(t0, t1)))
+        hi = np.minimum(hi, np.where(parallel, np.where(inside, np.inf, -np.inf), np.maximum(t0, t1)))
+    return lo <= hi
