@@ -10,6 +10,9 @@ is compared with a reference render at ``--reference`` sub-rays:
 - intensity: median relative difference of the first-return intensity of pulses both renders see;
 - time and pulses/s of the scan stage (the tracer only: kernel, radiometry, waveform, labels).
 
+A "numpy echo stage" row times the 7-sub-ray setting on the reference path (sub-ray hits copied back,
+echoes found in numpy) to show what running the echo stage in Dr.Jit gains at equal error.
+
 A "HELIOS-like" row places the 19-sub-ray echoes as HELIOS++ does (on the central ray, range
 quantised to 7.5 cm) to compare point error with the incumbent's method.
 
@@ -55,13 +58,14 @@ def setup(scene_file: Path, seconds: float, variant: str):
     return scene, scan_scene, pulses
 
 
-def trace(scene, scan_scene, pulses, samples, batch):
+def trace(scene, scan_scene, pulses, samples, batch, reference_path=False):
+    """Points and scan seconds; ``reference_path`` runs the echo stage in numpy instead of Dr.Jit."""
     tracer = PulseTracer(scan_scene, scene["sensor"], samples)
+    run = tracer.trace_reference if reference_path else tracer.trace
     rng = np.random.default_rng(0)
-    tracer.trace(pulses.select(slice(0, 1000)), rng)  # compile outside the timing
+    run(pulses.select(slice(0, 1000)), rng)  # compile outside the timing
     start = time.perf_counter()
-    parts = [tracer.trace(pulses.select(slice(i, i + batch)), rng)
-             for i in range(0, len(pulses.time), batch)]
+    parts = [run(pulses.select(slice(i, i + batch)), rng) for i in range(0, len(pulses.time), batch)]
     return np.concatenate(parts), time.perf_counter() - start
 
 
@@ -162,6 +166,10 @@ def main(argv=None):
         rows.append({"setting": f"{samples} sub-rays", "samples": samples, "seconds": seconds,
                      "pulses_per_s": n / seconds, "points_per_s": len(points) / seconds,
                      **compare(points, ref, truth, n)})
+        if samples == 7:
+            slow, seconds = trace(scene, scan_scene, pulses, samples, args.batch, reference_path=True)
+            rows.append({"setting": "7, numpy echo stage", "samples": 7, "seconds": seconds, "pulses_per_s": n / seconds,
+                         "points_per_s": len(slow) / seconds, **compare(slow, ref, truth, n)})
         if samples == 19:
             rows.append({"setting": "HELIOS-like (19)", "samples": 19, "seconds": None, "pulses_per_s": None,
                          "points_per_s": None, **compare(helios_like(points, pulses), ref, truth, n)})

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .pulses import Pulses, leg_pulse_count, leg_pulses, reaches_box
+from .pulses import Pulses, leg_pulse_count, reaching_pulses
 from .tracer import POINT_DTYPE, PulseTracer
 
 __all__ = ["scan", "ScanResult", "PulseTracer", "Pulses", "POINT_DTYPE"]
@@ -48,10 +48,8 @@ def scan(scene: dict, plan: dict, scan_scene, progress: bool = True, on_points=N
         bar = _bar(progress, total, f"leg {leg_no + 1}/{len(plan['legs'])}")
         for first in range(0, total, sim["pulses_per_batch"]):
             count = min(sim["pulses_per_batch"], total - first)
-            pulses = leg_pulses(leg, sensor, survey, first, count)
-            result.pulses_fired += len(pulses.time)
-            keep = reaches_box(pulses.origin, pulses.direction, box, sensor["range_max"])
-            pulses = pulses.select(keep)
+            pulses, fired = reaching_pulses(leg, sensor, survey, first, count, box, sensor["range_max"])
+            result.pulses_fired += fired
             result.pulses_cast += len(pulses.time)
             result.rays += len(pulses.time) * tracer.samples
             rng = np.random.default_rng([scene["seed"], leg_no, first])

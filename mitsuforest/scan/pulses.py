@@ -45,14 +45,25 @@ def platform_position(leg: dict, t) -> np.ndarray:
 
 def leg_pulses(leg: dict, sensor: dict, survey: dict, first: int, count: int) -> Pulses:
     """The fired pulses among time slots ``first .. first+count-1`` of a leg."""
+    return reaching_pulses(leg, sensor, survey, first, count)[0]
+
+
+def reaching_pulses(leg: dict, sensor: dict, survey: dict, first: int, count: int, box: np.ndarray | None = None,
+                    range_max: float = np.inf) -> tuple[Pulses, int]:
+    """The fired pulses among time slots ``first .. first+count-1`` that can reach ``box`` (2, 3) within
+    ``range_max`` (all fired pulses without a box), and how many pulses were fired."""
     f = survey["pulse_frequency"]
     k = np.arange(first, first + count, dtype=np.int64)
     t = leg["t0"] + k / f
     d_sensor, angle, fired = deflect(sensor, t, survey["scan_frequency"])
     frame = leg_frame(leg)
-    k, t, d_sensor, angle = k[fired], t[fired], d_sensor[fired], angle[fired]
-    direction = d_sensor @ frame
-    return Pulses(k, t, platform_position(leg, t), direction, _across(frame, direction), angle)
+    k, t, angle = k[fired], t[fired], angle[fired]
+    direction = d_sensor[fired] @ frame
+    origin = platform_position(leg, t)
+    if box is not None:
+        keep = np.flatnonzero(reaches_box(origin, direction, box, range_max))
+        k, t, angle, direction, origin = k[keep], t[keep], angle[keep], direction[keep], origin[keep]
+    return Pulses(k, t, origin, direction, _across(frame, direction), angle), int(np.count_nonzero(fired))
 
 
 def _across(frame: np.ndarray, direction: np.ndarray) -> np.ndarray:

@@ -49,11 +49,14 @@ class TopView:
         i = np.clip((points["x"] * self.scale).astype(int), 0, w - 1)
         j = np.clip(((self.height_m - points["y"]) * self.scale).astype(int), 0, h - 1)
         pix = j * w + i
-        order = np.lexsort((points["z"], pix))
+        z = points["z"]
+        # One sort by pixel, then height within the pixel (z scaled into [0, 0.5) as the fraction).
+        span = float(z.max() - z.min()) + 1.0
+        order = np.argsort(pix + (z - z.min()) / (2 * span))
         last = np.r_[pix[order][1:] != pix[order][:-1], True]   # the highest point of each pixel
         sel = order[last]
-        higher = points["z"][sel] > self.top[pix[sel]]
-        self.top[pix[sel][higher]] = points["z"][sel][higher]
+        higher = z[sel] > self.top[pix[sel]]
+        self.top[pix[sel][higher]] = z[sel][higher]
         self.cls[pix[sel][higher]] = points["classification"][sel][higher]
 
     def image(self) -> np.ndarray:

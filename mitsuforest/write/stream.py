@@ -59,7 +59,7 @@ class PointWriter:
             bucket.append(np.column_stack([points["x"][sel], points["y"][sel], points["z"][sel]]))
         geo = georeference(points, self.offset)
         if self._pcd_file:
-            self._pcd_file.write(np.ascontiguousarray(geo).tobytes())
+            self._pcd_file.write(np.ascontiguousarray(geo).data)
         for las in self._las:
             las.write(geo)
         if self._kept is not None:
