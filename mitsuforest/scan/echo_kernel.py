@@ -49,7 +49,7 @@ class EchoKernel(RayCaster):
         n, S = len(origin), self.samples
         if n == 0:
             return _no_echoes()
-        ray, o, d, pulse, sample = self.rays(origin, direction, across)
+        ray, o, d, _, sample = self.rays(origin, direction, across)
         pi = self.intersect(ray)
         hit = pi.is_valid()
         instance = dr.reinterpret_array(mi.UInt32, pi.instance)

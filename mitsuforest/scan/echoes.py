@@ -8,12 +8,12 @@ The numpy functions in waveform.py are the reference; tests check the two agree.
 
 from __future__ import annotations
 
-from functools import lru_cache
+from functools import cache
 
 from .waveform import FWHM_PER_SIGMA
 
 
-@lru_cache(maxsize=None)
+@cache
 def sorting_network(n: int) -> tuple[tuple[int, int], ...]:
     """Comparators ``(i, j)``, ``i < j``, of Batcher's odd-even merge sort for ``n`` inputs."""
     size = 1

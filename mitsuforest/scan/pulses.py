@@ -18,7 +18,7 @@ class Pulses:
     across: np.ndarray      # (P, 3) beam frame axis in the scan plane (divergence[0] applies here)
     scan_angle: np.ndarray  # (P,) rad
 
-    def select(self, which) -> "Pulses":
+    def select(self, which) -> Pulses:
         """The pulses picked by a boolean mask, index array or slice."""
         return Pulses(**{k: v[which] for k, v in vars(self).items()})
 

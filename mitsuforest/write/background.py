@@ -26,7 +26,7 @@ class Background:
             if self._error is None:
                 try:
                     self._consume(batch)
-                except BaseException as e:  # handed to the scanning thread
+                except BaseException as e:  # noqa: BLE001 (re-raised in the scanning thread)
                     self._error = e
 
     def __call__(self, batch) -> None:
