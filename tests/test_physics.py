@@ -150,3 +150,25 @@ def test_device_waveform_matches_the_numpy_reference(samples):
     assert np.allclose(got[:, 3], ref.amplitude, rtol=1e-4, atol=1e-10)
     assert np.array_equal(got[:, 4], ref.dominant % samples)
     assert samples == 1 or (ref.number_of_returns == max_returns).any()
+
+
+@pytest.mark.parametrize("deflector", ["rotating", "oscillating", "risley"])
+def test_device_pulses_match_the_numpy_reference(deflector):
+    """device_pulses.py against pulses.reaching_pulses: same fired and cast pulses, rays within float32."""
+    import mitsuba as mi
+    mi.set_variant("llvm_ad_mono")
+    from mitsuforest.scan.device_pulses import device_pulses
+    from mitsuforest.scan.pulses import reaching_pulses
+    sensor = {"deflector": deflector, "field_of_view": {"rotating": 270, "oscillating": 100, "risley": 30}[deflector],
+              "range_max": 200.0,
+              "risley": {"prism_rates": [121.6, -77.7], "prism_deflection": [8.0, 7.0]}}
+    survey = {"pulse_frequency": 200_000, "scan_frequency": 50}
+    leg = {"start": [-4.0, -20.0, 30.0], "end": [-4.0, 100.0, 30.0], "t0": 12.5, "t1": 72.5}  # beside the box
+    box = np.array([[0.0, 0.0, 0.0], [100.0, 100.0, 28.0]])
+    ref, fired = reaching_pulses(leg, sensor, survey, 2_000_000, 50_000, box, sensor["range_max"])
+    got, got_fired = device_pulses(leg, sensor, survey, 2_000_000, 50_000, box, sensor["range_max"])
+    assert got_fired == fired and 1000 < len(ref.index) < fired
+    assert np.array_equal(np.array(got["slot"]), ref.index)
+    for key in ("origin", "direction", "across"):
+        xyz = np.column_stack([np.array(getattr(got[key], a)) for a in "xyz"])
+        assert np.abs(xyz - getattr(ref, key)).max() < 1e-5, key

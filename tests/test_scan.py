@@ -182,14 +182,18 @@ def test_rays_at_known_trees_return_their_ids(demo_setup):
 
 @pytest.mark.parametrize("samples", [1, 7])
 def test_echo_kernel_matches_the_numpy_reference_in_a_forest(demo_setup, samples):
-    """The device path (rays, labels, radiometry, waveform in Dr.Jit) against the numpy reference
-    (sub-ray hits copied back, then label_hits, received_power, detect_echoes) over the demo trees."""
-    from mitsuforest.scan.pulses import leg_pulses
+    """The device path (pulses, rays, labels, radiometry, waveform in Dr.Jit) against the numpy
+    reference (pulses in numpy, sub-ray hits copied back, then label_hits, received_power,
+    detect_echoes) over the demo trees."""
+    from mitsuforest.scan.pulses import reaching_pulses
     scene, plan, _, scan_scene = demo_setup
     sensor = {**scene["sensor"], "range_precision": 0.0}
-    p = leg_pulses(plan["legs"][0], sensor, scene["survey"], 700_000, 100_000)  # over the plot centre
+    leg, first, count = plan["legs"][0], 700_000, 100_000          # over the plot centre
     tracer = PulseTracer(scan_scene, sensor, samples)
-    got, ref = tracer.trace(p, RNG), tracer.trace_reference(p, RNG)
+    got, fired, cast = tracer.trace_slots(leg, scene["survey"], first, count, scan_scene.bbox, RNG)
+    p, ref_fired = reaching_pulses(leg, sensor, scene["survey"], first, count, scan_scene.bbox, sensor["range_max"])
+    ref = tracer.trace_reference(p, RNG)
+    assert (fired, cast) == (ref_fired, len(p.time))
     assert len(got) == len(ref) > 10_000
     assert (ref["classification"] != GROUND).mean() > 0.2          # the pulses see trees, not just ground
     if samples > 1:
@@ -199,3 +203,4 @@ def test_echo_kernel_matches_the_numpy_reference_in_a_forest(demo_setup, samples
     for axis in ("x", "y", "z", "range"):
         assert np.abs(got[axis] - ref[axis]).max() < 1e-4, axis
     assert np.allclose(got["intensity"], ref["intensity"], rtol=1e-4)
+    assert np.array_equal(got["gps_time"], ref["gps_time"])

@@ -125,7 +125,7 @@ SCENE_SPEC = {
     "simulation": {
         "beam_samples": Number(7, integer=True, ge=1, le=1000),
         "variant": Text("auto"),
-        "pulses_per_batch": Number(100_000, integer=True, gt=0),
+        "pulses_per_batch": Number(None, integer=True, gt=0, nullable=True),
     },
     "output": {
         "dir": FilePath(None, nullable=True, must_exist=False),

@@ -1,6 +1,8 @@
 """Stage 4: fly the survey and turn pulses into labelled echoes.
 
-Per leg, time slots are processed in batches of ``simulation.pulses_per_batch``: the deflector decides
+Per leg, time slots are processed in batches of ``simulation.pulses_per_batch`` (by default
+:data:`BATCH_SLOTS` for the backend: a GPU wants millions of rays per launch, a CPU's caches about
+100k pulses): the deflector decides
 which pulses fire, pulses that cannot reach the scene's box are dropped, and the rest go to the
 :class:`~mitsuforest.scan.tracer.PulseTracer` (sub-rays, radiometry, waveform, labels). Memory is
 bounded by the batch size; each batch has its own noise generator seeded by (seed, leg, first pulse),
@@ -14,10 +16,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .pulses import Pulses, leg_pulse_count, reaching_pulses
+from .pulses import Pulses, leg_pulse_count
 from .tracer import POINT_DTYPE, PulseTracer
 
-__all__ = ["scan", "ScanResult", "PulseTracer", "Pulses", "POINT_DTYPE"]
+__all__ = ["POINT_DTYPE", "PulseTracer", "Pulses", "ScanResult", "scan"]
+
+BATCH_SLOTS = {"llvm": 100_000, "cuda": 1_000_000}  # default time slots per batch, by Dr.Jit backend
 
 
 @dataclass
@@ -37,6 +41,7 @@ def scan(scene: dict, plan: dict, scan_scene, progress: bool = True, on_points=N
         without it, the points are collected in ``ScanResult.points``.
     """
     sensor, survey, sim = scene["sensor"], scene["survey"], scene["simulation"]
+    batch = sim["pulses_per_batch"] or BATCH_SLOTS[scan_scene.variant.split("_")[0]]
     tracer = PulseTracer(scan_scene, sensor, sim["beam_samples"])
     margin = sensor["range_max"] * max(sensor["beam_divergence"]) * 0.75 + 0.01
     box = scan_scene.bbox + [[-margin] * 3, [margin] * 3]
@@ -46,14 +51,13 @@ def scan(scene: dict, plan: dict, scan_scene, progress: bool = True, on_points=N
     for leg_no, leg in enumerate(plan["legs"]):
         total = leg_pulse_count(leg, survey["pulse_frequency"])
         bar = _bar(progress, total, f"leg {leg_no + 1}/{len(plan['legs'])}")
-        for first in range(0, total, sim["pulses_per_batch"]):
-            count = min(sim["pulses_per_batch"], total - first)
-            pulses, fired = reaching_pulses(leg, sensor, survey, first, count, box, sensor["range_max"])
-            result.pulses_fired += fired
-            result.pulses_cast += len(pulses.time)
-            result.rays += len(pulses.time) * tracer.samples
+        for first in range(0, total, batch):
+            count = min(batch, total - first)
             rng = np.random.default_rng([scene["seed"], leg_no, first])
-            points = tracer.trace(pulses, rng, first_id)
+            points, fired, cast = tracer.trace_slots(leg, survey, first, count, box, rng, first_id)
+            result.pulses_fired += fired
+            result.pulses_cast += cast
+            result.rays += cast * tracer.samples
             if on_points is None:
                 chunks.append(points)
             else:

@@ -7,10 +7,15 @@ from __future__ import annotations
 
 import numpy as np
 
+# Pulses this close outside FOV/2 still fire: far above the rounding of θ (~1e-12 rad after 10 min of
+# flight), so numpy and the device (device_pulses.py) fire the same pulses.
+FOV_TOLERANCE = 1e-9
+
 
 def wrap(angle):
-    """Angle wrapped into [-π, π)."""
-    return (np.asarray(angle) + np.pi) % (2 * np.pi) - np.pi
+    """Angle wrapped into [-π, π) (the same formula as device_pulses.py)."""
+    a = np.asarray(angle) + np.pi
+    return a - 2 * np.pi * np.floor(a / (2 * np.pi)) - np.pi
 
 
 def rotating(t, scan_frequency: float, field_of_view: float, phase: float = 0.0):
@@ -23,7 +28,7 @@ def rotating(t, scan_frequency: float, field_of_view: float, phase: float = 0.0)
     """
     theta = wrap(phase + 2 * np.pi * scan_frequency * np.asarray(t, np.float64))
     d = np.column_stack([np.sin(theta), np.zeros_like(theta), -np.cos(theta)])
-    return d, theta, np.abs(theta) <= np.deg2rad(field_of_view) / 2 + 1e-12
+    return d, theta, np.abs(theta) <= np.deg2rad(field_of_view) / 2 + FOV_TOLERANCE
 
 
 def oscillating(t, scan_frequency: float, field_of_view: float, phase: float = 0.0):
@@ -49,7 +54,7 @@ def risley(t, rates, deflections_deg, field_of_view: float):
     off = np.hypot(ax, ay)
     s = np.sin(off) / np.where(off > 0, off, 1)
     d = np.column_stack([ax * s, ay * s, -np.cos(off)])
-    return d, off, off <= np.deg2rad(field_of_view) / 2 + 1e-12
+    return d, off, off <= np.deg2rad(field_of_view) / 2 + FOV_TOLERANCE
 
 
 def deflect(sensor: dict, t, scan_frequency: float):

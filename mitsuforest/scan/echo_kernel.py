@@ -39,17 +39,24 @@ class EchoKernel(RayCaster):
         self.resolving = float(resolving)
 
     def echoes(self, origin: np.ndarray, direction: np.ndarray, across: np.ndarray) -> dict:
-        """Echoes of P pulses, in pulse then range order.
+        """Echoes of P pulses given as numpy (P, 3) arrays; see :meth:`device_echoes`."""
+        if len(origin) == 0:
+            return _no_echoes()
+        return self.device_echoes(*self.upload(origin, direction, across))
+
+    def device_echoes(self, origin, direction, across) -> dict:
+        """Echoes of P pulses given as Dr.Jit arrays (Point3f, Vector3f, Vector3f; see Pulses), in
+        pulse then range order.
 
         :returns: ``pulse`` (E,) row of each echo's pulse, ``return_number``, ``number_of_returns``,
             ``range`` (m, noise-free), ``amplitude``, ``point`` (E, 3) float64 local frame, and the
             labels of its strongest sub-ray: ``treeid``, ``classification``, ``instance``, ``object_id``.
         """
         dr, mi = self.dr, self.mi
-        n, S = len(origin), self.samples
+        n, S = dr.width(origin), self.samples
         if n == 0:
             return _no_echoes()
-        ray, o, d, _, sample = self.rays(origin, direction, across)
+        ray, o, d, _, sample = self.subrays(origin, direction, across)
         pi = self.intersect(ray)
         hit = pi.is_valid()
         instance = dr.reinterpret_array(mi.UInt32, pi.instance)

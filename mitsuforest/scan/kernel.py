@@ -33,20 +33,32 @@ class RayCaster:
         self.tan_x = mi.Float(_aligned(sample_tangents[:, 0].astype(np.float32)))
         self.tan_y = mi.Float(_aligned(sample_tangents[:, 1].astype(np.float32)))
 
+    def upload(self, origin: np.ndarray, direction: np.ndarray, across: np.ndarray):
+        """numpy (P, 3) pulse origins, axes and frame axes as Dr.Jit Point3f, Vector3f, Vector3f."""
+        mi = self.mi
+        cols = [mi.Float(_aligned(a[:, k].astype(np.float32))) for a in (origin, direction, across) for k in range(3)]
+        return mi.Point3f(*cols[0:3]), mi.Vector3f(*cols[3:6]), mi.Vector3f(*cols[6:9])
+
     def rays(self, origin: np.ndarray, direction: np.ndarray, across: np.ndarray):
+        """The sub-rays of P pulses given as numpy (P, 3) arrays; see :meth:`subrays`."""
+        return self.subrays(*self.upload(origin, direction, across))
+
+    def subrays(self, origin, direction, across):
         """The sub-rays of P pulses as one Dr.Jit ray of P*S lanes, lane = pulse*S + sub-ray.
 
+        :param origin: Point3f (P,) beam origins; ``direction``, ``across``: Vector3f (P,) unit beam
+            axes and first frame axes.
         :returns: ``ray`` (Ray3f), ``origin`` (Point3f), ``direction`` (Vector3f, unit), ``pulse``
             and ``sample`` (UInt32) per lane.
         """
         dr, mi = self.dr, self.mi
         S = self.samples
-        cols = [mi.Float(_aligned(a[:, k].astype(np.float32))) for a in (origin, direction, across) for k in range(3)]
-        idx = dr.arange(mi.UInt32, len(origin) * S)
+        idx = dr.arange(mi.UInt32, dr.width(origin) * S)
         pulse = idx // S
         sample = idx - pulse * S
-        g = [dr.gather(mi.Float, c, pulse) for c in cols]
-        o, d, e1 = mi.Point3f(*g[0:3]), mi.Vector3f(*g[3:6]), mi.Vector3f(*g[6:9])
+        o = dr.gather(mi.Point3f, origin, pulse)
+        d = dr.gather(mi.Vector3f, direction, pulse)
+        e1 = dr.gather(mi.Vector3f, across, pulse)
         e2 = dr.cross(d, e1)
         d = dr.normalize(d + dr.gather(mi.Float, self.tan_x, sample) * e1 + dr.gather(mi.Float, self.tan_y, sample) * e2)
         return mi.Ray3f(o, d), o, d, pulse, sample

@@ -6,8 +6,9 @@ import numpy as np
 
 from ..labels import label_hits
 from .beam import beam_pattern
+from .device_pulses import device_pulses
 from .echo_kernel import EchoKernel
-from .pulses import Pulses
+from .pulses import Pulses, slot_pulses
 from .radiometry import received_power, reflectance_table
 from .waveform import detect_echoes, resolving_distance
 
@@ -49,6 +50,19 @@ class PulseTracer:
         """Echo points (POINT_DTYPE, local frame) of a batch of pulses, in pulse then range order."""
         e = self.caster.echoes(pulses.origin, pulses.direction, pulses.across)
         return self._points(pulses, e["pulse"], e["point"], e["range"], e, rng, first_id)
+
+    def trace_slots(self, leg: dict, survey: dict, first: int, count: int, box: np.ndarray,
+                    rng: np.random.Generator, first_id: int = 0) -> tuple[np.ndarray, int, int]:
+        """:meth:`trace` for the time slots ``first .. first+count-1`` of a leg, pulses made on the
+        device (device_pulses.py); only pulses that can reach ``box`` are cast.
+
+        :returns: the points, the number of pulses fired and the number cast.
+        """
+        pulses, fired = device_pulses(leg, self.sensor, survey, first, count, box, self.sensor["range_max"])
+        cast = self.caster.dr.width(pulses["slot"])
+        e = self.caster.device_echoes(pulses["origin"], pulses["direction"], pulses["across"])
+        echo_pulses = slot_pulses(leg, self.sensor, survey, np.asarray(pulses["slot"])[e["pulse"]] if cast else [])
+        return self._points(echo_pulses, np.arange(len(e["pulse"])), e["point"], e["range"], e, rng, first_id), fired, cast
 
     def trace_reference(self, pulses: Pulses, rng: np.random.Generator, first_id: int = 0) -> np.ndarray:
         """:meth:`trace` computed in numpy from the sub-ray hits (slower; the tests' reference)."""

@@ -73,7 +73,7 @@ def detect_echoes(ranges: np.ndarray, power: np.ndarray, resolving: float, thres
     :param power: (P, S) received power of each sub-ray.
     :param resolving: the resolving distance ΔR (m); see :func:`resolving_distance`.
     """
-    n_pulses, samples = ranges.shape
+    n_pulses = ranges.shape[0]
     ranges = np.where((ranges >= range_min) & (ranges <= range_max), ranges, np.inf)
     valid = np.isfinite(ranges)
     hit = valid.any(axis=1)
