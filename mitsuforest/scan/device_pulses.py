@@ -67,13 +67,18 @@ def device_pulses(leg: dict, sensor: dict, survey: dict, first: int, count: int,
     import drjit as dr
     import mitsuba as mi
     Float64 = mi.Float64
-    t0, t1 = float(leg["t0"]), float(leg["t1"])
-    slot = first + dr.arange(mi.UInt32, count)
+
+    def leg_value(x, kind=Float64):   # opaque: a new batch or leg must not compile a new kernel
+        return dr.opaque(kind, float(x) if kind is not mi.UInt32 else int(x))
+
+    t0, t1 = leg_value(leg["t0"]), leg_value(leg["t1"])
+    slot = leg_value(first, mi.UInt32) + dr.arange(mi.UInt32, count)
     t = t0 + Float64(slot) / float(survey["pulse_frequency"])
     d_sensor, _, fired = _deflect(dr, Float64, sensor, t, float(survey["scan_frequency"] or 0.0))
-    frame = leg_frame(leg).tolist()
+    frame_np = leg_frame(leg)
+    frame = [[leg_value(x) for x in row] for row in frame_np]
     direction = [d_sensor[0] * frame[0][k] + d_sensor[1] * frame[1][k] + d_sensor[2] * frame[2][k] for k in range(3)]
-    a, b = [float(x) for x in leg["start"]], [float(x) for x in leg["end"]]
+    a, b = [leg_value(x) for x in leg["start"]], [leg_value(x) for x in leg["end"]]
     f = (t - t0) / (t1 - t0)
     origin = [a[k] + f * (b[k] - a[k]) for k in range(3)]
     n_fired = dr.count(fired)
@@ -83,9 +88,10 @@ def device_pulses(leg: dict, sensor: dict, survey: dict, first: int, count: int,
             int(n_fired[0])
     direction = mi.Vector3f(*(mi.Float(dr.gather(Float64, c, keep)) for c in direction))
     origin = mi.Point3f(*(mi.Float(dr.gather(Float64, c, keep)) for c in origin))
-    along = mi.Vector3f(*frame[1])
+    along = mi.Vector3f(*(leg_value(x, mi.Float) for x in frame_np[1]))
     across = dr.cross(along, direction)
     norm = dr.norm(across)
-    across = dr.select(norm > 1e-9, across / dr.select(norm > 1e-9, norm, 1.0), mi.Vector3f(*frame[0]))
+    fallback = mi.Vector3f(*(leg_value(x, mi.Float) for x in frame_np[0]))
+    across = dr.select(norm > 1e-9, across / dr.select(norm > 1e-9, norm, 1.0), fallback)
     return {"slot": dr.gather(mi.UInt32, slot, keep), "origin": origin, "direction": direction,
             "across": across}, int(n_fired[0])
