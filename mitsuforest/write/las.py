@@ -44,7 +44,7 @@ def las_header(offset, crs: str | None = None) -> laspy.LasHeader:
 
 def las_points(header: laspy.LasHeader, points: np.ndarray) -> laspy.LasData:
     """Georeferenced points (x, y, z include the offset) as a LasData of ``header``'s format."""
-    las = laspy.LasData(header)
+    las = laspy.LasData(header, points=laspy.ScaleAwarePointRecord.zeros(len(points), header=header))
     las.x, las.y, las.z = points["x"], points["y"], points["z"]
     las.classification = _ASPRS_LOOKUP[points["classification"]]
     las.return_number = points["return_number"]

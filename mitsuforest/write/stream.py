@@ -110,7 +110,10 @@ class PointWriter:
 
 
 def georeference(points: np.ndarray, offset) -> np.ndarray:
-    """Add the float64 origin offset to local-frame points (a copy)."""
+    """Add the float64 origin offset to local-frame points: a copy, or ``points`` itself when the
+    offset is zero."""
+    if not np.any(offset):
+        return points
     out = points.copy()
     for axis, o in zip("xyz", offset):
         out[axis] += o
