@@ -9,7 +9,13 @@ from .atomic import atomic_path
 _KIND = {"u": "U", "i": "I", "f": "F"}
 
 
-def pcd_header(dtype: np.dtype, count: int) -> str:
+COUNT_DIGITS = 20  # a streamed file's header is written first with its counts padded to this width
+
+
+def pcd_header(dtype: np.dtype, count: int, digits: int = 0) -> str:
+    """The header of a binary PCD of ``count`` points; ``digits`` zero-pads the counts, so that a
+    header written before the count is known can be overwritten in place (readers parse them as
+    integers: PCL, Open3D and pypcd4 accept the leading zeros)."""
     names = dtype.names
     fields = [dtype[n] for n in names]
     return "\n".join([
@@ -19,10 +25,10 @@ def pcd_header(dtype: np.dtype, count: int) -> str:
         "SIZE " + " ".join(str(f.itemsize) for f in fields),
         "TYPE " + " ".join(_KIND[f.kind] for f in fields),
         "COUNT " + " ".join("1" for _ in fields),
-        f"WIDTH {count}",
+        f"WIDTH {count:0{digits}d}",
         "HEIGHT 1",
         "VIEWPOINT 0 0 0 1 0 0 0",
-        f"POINTS {count}",
+        f"POINTS {count:0{digits}d}",
         "DATA binary",
     ]) + "\n"
 

@@ -6,13 +6,10 @@ classes, returns, spacing) and the quick-look rasters are accumulated batch by b
 
 from __future__ import annotations
 
-import shutil
-from pathlib import Path
-
 import numpy as np
 
 from .las import LasStream
-from .pcd import pcd_header
+from .pcd import COUNT_DIGITS, pcd_header
 from .quicklook import SideTile, TopView
 
 SPACING_TILE = 5.0  # m, side of the tiles in which the mean nearest-neighbour spacing is measured
@@ -25,9 +22,7 @@ class PointWriter:
         self.offset = np.asarray(scene["origin"]["offset"], np.float64)
         self.area = scene["area"]["size"]
         formats = scene["output"]["formats"] if staging else []
-        self._pcd_data = staging.file(".pcd.data") if staging and "pcd" in formats else None
-        self._pcd_file = open(self._pcd_data, "wb") if self._pcd_data else None
-        self._pcd_target = staging.file(".pcd") if staging else None
+        self._pcd_file = open(staging.file(".pcd"), "wb") if staging and "pcd" in formats else None  # noqa: SIM115
         self._las = [LasStream(staging.file("." + f), self.offset, scene["origin"]["crs"])
                      for f in ("las", "laz") if f in formats]
         self._kept = [] if keep else None
@@ -44,6 +39,8 @@ class PointWriter:
 
     def add(self, points: np.ndarray) -> None:
         """Add a batch of local-frame points (POINT_DTYPE)."""
+        if self.dtype is None and self._pcd_file:
+            self._pcd_file.write(pcd_header(points.dtype, 0, COUNT_DIGITS).encode("ascii"))
         self.dtype = points.dtype
         if len(points) == 0:
             return
@@ -70,11 +67,12 @@ class PointWriter:
         for las in self._las:
             las.close()
         if self._pcd_file:
+            if self.dtype is None:
+                from ..scan import POINT_DTYPE
+                self.add(np.zeros(0, POINT_DTYPE))
+            self._pcd_file.seek(0)                 # the counts, now known, in the header's padded fields
+            self._pcd_file.write(pcd_header(self.dtype, self.count, COUNT_DIGITS).encode("ascii"))
             self._pcd_file.close()
-            with open(self._pcd_target, "wb") as out, open(self._pcd_data, "rb") as data:
-                out.write(pcd_header(self.dtype, self.count).encode("ascii"))
-                shutil.copyfileobj(data, out, 16 << 20)
-            Path(self._pcd_data).unlink()
 
     def abort(self) -> None:
         for las in self._las:
