@@ -52,10 +52,17 @@ class EchoKernel(RayCaster):
             ``range`` (m, noise-free), ``amplitude``, ``point`` (E, 3) float64 local frame, and the
             labels of its strongest sub-ray: ``treeid``, ``classification``, ``instance``, ``object_id``.
         """
-        dr, mi = self.dr, self.mi
-        n, S = dr.width(origin), self.samples
+        n = self.dr.width(origin)
         if n == 0:
             return _no_echoes()
+        lane, hit_id, o = self._sub_ray_returns(origin, direction, across)
+        flat, returns = self._ranked_echoes(lane, n)
+        return self._echo_records(flat, returns, hit_id, o)
+
+    def _sub_ray_returns(self, origin, direction, across):
+        """Trace, label and weigh every sub-ray (lane = pulse*S + sub-ray): its range (``inf`` when it
+        gave no valid return), received power and hit offset from the origin, and its hit ids."""
+        dr, mi = self.dr, self.mi
         ray, o, d, _, sample = self.subrays(origin, direction, across)
         pi = self.intersect(ray)
         hit = pi.is_valid()
@@ -74,7 +81,11 @@ class EchoKernel(RayCaster):
         dr.eval(lane, hit_id, bad)
         if bad[0]:
             raise RuntimeError("a ray hit a shape that is neither the ground nor a placed object")
+        return lane, hit_id, o
 
+    def _ranked_echoes(self, lane: dict, n: int):
+        """The waveform per pulse (echoes.py), its echoes scattered to slots pulse*S + rank."""
+        dr, mi, S = self.dr, self.mi, self.samples
         base = dr.arange(mi.UInt32, n) * S
         per_sample = {k: [dr.gather(mi.Float, v, base + s) for s in range(S)] for k, v in lane.items()}
         offsets = [[per_sample[a][s] for a in "xyz"] for s in range(S)]
@@ -90,7 +101,11 @@ class EchoKernel(RayCaster):
                                ("dominant", slot["dominant"]), ("kept", mi.UInt32(1))):
                 dr.scatter(flat[key], value, at, kept)
         dr.eval(flat, returns)
+        return flat, returns
 
+    def _echo_records(self, flat: dict, returns, hit_id: dict, origin) -> dict:
+        """The kept slots, compacted, with their points and their strongest sub-ray's labels, in numpy."""
+        dr, mi, S = self.dr, self.mi, self.samples
         idx = dr.compress(flat["kept"] > 0)
         if dr.width(idx) == 0:
             return _no_echoes()
@@ -98,7 +113,7 @@ class EchoKernel(RayCaster):
         strongest = echo_pulse * S + dr.gather(mi.UInt32, flat["dominant"], idx)
         ids = self.table.identities(*(dr.gather(mi.UInt32, hit_id[k], strongest) for k in hit_id),
                                     dr.full(mi.Bool, True, dr.width(idx)))
-        start = dr.gather(mi.Point3f, o, echo_pulse * S)
+        start = dr.gather(mi.Point3f, origin, echo_pulse * S)
         out = {
             "pulse": echo_pulse, "return_number": idx - echo_pulse * S + 1,
             "number_of_returns": dr.gather(mi.UInt32, returns, echo_pulse),

@@ -45,68 +45,90 @@ def pulse_echoes(dr, t: list, power: list, offset: list, resolving: float, thres
         (the sub-ray index of its strongest return); and ``returns`` (P,) UInt32, the number of
         echoes of each pulse after ``max_returns``.
     """
-    samples = len(t)
-    Float, UInt32 = type(t[0]), dr.uint32_array_t(type(t[0]))
-    n = dr.width(t[0])
-    rows = [[t[k], power[k], UInt32(k) + dr.zeros(UInt32, n), *offset[k]] for k in range(samples)]
-    for i, j in sorting_network(samples):
-        a, b = rows[i], rows[j]
-        swap = (a[0] > b[0]) | ((a[0] == b[0]) & (a[2] > b[2]))   # ties keep sub-ray order (stable)
-        rows[i] = [dr.select(swap, y, x) for x, y in zip(a, b)]
-        rows[j] = [dr.select(swap, x, y) for x, y in zip(a, b)]
-    t = [r[0] for r in rows]
-    valid = [dr.isfinite(x) for x in t]
-    start = [valid[0]] + [valid[k] & ~(t[k] - t[k - 1] <= resolving) for k in range(1, samples)]
-    end = [valid[k] & (~valid[k + 1] | start[k + 1]) for k in range(samples - 1)] + [valid[-1]]
+    rows = _sorted_by_range(dr, t, power, offset)
+    valid = [dr.isfinite(r["t"]) for r in rows]
+    start = [valid[0]] + [valid[k] & ~(rows[k]["t"] - rows[k - 1]["t"] <= resolving) for k in range(1, len(rows))]
+    end = [valid[k] & (~valid[k + 1] | start[k + 1]) for k in range(len(rows) - 1)] + [valid[-1]]
+    totals = _chain_totals(dr, rows, start)
+    mean = _chain_means(dr, totals, end)
+    amplitude = _chain_amplitudes(dr, rows, valid, start, mean, resolving / FWHM_PER_SIGMA)
+    detected = [end[k] & (amplitude[k] > 0) & (amplitude[k] >= threshold) for k in range(len(rows))]
+    return _ranked(dr, totals, mean, amplitude, detected, max_returns)
 
-    # Pass 1, forward: energy, weighted sums and the strongest member of each chain so far.
-    zero = dr.zeros(Float, n)
-    acc = None
-    totals = []
-    for k, (tk, pk, sk, *vk) in enumerate(rows):
-        here = [pk, pk * tk, Float(1.0) + zero, tk, *(pk * v for v in vk), *vk, pk, sk]
+
+def _sorted_by_range(dr, t, power, offset) -> list[dict]:
+    """Each pulse's sub-ray returns in range order (a sorting network; ties keep sub-ray order)."""
+    UInt32 = dr.uint32_array_t(type(t[0]))
+    n = dr.width(t[0])
+    rows = [{"t": t[k], "p": power[k], "sample": UInt32(k) + dr.zeros(UInt32, n),
+             "x": offset[k][0], "y": offset[k][1], "z": offset[k][2]} for k in range(len(t))]
+    for i, j in sorting_network(len(rows)):
+        a, b = rows[i], rows[j]
+        swap = (a["t"] > b["t"]) | ((a["t"] == b["t"]) & (a["sample"] > b["sample"]))
+        rows[i] = {key: dr.select(swap, b[key], a[key]) for key in a}
+        rows[j] = {key: dr.select(swap, a[key], b[key]) for key in a}
+    return rows
+
+
+def _chain_totals(dr, rows, start) -> list[dict]:
+    """Forward pass: at each position, the sums over its chain so far and its strongest member."""
+    totals, acc = [], None
+    for k, r in enumerate(rows):
+        here = {"energy": r["p"], "weighted": r["p"] * r["t"], "count": dr.full(type(r["t"]), 1.0, dr.width(r["t"])),
+                "plain": r["t"], **{f"p{a}": r["p"] * r[a] for a in "xyz"}, **{a: r[a] for a in "xyz"}}
         if acc is None:
-            acc = here
+            acc = {**here, "best": r["p"], "dominant": r["sample"]}
         else:
-            s = start[k]
-            summed = [dr.select(s, h, a + h) for a, h in zip(acc[:10], here[:10])]
-            stronger = s | (pk > acc[10])
-            acc = summed + [dr.select(stronger, pk, acc[10]), dr.select(stronger, sk, acc[11])]
+            summed = {key: dr.select(start[k], value, acc[key] + value) for key, value in here.items()}
+            stronger = start[k] | (r["p"] > acc["best"])
+            acc = {**summed, "best": dr.select(stronger, r["p"], acc["best"]),
+                   "dominant": dr.select(stronger, r["sample"], acc["dominant"])}
         totals.append(acc)
+    return totals
+
+
+def _uniform(dr, total):
+    """Chains of zero energy (all grazing) are averaged plainly; others are weighted by energy."""
+    uniform = total["energy"] <= 0
+    return uniform, dr.select(uniform, 1.0 / total["count"], 1.0 / dr.select(uniform, 1.0, total["energy"]))
+
+
+def _chain_means(dr, totals, end) -> list:
+    """Each position's chain mean range: known at the chain's end, passed back to its members."""
     means = []
-    for k in range(samples):
-        energy, weighted, count, plain = totals[k][:4]
-        uniform = energy <= 0
-        means.append(dr.select(uniform, plain / count, weighted / dr.select(uniform, 1.0, energy)))
-    # Backward: every member learns its chain's mean range (known at the chain's end).
-    chain_mean = [None] * samples
-    chain_mean[-1] = means[-1]
-    for k in range(samples - 2, -1, -1):
-        chain_mean[k] = dr.select(end[k], means[k], chain_mean[k + 1])
-    # Pass 2, forward: the waveform's value at the chain's mean range (Gaussian pulse of FWHM ΔR).
-    sigma = resolving / FWHM_PER_SIGMA
-    amplitude = []
-    running = zero
-    for k in range(samples):
+    for total in totals:
+        uniform, scale = _uniform(dr, total)
+        means.append(dr.select(uniform, total["plain"], total["weighted"]) * scale)
+    for k in range(len(totals) - 2, -1, -1):
+        means[k] = dr.select(end[k], means[k], means[k + 1])
+    return means
+
+
+def _chain_amplitudes(dr, rows, valid, start, mean, sigma: float) -> list:
+    """Forward pass: the waveform's value at each chain's mean range (Gaussian pulse of FWHM ΔR)."""
+    amplitude, running = [], None
+    for k, r in enumerate(rows):
         if sigma > 0:
-            shape = dr.exp(-0.5 * dr.square((t[k] - chain_mean[k]) / sigma))
+            shape = dr.exp(-0.5 * dr.square((r["t"] - mean[k]) / sigma))
         else:
-            shape = dr.select(t[k] == chain_mean[k], 1.0, 0.0)
-        term = dr.select(valid[k], rows[k][1] * shape, 0.0)
-        running = term if k == 0 else dr.select(start[k], term, running + term)
+            shape = dr.select(r["t"] == mean[k], 1.0, 0.0)
+        term = dr.select(valid[k], r["p"] * shape, 0.0)
+        running = term if running is None else dr.select(start[k], term, running + term)
         amplitude.append(running)
-    # Detection and ranking, in range order.
-    detected = [end[k] & (amplitude[k] > 0) & (amplitude[k] >= threshold) for k in range(samples)]
-    rank = dr.zeros(UInt32, n)
+    return amplitude
+
+
+def _ranked(dr, totals, mean, amplitude, detected, max_returns: int):
+    """Detected chains numbered in range order, the first ``max_returns`` kept."""
+    UInt32 = dr.uint32_array_t(type(mean[0]))
+    rank = dr.zeros(UInt32, dr.width(mean[0]))
     slots = []
-    for k in range(samples):
-        energy, _, count = totals[k][:3]
-        uniform = energy <= 0
-        scale = dr.select(uniform, 1.0 / count, 1.0 / dr.select(uniform, 1.0, energy))
-        off = [dr.select(uniform, totals[k][7 + a], totals[k][4 + a]) * scale for a in range(3)]
+    for k, total in enumerate(totals):
+        uniform, scale = _uniform(dr, total)
+        offset = [dr.select(uniform, total[a], total[f"p{a}"]) * scale for a in "xyz"]
         kept = detected[k] & ((rank < max_returns) if max_returns else True)
-        slots.append({"kept": kept, "rank": rank, "range": chain_mean[k], "amplitude": amplitude[k],
-                      "offset": off, "dominant": totals[k][11]})
+        slots.append({"kept": kept, "rank": rank, "range": mean[k], "amplitude": amplitude[k],
+                      "offset": offset, "dominant": total["dominant"]})
         rank = rank + dr.select(detected[k], 1, 0)
     returns = dr.minimum(rank, max_returns) if max_returns else rank
     return slots, returns
