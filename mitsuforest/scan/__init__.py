@@ -2,9 +2,9 @@
 
 Per leg, time slots are processed in batches of ``simulation.pulses_per_batch`` (by default
 :data:`BATCH_SLOTS` for the backend: a GPU wants millions of rays per launch, a CPU's caches about
-100k pulses): the deflector decides
-which pulses fire, pulses that cannot reach the scene's box are dropped, and the rest go to the
-:class:`~mitsuforest.scan.tracer.PulseTracer` (sub-rays, radiometry, waveform, labels). Memory is
+100k pulses). For each batch the :class:`~mitsuforest.scan.tracer.PulseTracer` decides on the
+device which pulses fire and can reach the scene's box, then traces them (sub-rays, radiometry,
+waveform, labels); only echoes come back to numpy. Memory is
 bounded by the batch size; each batch has its own noise generator seeded by (seed, leg, first pulse),
 so the same scene, seed and batch size give the same points, byte for byte.
 """

@@ -1,8 +1,10 @@
-"""The Dr.Jit kernel: sub-rays of many pulses traced in one launch, hits compacted on the device.
+"""The ray caster: sub-rays of many pulses traced in one launch.
 
-Rays are built inside Dr.Jit from per-pulse origin, direction and beam frame plus a per-sample table,
-so only 9 floats per pulse cross from numpy. ``ray_intersect_preliminary`` finds each sub-ray's first
-surface; only hits are gathered and copied back.
+Rays are built inside Dr.Jit from per-pulse origin, direction and beam frame plus a per-sample table
+(:meth:`RayCaster.subrays`), so at most 9 floats per pulse cross from numpy. ``ray_intersect_preliminary``
+finds each sub-ray's first surface. :meth:`RayCaster.cast` compacts the hits and copies them back
+(the reference path and the benchmarks' truth samples); the echo kernel (echo_kernel.py) keeps them
+on the device.
 """
 
 from __future__ import annotations
