@@ -34,7 +34,7 @@ from mitsuforest.config import load_scene
 from mitsuforest.plan import make_plan
 from mitsuforest.scan import PulseTracer
 from mitsuforest.scan.kernel import RayCaster
-from mitsuforest.scan.pulses import leg_pulse_count, leg_pulses, reaches_box
+from mitsuforest.scan.pulses import leg_pulse_count, reaching_pulses
 from mitsuforest.scene import build_scene
 from mitsuforest.trees import build_models
 
@@ -52,9 +52,8 @@ def setup(scene_file: Path, seconds: float, variant: str):
     models = build_models(plan)
     scan_scene = build_scene(plan, models, scene)
     leg = plan["legs"][0]
-    pulses = leg_pulses(leg, scene["sensor"], scene["survey"], 0, leg_pulse_count(leg, scene["survey"]["pulse_frequency"]))
-    keep = reaches_box(pulses.origin, pulses.direction, scan_scene.bbox, scene["sensor"]["range_max"])
-    pulses = pulses.select(keep)
+    count = leg_pulse_count(leg, scene["survey"]["pulse_frequency"])
+    pulses, _ = reaching_pulses(leg, scene["sensor"], scene["survey"], 0, count, scan_scene.bbox, scene["sensor"]["range_max"])
     return scene, scan_scene, pulses
 
 

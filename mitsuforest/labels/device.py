@@ -10,6 +10,10 @@ import numpy as np
 
 from ..classes import GROUND
 
+_INDEX_ARRAYS = ("object_instance", "object_id_base", "object_treeid", "object_part_row", "object_class_row",
+                 "part_base", "triangle_component", "component_class")
+_VECTOR_ARRAYS = ("object_rotation", "triangle_normal", "ground_normal")  # flattened: row * 9 or row * 3
+
 
 class DeviceHitTable:
     """Dr.Jit copies of a :class:`~mitsuforest.scene.HitTable`'s arrays (the variant must be set)."""
@@ -32,17 +36,10 @@ class DeviceHitTable:
         self.object_of_registry = u32(np.maximum(registry, 0))
         self.ground_registry = int(table.ground_registry)
         self.ground_object_id = int(table.ground_object_id)
-        self.object_instance = u32(table.object_instance)
-        self.object_id_base = u32(table.object_id_base)
-        self.object_treeid = u32(table.object_treeid)
-        self.object_rotation = f32(table.object_rotation)
-        self.object_part_row = u32(table.object_part_row)
-        self.object_class_row = u32(table.object_class_row)
-        self.part_base = u32(table.part_base)
-        self.triangle_component = u32(table.triangle_component)
-        self.triangle_normal = f32(table.triangle_normal)
-        self.component_class = u32(table.component_class)
-        self.ground_normal = f32(table.ground_normal)
+        for name in _INDEX_ARRAYS:
+            setattr(self, name, u32(getattr(table, name)))
+        for name in _VECTOR_ARRAYS:
+            setattr(self, name, f32(getattr(table, name)))
 
     def _hit(self, instance, shape, active):
         dr, mi = self.dr, self.mi
@@ -59,14 +56,18 @@ class DeviceHitTable:
         tri = dr.gather(mi.UInt32, self.part_base, part, on_object) + prim
         return tri, dr.gather(mi.UInt32, self.triangle_component, tri, on_object)
 
+    def _class(self, row, component, on_object):
+        dr, mi = self.dr, self.mi
+        cls = dr.gather(mi.UInt32, self.component_class,
+                        dr.gather(mi.UInt32, self.object_class_row, row, on_object) + component, on_object)
+        return dr.select(on_object, cls, GROUND)
+
     def classes_and_normals(self, instance, shape, shape_index, prim, active):
         """Class (UInt32) and world-frame unit normal (Vector3f) of each hit, and the ``unknown`` mask."""
         dr, mi = self.dr, self.mi
         on_object, row, unknown = self._hit(instance, shape, active)
         tri, component = self._triangle(row, shape_index, prim, on_object)
-        cls = dr.gather(mi.UInt32, self.component_class,
-                        dr.gather(mi.UInt32, self.object_class_row, row, on_object) + component, on_object)
-        cls = dr.select(on_object, cls, GROUND)
+        cls = self._class(row, component, on_object)
         local = mi.Vector3f([dr.gather(mi.Float, self.triangle_normal, tri * 3 + a, on_object) for a in range(3)])
         m = [dr.gather(mi.Float, self.object_rotation, row * 9 + a, on_object) for a in range(9)]
         rotated = mi.Vector3f(m[0] * local.x + m[1] * local.y + m[2] * local.z,
@@ -80,12 +81,10 @@ class DeviceHitTable:
         dr, mi = self.dr, self.mi
         on_object, row, _ = self._hit(instance, shape, active)
         _, component = self._triangle(row, shape_index, prim, on_object)
-        cls = dr.gather(mi.UInt32, self.component_class,
-                        dr.gather(mi.UInt32, self.object_class_row, row, on_object) + component, on_object)
         return {
             "instance": dr.select(on_object, dr.gather(mi.UInt32, self.object_instance, row, on_object), 0),
             "object_id": dr.select(on_object, dr.gather(mi.UInt32, self.object_id_base, row, on_object) + component,
                                    self.ground_object_id),
             "treeid": dr.select(on_object, dr.gather(mi.UInt32, self.object_treeid, row, on_object), 0),
-            "classification": dr.select(on_object, cls, GROUND),
+            "classification": self._class(row, component, on_object),
         }

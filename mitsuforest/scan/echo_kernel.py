@@ -40,8 +40,6 @@ class EchoKernel(RayCaster):
 
     def echoes(self, origin: np.ndarray, direction: np.ndarray, across: np.ndarray) -> dict:
         """Echoes of P pulses given as numpy (P, 3) arrays; see :meth:`device_echoes`."""
-        if len(origin) == 0:
-            return _no_echoes()
         return self.device_echoes(*self.upload(origin, direction, across))
 
     def device_echoes(self, origin, direction, across) -> dict:

@@ -53,26 +53,27 @@ def reaching_pulses(leg: dict, sensor: dict, survey: dict, first: int, count: in
     """The fired pulses among time slots ``first .. first+count-1`` that can reach ``box`` (2, 3) within
     ``range_max`` (all fired pulses without a box), and how many pulses were fired."""
     k = np.arange(first, first + count, dtype=np.int64)
-    t = leg["t0"] + k / survey["pulse_frequency"]
-    d_sensor, angle, fired = deflect(sensor, t, survey["scan_frequency"])
-    frame = leg_frame(leg)
-    k, t, angle = k[fired], t[fired], angle[fired]
-    direction = d_sensor[fired] @ frame
+    t, direction, angle, fired = _slot_beams(leg, sensor, survey, k)
+    k, t, direction, angle = k[fired], t[fired], direction[fired], angle[fired]
     origin = platform_position(leg, t)
     if box is not None:
         keep = np.flatnonzero(reaches_box(origin, direction, box, range_max))
         k, t, angle, direction, origin = k[keep], t[keep], angle[keep], direction[keep], origin[keep]
-    return Pulses(k, t, origin, direction, _across(frame, direction), angle), int(np.count_nonzero(fired))
+    return Pulses(k, t, origin, direction, _across(leg_frame(leg), direction), angle), int(np.count_nonzero(fired))
 
 
 def slot_pulses(leg: dict, sensor: dict, survey: dict, slots: np.ndarray) -> Pulses:
     """The pulses of the given time slots of a leg (fired or not)."""
     k = np.asarray(slots, np.int64)
+    t, direction, angle, _ = _slot_beams(leg, sensor, survey, k)
+    return Pulses(k, t, platform_position(leg, t), direction, _across(leg_frame(leg), direction), angle)
+
+
+def _slot_beams(leg: dict, sensor: dict, survey: dict, k: np.ndarray):
+    """Times, beam axes (local frame), scan angles and fired mask of the time slots ``k`` of a leg."""
     t = leg["t0"] + k / survey["pulse_frequency"]
-    d_sensor, angle, _ = deflect(sensor, t, survey["scan_frequency"])
-    frame = leg_frame(leg)
-    direction = d_sensor @ frame
-    return Pulses(k, t, platform_position(leg, t), direction, _across(frame, direction), angle)
+    d_sensor, angle, fired = deflect(sensor, t, survey["scan_frequency"])
+    return t, d_sensor @ leg_frame(leg), angle, fired
 
 
 def _across(frame: np.ndarray, direction: np.ndarray) -> np.ndarray:
