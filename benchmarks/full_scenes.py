@@ -49,7 +49,7 @@ def scene_copy(name: str, folder: Path, beam_samples: int | None, quick: bool) -
     return path
 
 
-def run(name: str, folder: Path, beam_samples, quick: bool) -> dict:
+def run(name: str, folder: Path, beam_samples, quick: bool, keep_manifest: Path | None = None) -> dict:
     path = scene_copy(name, folder, beam_samples, quick)
     start = time.perf_counter()
     proc = subprocess.run([sys.executable, "-c", CHILD, "render", str(path), "--overwrite", "--quiet"],
@@ -59,6 +59,9 @@ def run(name: str, folder: Path, beam_samples, quick: bool) -> dict:
         raise SystemExit(f"{name}: render failed:\n{proc.stderr}")
     peak_mb = int(proc.stderr.rsplit("PEAK_RSS_KB", 1)[1].split()[0]) / 1024
     m = json.loads((folder / name / f"{name}_manifest.json").read_text())
+    if keep_manifest:
+        keep_manifest.mkdir(parents=True, exist_ok=True)
+        (keep_manifest / f"{name}_manifest.json").write_text(json.dumps(m, indent=1))
     scan_s = m["timings_s"]["scan"]
     return {
         "scene": name, "trees": m["scene"]["forest"]["trees"],
@@ -67,7 +70,7 @@ def run(name: str, folder: Path, beam_samples, quick: bool) -> dict:
         "points": m["points"], "points_per_s": m["points"] / scan_s, "density_per_m2": m["density_per_m2"],
         "mean_spacing_m": m["mean_spacing_m"], "returns_histogram": m["returns_histogram"],
         "peak_rss_mb": peak_mb, "beam_samples": m["scene"]["simulation"]["beam_samples"],
-        "variant": m["variant"],
+        "variant": m["variant"], "classes": m.get("classes"),
     }
 
 
@@ -84,7 +87,7 @@ def main(argv=None):
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for name in args.scenes:
-            row = run(name, Path(tmp), args.beam_samples, args.quick)
+            row = run(name, Path(tmp), args.beam_samples, args.quick, args.out)
             rows.append(row)
             t = row["timings_s"]
             print(f"{name}: {row['wall_s']:.0f} s end to end (plan {t['plan']:.1f}, trees {t['trees']:.1f}, "
