@@ -70,39 +70,38 @@ def _render(args) -> int:
     result = render(args.scene, output_dir=args.output, seed=args.seed, variant=args.variant,
                     overwrite=args.overwrite, progress=not args.quiet, log=log)
     if not args.quiet:
-        print(f"wrote {len(result.files)} files to {Path(result.scene['output']['dir'])}")
+        print(f"wrote {len(result.files)} files to {Path(result.scene.output.dir)}")
     return 0
 
 
 def _plan(args) -> int:
     from .config import load_scene
-    from .plan import make_plan, plan_json
+    from .plan import make_plan
     from .write.atomic import write_text
     scene = load_scene(args.scene, seed=args.seed, output_dir=args.output)
     plan = make_plan(scene)
-    out = Path(scene["output"]["dir"])
+    out = Path(scene.output.dir)
     out.mkdir(parents=True, exist_ok=True)
-    path = out / f"{scene['name']}_plan.json"
-    write_text(path, plan_json(plan))
+    path = out / f"{scene.name}_plan.json"
+    write_text(path, plan.to_json())
     kinds = {}
-    for obj in plan["objects"]:
-        kinds[obj["kind"]] = kinds.get(obj["kind"], 0) + 1
-    print(f"{scene['name']}: {kinds.get('tree', 0)} trees, canopy cover {plan['canopy_cover']:.1%} "
-          f"({scene['forest']['type']}), objects: " + ", ".join(f"{k} {v}" for k, v in kinds.items())
-          + f"; {len(plan['legs'])} flight legs, {plan['legs'][-1]['t1']:.0f} s of flight")
+    for obj in plan.objects:
+        kinds[obj.kind] = kinds.get(obj.kind, 0) + 1
+    print(f"{scene.name}: {kinds.get('tree', 0)} trees, canopy cover {plan.canopy_cover:.1%} "
+          f"({scene.forest.type}), objects: " + ", ".join(f"{k} {v}" for k, v in kinds.items())
+          + f"; {len(plan.legs)} flight legs, {plan.legs[-1].t1:.0f} s of flight")
     print(f"wrote {path}")
     return 0
 
 
 def _trees(args) -> int:
-    import dataclasses
     from .trees.archetypes import DEFAULT_ARCHETYPES
     from .trees.gallery import write_gallery
     if args.scene:
         from .config import load_scene
-        archetypes = load_scene(args.scene)["forest"]["archetypes"]
+        archetypes = load_scene(args.scene).forest.archetypes
     else:
-        archetypes = [dataclasses.asdict(a) for a in DEFAULT_ARCHETYPES]
+        archetypes = DEFAULT_ARCHETYPES
     write_gallery(archetypes, args.output)
     print(f"wrote {len(archetypes)} trees, volumes.csv and trees.png to {args.output}")
     return 0

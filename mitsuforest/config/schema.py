@@ -59,12 +59,12 @@ class Number:
                     ctx.fail(key, f"must be {kind}, got {value!r}")
             else:
                 ctx.fail(key, f"must be {kind}, got {_type_name(value)}")
+        if not math.isfinite(value):
+            ctx.fail(key, f"must be finite, got {value}")
         if self.integer:
             if float(value) != int(value):
                 ctx.fail(key, f"must be an integer, got {value}")
             value = int(value)
-        elif not math.isfinite(value):
-            ctx.fail(key, f"must be finite, got {value}")
         for bound, ok, word in ((self.gt, lambda b: value > b, ">"), (self.ge, lambda b: value >= b, ">="),
                                 (self.lt, lambda b: value < b, "<"), (self.le, lambda b: value <= b, "<=")):
             if bound is not None and not ok(bound):

@@ -9,104 +9,82 @@ byte for byte, when written with :func:`plan_json`.
 
 from __future__ import annotations
 
-import json
+import dataclasses
 
 import numpy as np
 
 from ..classes import DEADWOOD_TREEID, GROUND_OBJECT_ID
 from ..errors import UserError
-from ..trees.archetypes import Archetype
-from ..trees.leaves import leaf_count
+from ..trees.models import tree_components
 from ..trees.skeleton import grow
-from ..trees.terrain import make_terrain
+from ..trees.understory import UNDERSTORY_COMPONENTS
 from .cover import CoverGrid, crown_outline
 from .flight import flight_legs
-from .transforms import apply, matrix
+from .terrain import Terrain, make_terrain
+from .transforms import apply
+from .types import Leg, ModelSpec, PlacedObject, Plan
 
-__all__ = ["make_plan", "plan_json", "UNDERSTORY_MODELS"]
+__all__ = ["make_plan", "plan_json", "Plan", "PlacedObject", "ModelSpec", "Leg", "Terrain", "UNDERSTORY_MODELS"]
 
 BUSH_MODELS = 8          # bushes are instances of this many distinct shrubs
 MAX_TREES = 5000
 UNDERSTORY_MODELS = ("bush", "rock", "deadwood", "stump")
 
 
-def make_plan(scene: dict) -> dict:
-    """Place trees and understory, measure canopy cover, lay out the flight legs."""
-    rng = np.random.default_rng(scene["seed"])
-    size = scene["area"]["size"]
-    terrain = make_terrain(scene["terrain"], size, scene["seed"])
-    archetypes = scene["forest"]["archetypes"]
-    models = {f"tree{i + 1:02d}": {"kind": "tree", "archetype": a} for i, a in enumerate(archetypes)}
+def make_plan(scene) -> Plan:
+    """Place trees and understory, measure canopy cover, lay out the flight legs of a
+    :class:`~mitsuforest.config.types.Scene`."""
+    rng = np.random.default_rng(scene.seed)
+    size = scene.area.size
+    terrain = make_terrain(scene.terrain, size, scene.seed)
+    archetypes = scene.forest.archetypes
     summaries = [_summarise(a) for a in archetypes]
-    crowns = [crown for crown, _ in summaries]
-    for spec, (_, components) in zip(models.values(), summaries):
-        spec["components"] = components
-    trees, cover = _place_trees(scene["forest"], size, crowns, terrain, rng)
-    objects = trees
+    models = {f"tree{i + 1:02d}": ModelSpec("tree", components, archetype=a)
+              for i, (a, (_, components)) in enumerate(zip(archetypes, summaries))}
+    trees, cover = _place_trees(scene.forest, size, [crown for crown, _ in summaries], terrain, rng)
     understory, understory_models = _place_understory(scene, size, trees, terrain, rng)
     models.update(understory_models)
-    objects += understory
-    _assign_ids(objects, models)
-    legs = flight_legs(size, scene["survey"], terrain.mean_height)
-    return {
-        "scene": scene["name"],
-        "seed": scene["seed"],
-        "area": list(size),
-        "forest_type": scene["forest"]["type"],
-        "canopy_cover": round(cover, 6),
-        "terrain": {"type": scene["terrain"]["type"], "mean_height": terrain.mean_height},
-        "ground": {"instance": 0, "object_id": GROUND_OBJECT_ID, "treeid": 0, "classification": 1},
-        "models": models,
-        "objects": objects,
-        "legs": legs,
-    }
+    return Plan(
+        scene=scene.name, seed=scene.seed, area=tuple(size), forest_type=scene.forest.type,
+        canopy_cover=round(cover, 6), terrain=terrain, models=models,
+        objects=tuple(_with_ids(trees + understory, models)),
+        legs=tuple(flight_legs(size, scene.survey, terrain.mean_height)),
+    )
 
 
-def plan_json(plan: dict) -> str:
+def plan_json(plan: Plan) -> str:
     """The plan as canonical JSON text (stable key order and float formatting)."""
-    return json.dumps(plan, indent=1, sort_keys=True, default=_jsonable) + "\n"
+    return plan.to_json()
 
 
-def _jsonable(x):
-    if isinstance(x, np.generic):
-        return x.item()
-    if isinstance(x, np.ndarray):
-        return x.tolist()
-    raise TypeError(type(x))
-
-
-def _summarise(archetype: dict) -> tuple[np.ndarray, int]:
+def _summarise(a) -> tuple[np.ndarray, int]:
     """Crown points (skeleton widened outward by a leaf length) and component count of an archetype."""
-    a = Archetype(**archetype)
     branches = grow(a)
     pts = np.vstack([b.points for b in branches])
     radial = pts.copy()
     radial[:, 2] = 0
     norm = np.linalg.norm(radial, axis=1, keepdims=True)
     crown = pts + radial / np.maximum(norm, 1e-9) * a.leaf_length
-    has_leaves = leaf_count(a.leaf_area, a.leaf_length, a.leaf_width) > 0
-    return crown, max(b.component for b in branches) + 1 + int(has_leaves)
+    return crown, len(tree_components(a, branches))
 
 
-def _tree(archetype_index: int, xy, terrain, tilt_max, rng) -> dict:
-    return {
-        "kind": "tree",
-        "model": f"tree{archetype_index + 1:02d}",
-        "treeid": archetype_index + 1,
-        "position": [float(xy[0]), float(xy[1]), float(terrain.height(xy[0], xy[1])) - 0.05],
-        "rotation": float(rng.uniform(0, 360)),
-        "tilt": [float(rng.uniform(-tilt_max, tilt_max)), float(rng.uniform(-tilt_max, tilt_max))],
-    }
+def _tree(archetype_index: int, xy, terrain, tilt_max, rng) -> PlacedObject:
+    return PlacedObject(
+        kind="tree", model=f"tree{archetype_index + 1:02d}", treeid=archetype_index + 1,
+        position=(float(xy[0]), float(xy[1]), float(terrain.height(xy[0], xy[1])) - 0.05),
+        rotation=float(rng.uniform(0, 360)),
+        tilt=(float(rng.uniform(-tilt_max, tilt_max)), float(rng.uniform(-tilt_max, tilt_max))),
+    )
 
 
-def _place_trees(forest: dict, size, crowns, terrain, rng) -> tuple[list[dict], float]:
+def _place_trees(forest, size, crowns, terrain, rng) -> tuple[list[PlacedObject], float]:
     """Dart throwing with ``min_spacing`` until the tree count or the canopy-cover target is met."""
-    weights = np.array([a["weight"] for a in forest["archetypes"]], float)
+    weights = np.array([a.weight for a in forest.archetypes], float)
     weights /= weights.sum()
-    target_count, target_cover = forest["trees"], forest["canopy_cover"]
+    target_count, target_cover = forest.trees, forest.target_cover
     grid = CoverGrid(size)
     trees, positions = [], np.empty((0, 2))
-    spacing = forest["min_spacing"]
+    spacing = forest.min_spacing
     misses = 0
     while True:
         if target_count is not None and len(trees) >= target_count:
@@ -122,8 +100,8 @@ def _place_trees(forest: dict, size, crowns, terrain, rng) -> tuple[list[dict], 
             continue
         misses = 0
         k = int(rng.choice(len(weights), p=weights))
-        tree = _tree(k, xy, terrain, forest["tilt"], rng)
-        grid.add(crown_outline(apply(matrix(tree), crowns[k])))
+        tree = _tree(k, xy, terrain, forest.tilt, rng)
+        grid.add(crown_outline(apply(tree.matrix, crowns[k])))
         trees.append(tree)
         positions = np.vstack([positions, xy])
     if target_count is None and grid.fraction < target_cover:
@@ -143,17 +121,18 @@ def _place_understory(scene: dict, size, trees, terrain, rng):
     Each object occupies a corridor of half-width CLEARANCE around its axis (a point, or a log's
     length); a new object is placed only where its corridor meets no other.
     """
-    counts = scene["understory"]
-    taken = [_Footprint(np.array(t["position"][:2]), 0.0, 0.0, STEM_CLEARANCE) for t in trees]
+    counts = scene.understory
+    taken = [_Footprint(np.array(t.position[:2]), 0.0, 0.0, STEM_CLEARANCE) for t in trees]
     objects, models = [], {}
-    for i in range(BUSH_MODELS if counts["bushes"] else 0):
-        models[f"bush{i + 1:02d}"] = {"kind": "bush", "seed": int(scene["seed"]) * 1000 + i}
+    for i in range(BUSH_MODELS if counts.bushes else 0):
+        models[f"bush{i + 1:02d}"] = ModelSpec("bush", UNDERSTORY_COMPONENTS, seed=int(scene.seed) * 1000 + i)
     for kind, key in (("bush", "bushes"), ("rock", "rocks"), ("deadwood", "deadwood"), ("stump", "stumps")):
-        for i in range(counts[key]):
-            spec = {"kind": kind, "seed": int(rng.integers(0, 2**31 - 1))}
+        for i in range(getattr(counts, key)):
+            spec = ModelSpec(kind, UNDERSTORY_COMPONENTS, seed=int(rng.integers(0, 2**31 - 1)))
             if kind == "deadwood":
-                spec.update(length=float(rng.uniform(1.5, 7.0)), radius=float(rng.uniform(0.04, 0.2)))
-            spot = _free_spot(size, taken, spec.get("length", 0.0), CLEARANCE[kind], rng, kind)
+                spec = dataclasses.replace(spec, length=float(rng.uniform(1.5, 7.0)),
+                                           radius=float(rng.uniform(0.04, 0.2)))
+            spot = _free_spot(size, taken, spec.length or 0.0, CLEARANCE[kind], rng, kind)
             if kind == "bush":
                 model = f"bush{int(rng.integers(0, BUSH_MODELS)) + 1:02d}"
             else:
@@ -161,11 +140,9 @@ def _place_understory(scene: dict, size, trees, terrain, rng):
                 models[model] = spec
             taken.append(spot)
             x, y = spot.centre
-            objects.append({
-                "kind": kind, "model": model, "treeid": DEADWOOD_TREEID if kind == "deadwood" else 0,
-                "position": [float(x), float(y), float(terrain.height(x, y))],
-                "rotation": spot.yaw, "tilt": [0.0, 0.0],
-            })
+            objects.append(PlacedObject(
+                kind=kind, model=model, treeid=DEADWOOD_TREEID if kind == "deadwood" else 0,
+                position=(float(x), float(y), float(terrain.height(x, y))), rotation=spot.yaw, tilt=(0.0, 0.0)))
     return objects, models
 
 
@@ -192,11 +169,11 @@ def _free_spot(size, taken, length, clearance, rng, kind) -> _Footprint:
     raise UserError(f"understory: no free place left for another {kind}; lower the understory counts")
 
 
-def _assign_ids(objects: list[dict], models: dict) -> None:
+def _with_ids(objects: list[PlacedObject], models: dict[str, ModelSpec]) -> list[PlacedObject]:
     """Instance ids 1.. per object; object ids per component, counting on from the ground's."""
-    next_object_id = GROUND_OBJECT_ID + 1
+    out, next_object_id = [], GROUND_OBJECT_ID + 1
     for instance, obj in enumerate(objects, start=1):
-        obj["instance"] = instance
-        obj["object_id"] = next_object_id
-        obj["components"] = models[obj["model"]].get("components", 1)
-        next_object_id += obj["components"]
+        components = models[obj.model].components
+        out.append(dataclasses.replace(obj, instance=instance, object_id=next_object_id, components=components))
+        next_object_id += components
+    return out

@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from .types import Leg
 
-def lawnmower(size, survey: dict) -> list[tuple[np.ndarray, np.ndarray]]:
+
+def lawnmower(size, survey) -> list[tuple[np.ndarray, np.ndarray]]:
     """Parallel legs ``line_spacing`` apart covering the plot, alternating direction.
 
     Legs run along ``heading`` (degrees clockwise from +y) through the plot centre's neighbourhood
@@ -13,14 +15,14 @@ def lawnmower(size, survey: dict) -> list[tuple[np.ndarray, np.ndarray]]:
     """
     w, h = size
     centre = np.array([w / 2, h / 2])
-    a = np.deg2rad(survey["heading"])
+    a = np.deg2rad(survey.heading)
     along = np.array([np.sin(a), np.cos(a)])
     across = np.array([along[1], -along[0]])
     corners = np.array([[0, 0], [w, 0], [w, h], [0, h]]) - centre
-    half_len = np.abs(corners @ along).max() + survey["margin"]
+    half_len = np.abs(corners @ along).max() + survey.margin
     half_width = np.abs(corners @ across).max()
-    count = int(np.ceil(2 * half_width / survey["line_spacing"])) + 1
-    offsets = (np.arange(count) - (count - 1) / 2) * survey["line_spacing"]
+    count = int(np.ceil(2 * half_width / survey.line_spacing)) + 1
+    offsets = (np.arange(count) - (count - 1) / 2) * survey.line_spacing
     legs = []
     for k, off in enumerate(offsets):
         a0 = centre + off * across - half_len * along
@@ -29,21 +31,21 @@ def lawnmower(size, survey: dict) -> list[tuple[np.ndarray, np.ndarray]]:
     return legs
 
 
-def flight_legs(size, survey: dict, ground_height: float) -> list[dict]:
-    """Timed 3D legs: each with ``start``, ``end`` (local frame, m) and ``t0``, ``t1`` (s).
+def flight_legs(size, survey, ground_height: float) -> list[Leg]:
+    """Timed 3D legs of a :class:`~mitsuforest.config.types.Survey`.
 
     The platform flies at ``altitude`` above the terrain's mean height at constant ``speed``; a turn
     between legs takes the straight-line distance at the same speed.
     """
-    pairs = survey["lines"] or lawnmower(size, survey)
-    z = ground_height + survey["altitude"]
+    pairs = survey.lines or lawnmower(size, survey)
+    z = ground_height + survey.altitude
     legs, t, last = [], 0.0, None
     for a, b in pairs:
         a, b = np.append(np.asarray(a, float), z), np.append(np.asarray(b, float), z)
         if last is not None:
-            t += np.linalg.norm(a - last) / survey["speed"]
-        duration = np.linalg.norm(b - a) / survey["speed"]
-        legs.append({"start": a.tolist(), "end": b.tolist(), "t0": t, "t1": t + duration})
+            t += np.linalg.norm(a - last) / survey.speed
+        duration = np.linalg.norm(b - a) / survey.speed
+        legs.append(Leg(tuple(a.tolist()), tuple(b.tolist()), float(t), float(t + duration)))
         t += duration
         last = b
     return legs

@@ -1,4 +1,4 @@
-"""Rigid placements: rotation about z, then tilt about x and y, then translation."""
+"""Rigid placements: rotation about z, then tilt about x and y, then translation (see PlacedObject.matrix)."""
 
 from __future__ import annotations
 
@@ -12,14 +12,6 @@ def rotation(yaw_deg: float, tilt_x_deg: float = 0.0, tilt_y_deg: float = 0.0) -
     ry = np.array([[np.cos(b), 0, np.sin(b)], [0, 1, 0], [-np.sin(b), 0, np.cos(b)]])
     rz = np.array([[np.cos(c), -np.sin(c), 0], [np.sin(c), np.cos(c), 0], [0, 0, 1]])
     return rx @ ry @ rz
-
-
-def matrix(obj: dict) -> np.ndarray:
-    """4×4 model-to-local-frame matrix of a plan object."""
-    m = np.eye(4)
-    m[:3, :3] = rotation(obj["rotation"], *obj["tilt"])
-    m[:3, 3] = obj["position"]
-    return m
 
 
 def apply(m: np.ndarray, points: np.ndarray) -> np.ndarray:

@@ -4,9 +4,9 @@ Per leg, time slots are processed in batches of ``simulation.pulses_per_batch`` 
 :data:`BATCH_SLOTS` for the backend: a GPU wants millions of rays per launch, a CPU's caches about
 100k pulses). For each batch the :class:`~mitsuforest.scan.tracer.PulseTracer` decides on the
 device which pulses fire and can reach the scene's box, then traces them (sub-rays, radiometry,
-waveform, labels); only echoes come back to numpy. Memory is
-bounded by the batch size; each batch has its own noise generator seeded by (seed, leg, first pulse),
-so the same scene, seed and batch size give the same points, byte for byte.
+waveform, labels, ranging noise); only finished echoes come back to numpy. Memory is bounded by the
+batch size. Ranging noise is keyed on (seed, pulse id, return number), so the same scene and seed
+give the same points, byte for byte, whatever the batch size.
 """
 
 from __future__ import annotations
@@ -16,10 +16,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .pulses import Pulses, leg_pulse_count
 from .tracer import POINT_DTYPE, PulseTracer
 
-__all__ = ["POINT_DTYPE", "PulseTracer", "Pulses", "ScanResult", "scan"]
+__all__ = ["POINT_DTYPE", "PulseTracer", "ScanResult", "scan"]
 
 BATCH_SLOTS = {"llvm": 100_000, "cuda": 1_000_000}  # default time slots per batch, by Dr.Jit backend
 
@@ -34,27 +33,25 @@ class ScanResult:
     seconds: float = 0.0
 
 
-def scan(scene: dict, plan: dict, scan_scene, progress: bool = True, on_points=None) -> ScanResult:
+def scan(scene, plan, scan_scene, progress: bool = True, on_points=None) -> ScanResult:
     """Simulate the whole survey of ``plan`` over ``scan_scene`` (see module docstring).
 
+    :param scene: the :class:`~mitsuforest.config.types.Scene` (sensor, survey, simulation, seed).
     :param on_points: called with each batch's points (local frame, POINT_DTYPE) as they are made;
         without it, the points are collected in ``ScanResult.points``.
     """
-    sensor, survey, sim = scene["sensor"], scene["survey"], scene["simulation"]
-    batch = sim["pulses_per_batch"] or BATCH_SLOTS[scan_scene.variant.split("_")[0]]
-    tracer = PulseTracer(scan_scene, sensor, sim["beam_samples"])
-    margin = sensor["range_max"] * max(sensor["beam_divergence"]) * 0.75 + 0.01
-    box = scan_scene.bbox + [[-margin] * 3, [margin] * 3]
+    batch = scene.simulation.pulses_per_batch or BATCH_SLOTS[scan_scene.variant.split("_")[0]]
+    tracer = PulseTracer(scan_scene, scene.sensor, scene.simulation.beam_samples, scene.seed)
     result = ScanResult()
     chunks, first_id = [], 0
     start = time.perf_counter()
-    for leg_no, leg in enumerate(plan["legs"]):
-        total = leg_pulse_count(leg, survey["pulse_frequency"])
-        bar = _bar(progress, total, f"leg {leg_no + 1}/{len(plan['legs'])}")
+    for leg_no, leg in enumerate(plan.legs):
+        total = leg.pulse_count(scene.pulse_frequency)
+        bar = _bar(progress, total, f"leg {leg_no + 1}/{len(plan.legs)}")
         for first in range(0, total, batch):
             count = min(batch, total - first)
-            rng = np.random.default_rng([scene["seed"], leg_no, first])
-            points, fired, cast = tracer.trace_slots(leg, survey, first, count, box, rng, first_id)
+            points, fired, cast = tracer.trace_slots(leg, scene.pulse_frequency, scene.scan_frequency, first, count,
+                                                     first_id)
             result.pulses_fired += fired
             result.pulses_cast += cast
             result.rays += cast * tracer.samples

@@ -1,67 +1,49 @@
-"""Beam deflection patterns: where each pulse points in the sensor frame, and whether it fires.
+"""Beam deflection patterns in Dr.Jit: where each pulse points in the sensor frame, and whether it fires.
 
-Sensor frame: x across track (right of the flight direction), y along track, z up. Angles in radians.
+Sensor frame: x across track (right of the flight direction), y along track, z up. Angles in
+radians, times in float64. The numpy twin, :mod:`mitsuforest.scan.reference.deflector`, is the
+tests' reference.
 """
 
 from __future__ import annotations
 
-import numpy as np
+import math
 
 # Pulses this close outside FOV/2 still fire: far above the rounding of θ (~1e-12 rad after 10 min of
-# flight), so numpy and the device (device_pulses.py) fire the same pulses.
+# flight), so both twins fire the same pulses.
 FOV_TOLERANCE = 1e-9
+TWO_PI = 2 * math.pi   # constants are Python floats: a numpy scalar times a Dr.Jit array would become numpy
 
 
-def wrap(angle):
-    """Angle wrapped into [-π, π) (the same formula as device_pulses.py)."""
-    a = np.asarray(angle) + np.pi
-    return a - 2 * np.pi * np.floor(a / (2 * np.pi)) - np.pi
+def deflect(dr, sensor, t, scan_frequency: float):
+    """Sensor-frame directions, scan angles and fired mask of pulses at times ``t``.
 
-
-def rotating(t, scan_frequency: float, field_of_view: float, phase: float = 0.0):
-    """Rotating mirror (line scanner): the beam turns in the across-track plane.
-
-    ``θ = phase + 2π f t`` from nadir; pulses with ``|θ| > FOV/2`` are not fired.
-
-    :param t: (n,) pulse times (s), float64.
-    :returns: directions (n, 3), scan angles θ (n,), fired mask (n,).
+    :param sensor: a :class:`~mitsuforest.config.types.Sensor` (its deflector, field of view, prisms).
+    :param t: Float64 (P,) pulse times (s).
+    :returns: the direction as 3 Float64 arrays, the scan angle θ (Float64: from nadir across track for
+        a line scanner, off-nadir for a Risley pair) and the fired mask (Bool).
     """
-    theta = wrap(phase + 2 * np.pi * scan_frequency * np.asarray(t, np.float64))
-    d = np.column_stack([np.sin(theta), np.zeros_like(theta), -np.cos(theta)])
-    return d, theta, np.abs(theta) <= np.deg2rad(field_of_view) / 2 + FOV_TOLERANCE
-
-
-def oscillating(t, scan_frequency: float, field_of_view: float, phase: float = 0.0):
-    """Oscillating mirror: a triangle wave sweeping ±FOV/2 across track ``scan_frequency`` times a second."""
-    x = (np.asarray(t, np.float64) * scan_frequency + phase / (2 * np.pi)) % 1.0
-    tri = 4 * np.abs(x - 0.5) - 1                       # -1 .. 1 .. -1
-    theta = tri * np.deg2rad(field_of_view) / 2
-    d = np.column_stack([np.sin(theta), np.zeros_like(theta), -np.cos(theta)])
-    return d, theta, np.ones(len(theta), bool)
-
-
-def risley(t, rates, deflections_deg, field_of_view: float):
-    """Two rotating Risley prisms (first-order model): the deviations of both prisms add as vectors.
-
-    Deviation ``δ₁(cos ω₁t, sin ω₁t) + δ₂(cos ω₂t, sin ω₂t)`` with ``ω = 2π·rate``; the beam points
-    along nadir tilted by that deviation. The scan angle is the off-nadir angle.
-    """
-    t = np.asarray(t, np.float64)
-    d1, d2 = np.deg2rad(deflections_deg)
-    w1, w2 = 2 * np.pi * np.asarray(rates, float)
-    ax = d1 * np.cos(w1 * t) + d2 * np.cos(w2 * t)
-    ay = d1 * np.sin(w1 * t) + d2 * np.sin(w2 * t)
-    off = np.hypot(ax, ay)
-    s = np.sin(off) / np.where(off > 0, off, 1)
-    d = np.column_stack([ax * s, ay * s, -np.cos(off)])
-    return d, off, off <= np.deg2rad(field_of_view) / 2 + FOV_TOLERANCE
-
-
-def deflect(sensor: dict, t, scan_frequency: float):
-    """Directions, scan angles and fired mask of pulses at times ``t`` for a sensor definition."""
-    kind = sensor["deflector"]
-    if kind == "rotating":
-        return rotating(t, scan_frequency, sensor["field_of_view"])
-    if kind == "oscillating":
-        return oscillating(t, scan_frequency, sensor["field_of_view"])
-    return risley(t, sensor["risley"]["prism_rates"], sensor["risley"]["prism_deflection"], sensor["field_of_view"])
+    half_fov = sensor.half_fov
+    Float64 = type(t)
+    n = dr.width(t)
+    if sensor.deflector == "rotating":          # θ = 2π f t, wrapped into [-π, π); fired while |θ| ≤ FOV/2
+        a = TWO_PI * scan_frequency * t + math.pi
+        theta = a - TWO_PI * dr.floor(a / TWO_PI) - math.pi
+        s, c = dr.sincos(theta)
+        return (s, dr.zeros(Float64, n), -c), theta, dr.abs(theta) <= half_fov + FOV_TOLERANCE
+    if sensor.deflector == "oscillating":       # a triangle wave sweeping ±FOV/2, f times a second
+        x = t * scan_frequency
+        x = x - dr.floor(x)
+        theta = (4 * dr.abs(x - 0.5) - 1) * half_fov
+        s, c = dr.sincos(theta)
+        return (s, dr.zeros(Float64, n), -c), theta, dr.full(dr.mask_t(Float64), True, n)
+    # Two Risley prisms (first order): their deviations add as vectors.
+    d1, d2 = (math.radians(x) for x in sensor.risley.prism_deflection)
+    w1, w2 = (TWO_PI * float(x) for x in sensor.risley.prism_rates)
+    s1, c1 = dr.sincos(w1 * t)
+    s2, c2 = dr.sincos(w2 * t)
+    ax, ay = d1 * c1 + d2 * c2, d1 * s1 + d2 * s2
+    off = dr.sqrt(ax * ax + ay * ay)
+    s, c = dr.sincos(off)
+    scale = s / dr.select(off > 0, off, 1.0)
+    return (ax * scale, ay * scale, -c), off, off <= half_fov + FOV_TOLERANCE

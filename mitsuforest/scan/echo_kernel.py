@@ -1,9 +1,11 @@
 """The echo kernel: rays, labels, radiometry and waveform of a batch of pulses in Dr.Jit.
 
-Only echoes come back to numpy, so the per-sub-ray work (hundreds of millions of returns in a 1 ha
-scan) runs vectorised on every core, or on the GPU, instead of in numpy. The stages are those of the
-numpy reference path (:meth:`PulseTracer.trace_reference`): :func:`~mitsuforest.labels.label_hits`,
-:func:`~mitsuforest.scan.radiometry.received_power` and :func:`~mitsuforest.scan.waveform.detect_echoes`.
+Only echoes come back to numpy, each complete (position with its ranging noise, GPS time, scan
+angle, pulse id, return numbers, intensity, labels), so the per-sub-ray and per-echo work (hundreds of
+millions of returns in a 1 ha scan) runs vectorised on every core, or on the GPU. The stages are
+those of the numpy reference (:func:`mitsuforest.scan.reference.trace_reference`):
+:func:`~mitsuforest.labels.label_hits`, :func:`~mitsuforest.scan.radiometry.received_power` and
+:func:`~mitsuforest.scan.reference.echoes.pulse_echoes`.
 """
 
 from __future__ import annotations
@@ -13,9 +15,12 @@ import numpy as np
 from ..labels.device import DeviceHitTable
 from .echoes import pulse_echoes
 from .kernel import RayCaster
+from .noise import seed_word, standard_normal
 
-ECHO_FIELDS = ("pulse", "return_number", "number_of_returns", "range", "amplitude", "point",
-               "treeid", "classification", "instance", "object_id")
+ECHO_FIELDS = {"pulse_id": np.uint64, "gps_time": np.float64, "scan_angle": np.float32, "return_number": np.uint32,
+               "number_of_returns": np.uint32, "range": np.float32, "amplitude": np.float32, "x": np.float32,
+               "y": np.float32, "z": np.float32, "treeid": np.uint32, "classification": np.uint32,
+               "instance": np.uint32, "object_id": np.uint32}
 
 
 class EchoKernel(RayCaster):
@@ -23,45 +28,44 @@ class EchoKernel(RayCaster):
 
     :param weights: (S,) beam energy of each sub-ray.
     :param reflectance: (8,) reflectance by class code.
-    :param sensor: the sensor dict (``range_min``, ``range_max``, ``detection_threshold``, ``max_returns``).
-    :param resolving: the resolving distance ΔR (m).
+    :param sensor: the :class:`~mitsuforest.config.types.Sensor` (range limits, detection threshold,
+        max returns, resolving distance, ranging noise).
+    :param seed: the scene's seed (keys the ranging noise; see noise.py).
     """
 
-    def __init__(self, mi_scene, sample_tangents, weights, table, reflectance, sensor: dict, resolving: float):
+    def __init__(self, mi_scene, sample_tangents, weights, table, reflectance, sensor, seed: int):
         super().__init__(mi_scene, sample_tangents)
         mi = self.mi
         self.table = DeviceHitTable(table)
         self.weights = mi.Float(np.asarray(weights, np.float32))
         self.reflectance = mi.Float(np.asarray(reflectance, np.float32))
-        self.range_min, self.range_max = float(sensor["range_min"]), float(sensor["range_max"])
-        self.threshold = float(sensor["detection_threshold"])
-        self.max_returns = int(sensor["max_returns"])
-        self.resolving = float(resolving)
+        self.range_min, self.range_max = float(sensor.range_min), float(sensor.range_max)
+        self.threshold = float(sensor.detection_threshold)
+        self.max_returns = int(sensor.max_returns)
+        self.resolving = float(sensor.resolving_distance)
+        self.sigma = float(sensor.range_precision)
+        self.noise_key = seed_word(seed)
 
-    def echoes(self, origin: np.ndarray, direction: np.ndarray, across: np.ndarray) -> dict:
-        """Echoes of P pulses given as numpy (P, 3) arrays; see :meth:`device_echoes`."""
-        return self.device_echoes(*self.upload(origin, direction, across))
+    def echoes(self, pulses) -> dict:
+        """Echoes of a batch of :class:`~mitsuforest.scan.pulses.DevicePulses`, in pulse then range order.
 
-    def device_echoes(self, origin, direction, across) -> dict:
-        """Echoes of P pulses given as Dr.Jit arrays (Point3f, Vector3f, Vector3f; see Pulses), in
-        pulse then range order.
-
-        :returns: ``pulse`` (E,) row of each echo's pulse, ``return_number``, ``number_of_returns``,
-            ``range`` (m, noise-free), ``amplitude``, ``point`` (E, 3) float64 local frame, and the
-            labels of its strongest sub-ray: ``treeid``, ``classification``, ``instance``, ``object_id``.
+        :returns: numpy arrays (E,) of :data:`ECHO_FIELDS`: the pulse's id, GPS time and scan angle
+            (rad); ``return_number``, ``number_of_returns``; ``range`` and ``x``, ``y``, ``z`` (local
+            frame) with the echo's ranging noise along the beam axis; ``amplitude``; and the labels
+            of its strongest sub-ray.
         """
-        n = self.dr.width(origin)
+        n = pulses.count
         if n == 0:
             return _no_echoes()
-        lane, hit_id, o = self._sub_ray_returns(origin, direction, across)
+        lane, hit_id = self._sub_ray_returns(pulses.origin, pulses.direction, pulses.across)
         flat, returns = self._ranked_echoes(lane, n)
-        return self._echo_records(flat, returns, hit_id, o)
+        return self._echo_records(flat, returns, hit_id, pulses)
 
     def _sub_ray_returns(self, origin, direction, across):
         """Trace, label and weigh every sub-ray (lane = pulse*S + sub-ray): its range (``inf`` when it
         gave no valid return), received power and hit offset from the origin, and its hit ids."""
         dr, mi = self.dr, self.mi
-        ray, o, d, _, sample = self.subrays(origin, direction, across)
+        ray, _, d, _, sample = self.subrays(origin, direction, across)
         pi = self.intersect(ray)
         hit = pi.is_valid()
         instance = dr.reinterpret_array(mi.UInt32, pi.instance)
@@ -79,7 +83,7 @@ class EchoKernel(RayCaster):
         dr.eval(lane, hit_id, bad)
         if bad[0]:
             raise RuntimeError("a ray hit a shape that is neither the ground nor a placed object")
-        return lane, hit_id, o
+        return lane, hit_id
 
     def _ranked_echoes(self, lane: dict, n: int):
         """The waveform per pulse (echoes.py), its echoes scattered to slots pulse*S + rank."""
@@ -101,29 +105,37 @@ class EchoKernel(RayCaster):
         dr.eval(flat, returns)
         return flat, returns
 
-    def _echo_records(self, flat: dict, returns, hit_id: dict, origin) -> dict:
-        """The kept slots, compacted, with their points and their strongest sub-ray's labels, in numpy."""
+    def _echo_records(self, flat: dict, returns, hit_id: dict, pulses) -> dict:
+        """The kept slots, compacted, with their points, noise, pulse data and their strongest sub-ray's
+        labels, in numpy."""
         dr, mi, S = self.dr, self.mi, self.samples
         idx = dr.compress(flat["kept"] > 0)
         if dr.width(idx) == 0:
             return _no_echoes()
         echo_pulse = idx // S
+        return_number = idx - echo_pulse * S + 1
         strongest = echo_pulse * S + dr.gather(mi.UInt32, flat["dominant"], idx)
         ids = self.table.identities(*(dr.gather(mi.UInt32, hit_id[k], strongest) for k in hit_id),
                                     dr.full(mi.Bool, True, dr.width(idx)))
-        start = dr.gather(mi.Point3f, origin, echo_pulse * S)
+        pulse_id = dr.gather(mi.UInt64, pulses.pulse_id, echo_pulse)
+        noise = mi.Float(0.0)
+        if self.sigma > 0:
+            noise = self.sigma * standard_normal(dr, mi, self.noise_key, pulse_id, return_number)
+        start = dr.gather(mi.Point3f, pulses.origin, echo_pulse)
+        axis = dr.gather(mi.Vector3f, pulses.direction, echo_pulse)
         out = {
-            "pulse": echo_pulse, "return_number": idx - echo_pulse * S + 1,
-            "number_of_returns": dr.gather(mi.UInt32, returns, echo_pulse),
-            "range": dr.gather(mi.Float, flat["range"], idx), "amplitude": dr.gather(mi.Float, flat["amplitude"], idx),
-            **{axis: start[a] + dr.gather(mi.Float, flat[axis], idx) for a, axis in enumerate("xyz")},
+            "pulse_id": pulse_id, "gps_time": dr.gather(mi.Float64, pulses.time, echo_pulse),
+            "scan_angle": dr.gather(mi.Float, pulses.scan_angle, echo_pulse),
+            "return_number": return_number, "number_of_returns": dr.gather(mi.UInt32, returns, echo_pulse),
+            "range": dr.gather(mi.Float, flat["range"], idx) + noise,
+            "amplitude": dr.gather(mi.Float, flat["amplitude"], idx),
+            **{axis_name: start[a] + dr.gather(mi.Float, flat[axis_name], idx) + axis[a] * noise
+               for a, axis_name in enumerate("xyz")},
             **ids,
         }
         dr.eval(out)
-        out = {k: np.array(v) for k, v in out.items()}
-        out["point"] = np.column_stack([out.pop(a) for a in "xyz"]).astype(np.float64)
-        return out
+        return {k: np.array(v) for k, v in out.items()}
 
 
 def _no_echoes() -> dict:
-    return {k: np.zeros((0, 3)) if k == "point" else np.zeros(0, np.uint32) for k in ECHO_FIELDS}
+    return {k: np.zeros(0, dtype) for k, dtype in ECHO_FIELDS.items()}

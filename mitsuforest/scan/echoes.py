@@ -1,16 +1,18 @@
-"""The waveform model of :mod:`~mitsuforest.scan.waveform`, run on the device: one Dr.Jit lane per pulse.
+"""The waveform model (see :mod:`mitsuforest.scan.reference.echoes`, its numpy twin, for the model) run
+on the device: one Dr.Jit lane per pulse.
 
 A pulse's S sub-ray returns are held in registers (Python lists of S arrays), sorted by range with a
 sorting network, then chained, summed and detected in unrolled passes, so no sub-ray data leaves
 the device and every sum is taken in a fixed order (results do not depend on thread scheduling).
-The numpy functions in waveform.py are the reference; tests check the two agree.
+The numpy twin is the reference; tests check the two agree.
 """
 
 from __future__ import annotations
 
+import math
 from functools import cache
 
-from .waveform import FWHM_PER_SIGMA
+FWHM_PER_SIGMA = 2.0 * math.sqrt(2.0 * math.log(2.0))
 
 
 @cache

@@ -1,7 +1,7 @@
 """The ray caster: sub-rays of many pulses traced in one launch.
 
 Rays are built inside Dr.Jit from per-pulse origin, direction and beam frame plus a per-sample table
-(:meth:`RayCaster.subrays`), so at most 9 floats per pulse cross from numpy. ``ray_intersect_preliminary``
+(:meth:`RayCaster.subrays`). ``ray_intersect_preliminary``
 finds each sub-ray's first surface. :meth:`RayCaster.cast` compacts the hits and copies them back
 (the reference path and the benchmarks' truth samples); the echo kernel (echo_kernel.py) keeps them
 on the device.
@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 
-def _aligned(a: np.ndarray) -> np.ndarray:
+def aligned(a: np.ndarray) -> np.ndarray:
     """A 64-byte-aligned contiguous copy: Dr.Jit bakes input alignment into kernels (recompiles)."""
     a = np.ascontiguousarray(a)
     buf = np.empty(a.nbytes + 64, np.uint8)
@@ -32,18 +32,8 @@ class RayCaster:
         import mitsuba as mi
         self.dr, self.mi, self.scene = dr, mi, mi_scene
         self.samples = len(sample_tangents)
-        self.tan_x = mi.Float(_aligned(sample_tangents[:, 0].astype(np.float32)))
-        self.tan_y = mi.Float(_aligned(sample_tangents[:, 1].astype(np.float32)))
-
-    def upload(self, origin: np.ndarray, direction: np.ndarray, across: np.ndarray):
-        """numpy (P, 3) pulse origins, axes and frame axes as Dr.Jit Point3f, Vector3f, Vector3f."""
-        mi = self.mi
-        cols = [mi.Float(_aligned(a[:, k].astype(np.float32))) for a in (origin, direction, across) for k in range(3)]
-        return mi.Point3f(*cols[0:3]), mi.Vector3f(*cols[3:6]), mi.Vector3f(*cols[6:9])
-
-    def rays(self, origin: np.ndarray, direction: np.ndarray, across: np.ndarray):
-        """The sub-rays of P pulses given as numpy (P, 3) arrays; see :meth:`subrays`."""
-        return self.subrays(*self.upload(origin, direction, across))
+        self.tan_x = mi.Float(aligned(sample_tangents[:, 0].astype(np.float32)))
+        self.tan_y = mi.Float(aligned(sample_tangents[:, 1].astype(np.float32)))
 
     def subrays(self, origin, direction, across):
         """The sub-rays of P pulses as one Dr.Jit ray of P*S lanes, lane = pulse*S + sub-ray.
@@ -71,21 +61,19 @@ class RayCaster:
         # sub-rays of an instanced forest (Mitsuba 3.9.1 / Embree): keep incoherent, exact traversal.
         return self.scene.ray_intersect_preliminary(ray, coherent=False)
 
-    def cast(self, origin: np.ndarray, direction: np.ndarray, across: np.ndarray) -> dict:
-        """First hits of every sub-ray of P pulses.
+    def cast(self, pulses) -> dict:
+        """First hits of every sub-ray of a batch of :class:`~mitsuforest.scan.pulses.DevicePulses`
+        (the numpy reference and the benchmarks' truth samples use them).
 
-        :param origin: (P, 3) beam origins (local frame, m).
-        :param direction: (P, 3) unit beam axes.
-        :param across: (P, 3) unit vectors perpendicular to the axis (the beam's first frame axis).
         :returns: for the H sub-rays that hit: ``ray`` (H,) flat index pulse*S + sample, ``t`` (H,)
             distance, ``point`` (H, 3), ``instance``, ``shape``, ``shape_index``, ``prim`` (H,) uint32.
         """
         dr, mi = self.dr, self.mi
-        if len(origin) == 0:
+        if pulses.count == 0:
             empty = np.zeros(0, np.uint32)
             return {"ray": empty, "t": np.zeros(0, np.float32), "point": np.zeros((0, 3)), "instance": empty,
                     "shape": empty, "shape_index": empty, "prim": empty}
-        ray, o, d, _, _ = self.rays(origin, direction, across)
+        ray, o, d, _, _ = self.subrays(pulses.origin, pulses.direction, pulses.across)
         pi = self.intersect(ray)
         hit = dr.compress(pi.is_valid())
         t = dr.gather(mi.Float, pi.t, hit)

@@ -1,4 +1,8 @@
-"""The pulse timeline: times, platform positions and beam directions of the pulses of one leg."""
+"""Pulses in Dr.Jit: the pulses of a batch of time slots that fire and can reach the scene.
+
+A batch's time slots never pass through numpy: times and angles are float64, rays float32. The
+numpy twin, :mod:`mitsuforest.scan.reference.pulses`, is the tests' reference.
+"""
 
 from __future__ import annotations
 
@@ -7,101 +11,89 @@ from dataclasses import dataclass
 import numpy as np
 
 from .deflector import deflect
+from .kernel import aligned
 
 
 @dataclass
-class Pulses:
-    index: np.ndarray       # (P,) pulse number within the leg (0 = the leg's first time slot)
-    time: np.ndarray        # (P,) float64 s
-    origin: np.ndarray      # (P, 3) float64, local frame
-    direction: np.ndarray   # (P, 3) unit beam axis, local frame
-    across: np.ndarray      # (P, 3) beam frame axis in the scan plane (divergence[0] applies here)
-    scan_angle: np.ndarray  # (P,) rad
+class DevicePulses:
+    """A batch of pulses as Dr.Jit arrays, one lane per pulse."""
 
-    def select(self, which) -> Pulses:
-        """The pulses picked by a boolean mask, index array or slice."""
-        return Pulses(**{k: v[which] for k, v in vars(self).items()})
+    pulse_id: object     # UInt64: the pulse's number in the survey (keys its ranging noise)
+    time: object         # Float64: GPS time (s)
+    scan_angle: object   # Float: rad
+    origin: object       # Point3f, local frame
+    direction: object    # Vector3f, unit beam axis
+    across: object       # Vector3f, unit: the beam's first frame axis (divergence[0] applies along it)
 
-
-def leg_pulse_count(leg: dict, pulse_frequency: float) -> int:
-    """Time slots of a leg: ``floor(duration · pulse_frequency)``."""
-    return int(np.floor((leg["t1"] - leg["t0"]) * pulse_frequency + 1e-9))
+    @property
+    def count(self) -> int:
+        import drjit as dr
+        return dr.width(self.time)
 
 
-def leg_frame(leg: dict) -> np.ndarray:
-    """(3, 3) rows: across-track (right), along-track, up unit vectors of a leg."""
-    along = np.array(leg["end"], float) - np.array(leg["start"], float)
-    along[2] = 0.0
-    along /= np.linalg.norm(along)
-    return np.array([[along[1], -along[0], 0.0], along, [0.0, 0.0, 1.0]])
-
-
-def platform_position(leg: dict, t) -> np.ndarray:
-    """(n, 3) position on a straight leg at times ``t`` (linear in time from start to end)."""
-    f = (np.asarray(t, np.float64) - leg["t0"]) / (leg["t1"] - leg["t0"])
-    a, b = np.array(leg["start"], float), np.array(leg["end"], float)
-    return a + f[:, None] * (b - a)
-
-
-def leg_pulses(leg: dict, sensor: dict, survey: dict, first: int, count: int) -> Pulses:
-    """The fired pulses among time slots ``first .. first+count-1`` of a leg."""
-    return reaching_pulses(leg, sensor, survey, first, count)[0]
-
-
-def reaching_pulses(leg: dict, sensor: dict, survey: dict, first: int, count: int, box: np.ndarray | None = None,
-                    range_max: float = np.inf) -> tuple[Pulses, int]:
-    """The fired pulses among time slots ``first .. first+count-1`` that can reach ``box`` (2, 3) within
-    ``range_max`` (all fired pulses without a box), and how many pulses were fired."""
-    k = np.arange(first, first + count, dtype=np.int64)
-    t, direction, angle, fired = _slot_beams(leg, sensor, survey, k)
-    k, t, direction, angle = k[fired], t[fired], direction[fired], angle[fired]
-    origin = platform_position(leg, t)
-    if box is not None:
-        keep = np.flatnonzero(reaches_box(origin, direction, box, range_max))
-        k, t, angle, direction, origin = k[keep], t[keep], angle[keep], direction[keep], origin[keep]
-    return Pulses(k, t, origin, direction, _across(leg_frame(leg), direction), angle), int(np.count_nonzero(fired))
-
-
-def slot_pulses(leg: dict, sensor: dict, survey: dict, slots: np.ndarray) -> Pulses:
-    """The pulses of the given time slots of a leg (fired or not)."""
-    k = np.asarray(slots, np.int64)
-    t, direction, angle, _ = _slot_beams(leg, sensor, survey, k)
-    return Pulses(k, t, platform_position(leg, t), direction, _across(leg_frame(leg), direction), angle)
-
-
-def _slot_beams(leg: dict, sensor: dict, survey: dict, k: np.ndarray):
-    """Times, beam axes (local frame), scan angles and fired mask of the time slots ``k`` of a leg."""
-    t = leg["t0"] + k / survey["pulse_frequency"]
-    d_sensor, angle, fired = deflect(sensor, t, survey["scan_frequency"])
-    return t, d_sensor @ leg_frame(leg), angle, fired
-
-
-def _across(frame: np.ndarray, direction: np.ndarray) -> np.ndarray:
-    """Unit ``along × direction`` (the scan plane's normal in the beam frame); ``frame[0]`` at nadir-parallel."""
-    a = frame[1]
-    dx, dy, dz = direction.T
-    across = np.empty_like(direction)
-    across[:, 0] = a[1] * dz - a[2] * dy
-    across[:, 1] = a[2] * dx - a[0] * dz
-    across[:, 2] = a[0] * dy - a[1] * dx
-    norm = np.sqrt(np.einsum("ij,ij->i", across, across))
-    degenerate = norm <= 1e-9
-    across /= np.where(degenerate, 1.0, norm)[:, None]
-    across[degenerate] = frame[0]
-    return across
-
-
-def reaches_box(origin: np.ndarray, direction: np.ndarray, box: np.ndarray, range_max: float) -> np.ndarray:
+def reaches_box(dr, origin, direction, box, range_max: float):
     """Whether each ray meets the axis-aligned box (2, 3) within ``range_max`` (slab test)."""
-    n = len(origin)
-    lo, hi = np.zeros(n), np.full(n, float(range_max))
+    lo, hi = dr.zeros(type(origin[0]), dr.width(origin[0])), dr.full(type(origin[0]), float(range_max), dr.width(origin[0]))
     for k in range(3):
-        o, d = origin[:, k], direction[:, k]
+        o, d = origin[k], direction[k]
         parallel = d == 0
-        with np.errstate(divide="ignore", invalid="ignore"):
-            inv = 1.0 / np.where(parallel, 1.0, d)
-        t0, t1 = (box[0, k] - o) * inv, (box[1, k] - o) * inv
-        inside = (o >= box[0, k]) & (o <= box[1, k])   # a parallel ray meets this slab everywhere or nowhere
-        lo = np.maximum(lo, np.where(parallel, np.where(inside, -np.inf, np.inf), np.minimum(t0, t1)))
-        hi = np.minimum(hi, np.where(parallel, np.where(inside, np.inf, -np.inf), np.maximum(t0, t1)))
+        inv = 1.0 / dr.select(parallel, 1.0, d)
+        b0, b1 = float(box[0, k]), float(box[1, k])
+        t0, t1 = (b0 - o) * inv, (b1 - o) * inv
+        inside = (o >= b0) & (o <= b1)     # a parallel ray meets this slab everywhere or nowhere
+        lo = dr.maximum(lo, dr.select(parallel, dr.select(inside, -dr.inf, dr.inf), dr.minimum(t0, t1)))
+        hi = dr.minimum(hi, dr.select(parallel, dr.select(inside, dr.inf, -dr.inf), dr.maximum(t0, t1)))
     return lo <= hi
+
+
+def reaching_pulses(leg, sensor, pulse_frequency: float, scan_frequency: float, first: int, count: int,
+                    box: np.ndarray, first_id: int = 0) -> tuple[DevicePulses, int]:
+    """The fired pulses among time slots ``first .. first+count-1`` of a leg that can reach ``box``
+    (2, 3) within the sensor's ``range_max``; call under the scene's Mitsuba variant.
+
+    :param leg: a :class:`~mitsuforest.plan.types.Leg`.
+    :param first_id: the survey's pulse number of the leg's first time slot.
+    :returns: the pulses, and how many were fired.
+    """
+    import drjit as dr
+    import mitsuba as mi
+    Float64 = mi.Float64
+
+    def leg_value(x, kind=Float64):   # opaque: a new batch or leg must not compile a new kernel
+        return dr.opaque(kind, int(x) if kind in (mi.UInt32, mi.UInt64) else float(x))
+
+    t0, t1 = leg_value(leg.t0), leg_value(leg.t1)
+    slot = leg_value(first, mi.UInt32) + dr.arange(mi.UInt32, count)
+    t = t0 + Float64(slot) / float(pulse_frequency)
+    d_sensor, angle, fired = deflect(dr, sensor, t, float(scan_frequency or 0.0))
+    frame_np = leg.frame()
+    frame = [[leg_value(x) for x in row] for row in frame_np]
+    direction = [d_sensor[0] * frame[0][k] + d_sensor[1] * frame[1][k] + d_sensor[2] * frame[2][k] for k in range(3)]
+    a, b = [leg_value(x) for x in leg.start], [leg_value(x) for x in leg.end]
+    f = (t - t0) / (t1 - t0)
+    origin = [a[k] + f * (b[k] - a[k]) for k in range(3)]
+    n_fired = int(dr.count(fired)[0])
+    keep = dr.compress(fired & reaches_box(dr, origin, direction, box, sensor.range_max))
+    if dr.width(keep) == 0:
+        return DevicePulses(mi.UInt64(), Float64(), mi.Float(), mi.Point3f(), mi.Vector3f(), mi.Vector3f()), n_fired
+    direction = mi.Vector3f(*(mi.Float(dr.gather(Float64, c, keep)) for c in direction))
+    origin = mi.Point3f(*(mi.Float(dr.gather(Float64, c, keep)) for c in origin))
+    along = mi.Vector3f(*(leg_value(x, mi.Float) for x in frame_np[1]))
+    across = dr.cross(along, direction)
+    norm = dr.norm(across)
+    fallback = mi.Vector3f(*(leg_value(x, mi.Float) for x in frame_np[0]))   # a beam along the track
+    across = dr.select(norm > 1e-9, across / dr.select(norm > 1e-9, norm, 1.0), fallback)
+    pulse_id = leg_value(first_id, mi.UInt64) + mi.UInt64(dr.gather(mi.UInt32, slot, keep))
+    return DevicePulses(pulse_id, dr.gather(Float64, t, keep), mi.Float(dr.gather(Float64, angle, keep)),
+                        origin, direction, across), n_fired
+
+
+def upload_pulses(pulses, first_id: int = 0) -> DevicePulses:
+    """Hand-made numpy pulses (:class:`~mitsuforest.scan.reference.pulses.Pulses`) on the device."""
+    import mitsuba as mi
+    cols = [mi.Float(aligned(a[:, k].astype(np.float32)))
+            for a in (pulses.origin, pulses.direction, pulses.across) for k in range(3)]
+    return DevicePulses(mi.UInt64(aligned((np.asarray(pulses.index, np.uint64) + np.uint64(first_id)))),
+                        mi.Float64(aligned(np.asarray(pulses.time, np.float64))),
+                        mi.Float(aligned(np.asarray(pulses.scan_angle, np.float32))),
+                        mi.Point3f(*cols[0:3]), mi.Vector3f(*cols[3:6]), mi.Vector3f(*cols[6:9]))

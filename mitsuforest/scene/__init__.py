@@ -12,12 +12,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..plan.transforms import apply, matrix
-from ..trees.terrain import make_terrain
+from ..plan.transforms import apply
 from .meshes import face_normals, mitsuba_mesh
-from .variant import select_variant
+from .variant import select_variant, variant_scope
 
-__all__ = ["ScanScene", "build_scene", "select_variant", "reachable"]
+__all__ = ["ScanScene", "build_scene", "select_variant", "variant_scope", "reachable"]
 
 
 @dataclass
@@ -56,7 +55,7 @@ class ScanScene:
     triangles: int           # distinct triangles loaded (instanced copies counted once)
 
 
-def reachable(obj_bounds: np.ndarray, legs: list[dict], sensor: dict) -> bool:
+def reachable(obj_bounds: np.ndarray, legs, sensor) -> bool:
     """Whether any pulse of any leg can reach an object's bounding box (2, 3).
 
     A downward cone of half-angle FOV/2 from a leg reaches height z out to (altitude - z)·tan(FOV/2)
@@ -64,44 +63,53 @@ def reachable(obj_bounds: np.ndarray, legs: list[dict], sensor: dict) -> bool:
     """
     centre = obj_bounds.mean(axis=0)[:2]
     radius = np.linalg.norm(obj_bounds[1, :2] - obj_bounds[0, :2]) / 2
-    half = np.deg2rad(sensor["field_of_view"] / 2)
+    half = sensor.half_fov
     for leg in legs:
-        a, b = np.array(leg["start"]), np.array(leg["end"])
+        a, b = np.array(leg.start), np.array(leg.end)
         ab = b[:2] - a[:2]
         f = np.clip(np.dot(centre - a[:2], ab) / max(np.dot(ab, ab), 1e-12), 0, 1)
         distance = np.linalg.norm(a[:2] + f * ab - centre) - radius
         depth = a[2] - obj_bounds[0, 2]
-        reach = sensor["range_max"] if half >= np.pi / 2 or depth <= 0 else min(sensor["range_max"], depth * np.tan(half))
+        reach = sensor.range_max if half >= np.pi / 2 or depth <= 0 else min(sensor.range_max, depth * np.tan(half))
         if distance <= reach:
             return True
     return False
 
 
-def build_scene(plan: dict, models: dict, scene: dict, variant: str | None = None) -> ScanScene:
-    """Load the plan's objects into Mitsuba (activating the variant) and build the hit table."""
+def build_scene(plan, models: dict, sensor, variant: str) -> ScanScene:
+    """Load the plan's objects and ground into Mitsuba under ``variant`` and build the hit table.
+
+    :param sensor: the scene's :class:`~mitsuforest.config.types.Sensor` (objects out of its reach are
+        left out).
+    :param variant: a Mitsuba variant (see :func:`select_variant`); the global variant is left as it was.
+    """
     import mitsuba as mi
     import drjit as dr
 
-    variant = select_variant(variant or scene["simulation"]["variant"])
-    terrain = make_terrain(scene["terrain"], plan["area"], plan["seed"])
-    ground_v, ground_f = terrain.mesh()
+    variant = select_variant(variant)
+    with variant_scope(variant):
+        return _build(mi, dr, plan, models, sensor, variant)
+
+
+def _build(mi, dr, plan, models, sensor, variant) -> ScanScene:
+    ground_v, ground_f = plan.terrain.mesh()
     keep, culled = [], 0
-    for obj in plan["objects"]:
-        m = matrix(obj)
-        v = apply(m, models[obj["model"]].vertices())
+    for obj in plan.objects:
+        m = obj.matrix
+        v = apply(m, models[obj.model].vertices())
         bounds = np.array([v.min(0), v.max(0)])
-        if reachable(bounds, plan["legs"], scene["sensor"]):
+        if reachable(bounds, plan.legs, sensor):
             keep.append((obj, m, bounds))
         else:
             culled += 1
-    used = sorted({obj["model"] for obj, _, _ in keep})
+    used = sorted({obj.model for obj, _, _ in keep})
     d = {"type": "scene"}
     for name in used:
         d[f"model_{name}"] = {"type": "shapegroup", **{
             f"p{i:02d}": mitsuba_mesh(f"{name}_{p.name}", p.vertices, p.faces)
             for i, p in enumerate(models[name].parts)}}
     for obj, m, _ in keep:
-        d[f"object_{obj['instance']:07d}"] = {"type": "instance", "shape": {"type": "ref", "id": f"model_{obj['model']}"},
+        d[f"object_{obj.instance:07d}"] = {"type": "instance", "shape": {"type": "ref", "id": f"model_{obj.model}"},
                                                "to_world": mi.ScalarTransform4f(m.tolist())}
     d["ground"] = mitsuba_mesh("ground", ground_v, ground_f)
     mi_scene = mi.load_dict(d)
@@ -115,7 +123,7 @@ def build_scene(plan: dict, models: dict, scene: dict, variant: str | None = Non
 def _hit_table(mi_scene, dr, mi, plan, models, used, keep, ground_v, ground_f) -> HitTable:
     registry = np.array(dr.reinterpret_array(mi.UInt32, mi_scene.shapes_dr()), np.int64)
     ids = [s.id() for s in mi_scene.shapes()]
-    by_instance = {obj["instance"]: row for row, (obj, _, _) in enumerate(keep)}
+    by_instance = {obj.instance: row for row, (obj, _, _) in enumerate(keep)}
     object_of_registry = np.full(int(registry.max()) + 1, -1, np.int32)
     ground_registry = -1
     for reg, sid in zip(registry, ids):
@@ -139,16 +147,16 @@ def _hit_table(mi_scene, dr, mi, plan, models, used, keep, ground_v, ground_f) -
     return HitTable(
         object_of_registry=object_of_registry,
         ground_registry=ground_registry,
-        object_instance=np.array([o["instance"] for o in objs], np.uint32),
-        object_id_base=np.array([o["object_id"] for o in objs], np.uint32),
-        object_treeid=np.array([o["treeid"] for o in objs], np.uint16),
+        object_instance=np.array([o.instance for o in objs], np.uint32),
+        object_id_base=np.array([o.object_id for o in objs], np.uint32),
+        object_treeid=np.array([o.treeid for o in objs], np.uint16),
         object_rotation=np.array([m[:3, :3] for _, m, _ in keep], np.float32).reshape(-1, 3, 3),
-        object_part_row=np.array([part_row[o["model"]] for o in objs], np.int64),
-        object_class_row=np.array([class_row[o["model"]] for o in objs], np.int64),
+        object_part_row=np.array([part_row[o.model] for o in objs], np.int64),
+        object_class_row=np.array([class_row[o.model] for o in objs], np.int64),
         part_base=np.array(part_base, np.int64),
         triangle_component=np.concatenate(comps) if comps else np.zeros(0, np.uint16),
         triangle_normal=np.vstack(normals) if normals else np.zeros((0, 3), np.float32),
         component_class=np.array(classes, np.uint8),
         ground_normal=face_normals(ground_v, ground_f),
-        ground_object_id=plan["ground"]["object_id"],
+        ground_object_id=plan.ground_object_id,
     )

@@ -4,7 +4,7 @@ Used by the tests and ``benchmarks/stability.py``; handy for validating a sensor
 
     path = bare_scene_file(folder, sensors / "ideal.yaml")
     scene, plan, models, scan_scene = analytic_scene(path, [(plane_model("p", 10, ROCK), (5, 5, 2), 0, (0, 30), 0)])
-    points = PulseTracer(scan_scene, scene["sensor"], 1).trace(pulses([[5, 5, 30]], [0, 0, -1]), rng)
+    points = PulseTracer(scan_scene, scene.sensor, 1).trace_pulses(pulses([[5, 5, 30]], [0, 0, -1]))
 """
 
 from __future__ import annotations
@@ -14,9 +14,11 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+import dataclasses
+
 from ..config import load_scene
-from ..plan import make_plan
-from ..scan.pulses import Pulses
+from ..plan import ModelSpec, PlacedObject, make_plan
+from ..scan.reference.pulses import Pulses
 from ..trees.models import Component, Model, Part
 from . import build_scene
 
@@ -59,16 +61,16 @@ def analytic_scene(path, objects=()):
     """
     scene = load_scene(path)
     plan = make_plan(scene)
-    models = {}
-    next_id = plan["ground"]["object_id"] + 1
+    models, specs, placed = {}, dict(plan.models), []
+    next_id = plan.ground_object_id + 1
     for k, (model, position, rotation, tilt, treeid) in enumerate(objects, start=1):
         models[model.name] = model
-        plan["models"][model.name] = {"kind": "custom"}
-        plan["objects"].append({"kind": "custom", "model": model.name, "treeid": treeid, "position": list(position),
-                                "rotation": rotation, "tilt": list(tilt), "instance": k, "object_id": next_id,
-                                "components": len(model.components)})
+        specs[model.name] = ModelSpec("custom", len(model.components))
+        placed.append(PlacedObject("custom", model.name, treeid, tuple(position), rotation, tuple(tilt), k, next_id,
+                                   len(model.components)))
         next_id += len(model.components)
-    return scene, plan, models, build_scene(plan, models, scene)
+    plan = dataclasses.replace(plan, models=specs, objects=plan.objects + tuple(placed))
+    return scene, plan, models, build_scene(plan, models, scene.sensor, scene.simulation.variant)
 
 
 def pulses(origins, directions) -> Pulses:

@@ -1,8 +1,13 @@
-"""Choosing and activating the Mitsuba variant (CPU: llvm_ad_mono, GPU: cuda_ad_mono)."""
+"""Choosing the Mitsuba variant (CPU: llvm_ad_mono, GPU: cuda_ad_mono).
+
+The variant is never set globally: the stages that need Mitsuba run under ``mi.variant_context``, so
+scenes of two variants can live in one process (the tests run both where a GPU is present).
+"""
 
 from __future__ import annotations
 
 import glob
+from contextlib import contextmanager
 import os
 import re
 
@@ -36,8 +41,20 @@ def cuda_available() -> bool:
         return False
 
 
+def available_variants() -> list[str]:
+    """The mono variants this machine can run: ``llvm_ad_mono`` (with a usable libLLVM), and
+    ``cuda_ad_mono`` when a GPU is usable."""
+    import mitsuba as mi
+    out = []
+    if "llvm_ad_mono" in mi.variants() and not (_llvm_versions() and max(_llvm_versions()) < 17):
+        out.append("llvm_ad_mono")
+    if "cuda_ad_mono" in mi.variants() and cuda_available():
+        out.append("cuda_ad_mono")
+    return out
+
+
 def select_variant(requested: str = "auto") -> str:
-    """Activate and return the variant: ``auto`` prefers ``cuda_ad_mono`` when a GPU is usable."""
+    """The variant to run, checked: ``auto`` prefers ``cuda_ad_mono`` when a GPU is usable."""
     import mitsuba as mi
     variant = requested
     if requested == "auto":
@@ -49,5 +66,21 @@ def select_variant(requested: str = "auto") -> str:
         check_llvm()
     if variant.startswith("cuda") and not cuda_available():
         raise UserError(f"simulation.variant: {variant} needs a CUDA GPU, and none is usable here")
-    mi.set_variant(variant)
     return variant
+
+
+@contextmanager
+def variant_scope(variant: str):
+    """Run a block under a Mitsuba variant and restore the previous one afterwards.
+
+    ``mi.variant_context`` of Mitsuba 3.9 fails on exit when no variant was set before it (it calls
+    ``set_variant(None)``); this does the same without that case.
+    """
+    import mitsuba as mi
+    previous = mi.variant()
+    if previous is not None:
+        with mi.variant_context(variant):
+            yield
+        return
+    mi.set_variant(variant)
+    yield

@@ -17,26 +17,25 @@ __all__ = ["Archetype", "DEFAULT_ARCHETYPES", "Model", "Part", "Component", "bui
 _BUILDERS = {"bush": bush_model, "rock": rock_model, "stump": stump_model, "deadwood": deadwood_model}
 
 
-def build_model(spec: dict) -> Model:
-    """One model from its plan entry: ``{"kind": "tree", "archetype": {...}}`` or ``{"kind": k, "seed": s, ...}``
-    (deadwood also takes ``length`` and ``radius``)."""
-    kind, name = spec["kind"], spec["name"]
-    if kind == "tree":
-        archetype = Archetype(**spec["archetype"])
+def build_model(name: str, spec) -> Model:
+    """One model from its plan entry (:class:`~mitsuforest.plan.types.ModelSpec`): a tree archetype or an
+    understory kind with its seed (deadwood also its length and radius)."""
+    if spec.kind == "tree":
+        archetype = spec.archetype
         params = {k: v for k, v in dataclasses.asdict(archetype).items() if k != "weight"}
         model = cached("tree", params, lambda: tree_model(archetype, name))
     else:
-        params = {k: v for k, v in spec.items() if k not in ("kind", "name", "components")}
-        model = cached(kind, params, lambda: _BUILDERS[kind](name=name, **params))
+        params = spec.parameters()
+        model = cached(spec.kind, params, lambda: _BUILDERS[spec.kind](name=name, **params))
     model.name = name
     return model
 
 
-def build_models(plan: dict, progress=None) -> dict[str, Model]:
+def build_models(plan, progress=None) -> dict[str, Model]:
     """Every model of the plan, from the cache where possible."""
     models = {}
-    for name, spec in plan["models"].items():
-        models[name] = build_model({**spec, "name": name})
+    for name, spec in plan.models.items():
+        models[name] = build_model(name, spec)
         if progress:
             progress(name)
     return models

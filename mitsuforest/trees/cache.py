@@ -48,7 +48,7 @@ def _save(model: Model, path: Path):
     header = {"name": model.name, "parts": [p.name for p in model.parts],
               "components": [[c.kind, c.classification] for c in model.components],
               "volume": model.volume.as_dict() if model.volume else None,
-              "clearance": model.clearance, "meta": model.meta}
+              "meta": model.meta}
     tmp = path.with_suffix(f".tmp-{os.getpid()}.npz")
     np.savez(tmp, header=np.array(json.dumps(header)), **arrays)
     os.replace(tmp, path)
@@ -60,4 +60,4 @@ def _load(path: Path) -> Model:
         parts = [Part(name, data[f"v{i}"], data[f"f{i}"], data[f"c{i}"]) for i, name in enumerate(h["parts"])]
     volume = WoodVolume(**h["volume"]) if h["volume"] else None
     return Model(h["name"], parts, [Component(k, c) for k, c in h["components"]], volume,
-                 h["clearance"], h["meta"])
+                 h["meta"])

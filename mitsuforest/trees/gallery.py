@@ -10,23 +10,24 @@ from PIL import Image
 
 from ..write.atomic import atomic_path, write_text
 from ..write.tables import csv_text
+from ..plan.types import ModelSpec
 from . import build_model
 
 
-def write_gallery(archetypes: list[dict], folder, progress=print) -> list[dict]:
+def write_gallery(archetypes, folder, progress=print) -> list[dict]:
     """Write ``treeNN_wood.ply``, ``treeNN_leaves.ply``, ``volumes.csv`` and ``trees.png`` into ``folder``."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     rows, pictures = [], []
     for i, a in enumerate(archetypes):
         name = f"tree{i + 1:02d}"
-        model = build_model({"kind": "tree", "archetype": a, "name": name})
+        model = build_model(name, ModelSpec("tree", 0, archetype=a))
         for part in model.parts:
             mesh = trimesh.Trimesh(part.vertices, part.faces, process=False)
             with atomic_path(folder / f"{name}_{part.name}.ply") as tmp:
                 mesh.export(tmp, file_type="ply")
         v = model.volume
-        rows.append({"model": name, "height_m": a["height"], "dbh_m": a["dbh"], "volume_union_m3": v.union,
+        rows.append({"model": name, "height_m": a.height, "dbh_m": a.dbh, "volume_union_m3": v.union,
                      "volume_analytic_m3": v.analytic, "volume_naive_m3": v.naive, "parts": v.parts,
                      "wood_triangles": len(model.parts[0].faces),
                      "leaf_triangles": sum(len(p.faces) for p in model.parts[1:])})

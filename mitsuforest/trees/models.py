@@ -39,7 +39,6 @@ class Model:
     parts: list[Part]
     components: list[Component]
     volume: WoodVolume | None = None
-    clearance: float = 0.0           # radius around the base kept free of other objects (m)
     meta: dict = field(default_factory=dict)
 
     @property
@@ -61,6 +60,18 @@ def merge(meshes, components) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return np.vstack(verts), np.vstack(faces).astype(np.uint32), np.concatenate(comp)
 
 
+def tree_components(archetype: Archetype, branches) -> list[Component]:
+    """A tree's labelled components: the stem, one per first-order branch (with its descendants),
+    then the leaves. The plan numbers object ids by this list, so it is the only place that counts them."""
+    n_branches = max(b.component for b in branches)
+    return [Component("stem", TREE_WOOD)] + [Component("branch", TREE_WOOD)] * n_branches + \
+        ([Component("leaves", TREE_LEAVES)] if bears_leaves(archetype, branches) else [])
+
+
+def bears_leaves(a: Archetype, branches) -> bool:
+    return leaf_count(a.leaf_area, a.leaf_length, a.leaf_width) > 0 and bool(terminal_branches(branches))
+
+
 def tree_model(archetype: Archetype, name: str) -> Model:
     """Mesh one archetype: a wood part (one closed tube per branch) and a leaf part, with volumes."""
     rng = np.random.default_rng(archetype.seed + 10_000)
@@ -68,24 +79,21 @@ def tree_model(archetype: Archetype, name: str) -> Model:
     tubes = [tube(b.points, b.radii) for b in branches]
     volume = wood_volume(tubes, sum(frustum_volume(b.points, b.radii) for b in branches),
                          names=[f"{name} branch {i}" for i in range(len(tubes))])
-    n_comp = max(b.component for b in branches) + 1
     wood = Part("wood", *merge(tubes, [b.component for b in branches]))
     leaves = _leaves(archetype, branches, rng)
-    components = [Component("stem", TREE_WOOD)] + [Component("branch", TREE_WOOD)] * (n_comp - 1)
+    components = tree_components(archetype, branches)
     parts = [wood]
     if leaves is not None:
         v, f = leaves
-        parts.append(Part("leaves", v, f.astype(np.uint32), np.full(len(f), n_comp, np.uint16)))
-        components.append(Component("leaves", TREE_LEAVES))
-    return Model(name, parts, components, volume, clearance=float(branches[0].radii[0]),
-                 meta={"height": archetype.height, "dbh": archetype.dbh})
+        parts.append(Part("leaves", v, f.astype(np.uint32), np.full(len(f), len(components) - 1, np.uint16)))
+    return Model(name, parts, components, volume, meta={"height": archetype.height, "dbh": archetype.dbh})
 
 
 def _leaves(a: Archetype, branches, rng):
+    if not bears_leaves(a, branches):
+        return None
     count = leaf_count(a.leaf_area, a.leaf_length, a.leaf_width)
     twigs = terminal_branches(branches)
-    if count == 0 or not twigs:
-        return None
     which = rng.integers(0, len(twigs), count)
     s = 1 - a.leaf_clumping * rng.random(count) ** 1.5  # denser toward the tips
     anchors = np.empty((count, 3))

@@ -17,10 +17,13 @@ from .tubes import frustum_volume, tube
 from .volume import to_manifold, wood_volume
 
 
-def _single(name, kind, classification, meshes, clearance, volume=None, meta=None) -> Model:
+UNDERSTORY_COMPONENTS = 1   # every understory model is one labelled component
+
+
+def _single(name, kind, classification, meshes, volume=None, meta=None) -> Model:
     v, f, _ = merge(meshes, [0] * len(meshes))
     part = Part(kind, v, f, np.zeros(len(f), np.uint16))
-    return Model(name, [part], [Component(kind, classification)], volume, clearance, meta or {})
+    return Model(name, [part], [Component(kind, classification)], volume, meta or {})
 
 
 def bush_model(seed: int, name: str) -> Model:
@@ -39,7 +42,7 @@ def bush_model(seed: int, name: str) -> Model:
     u *= rng.random((count, 1)) ** (1 / 3)
     anchors = u * [width / 2, width / 2, height / 2] + [0, 0, height / 2]
     leaves = leaf_blades(anchors, 0.06, 0.02, 40.0, rng)
-    return _single(name, "bush", BUSH, stems + [leaves], clearance=0.3 * width, meta={"height": height})
+    return _single(name, "bush", BUSH, stems + [leaves], meta={"height": height})
 
 
 def rock_model(seed: int, name: str) -> Model:
@@ -53,7 +56,7 @@ def rock_model(seed: int, name: str) -> Model:
     v[:, 2] -= 0.3 * v[:, 2].max()
     faces = np.asarray(ico.faces, np.int64)
     to_manifold(v, faces, name)  # a rock is a closed part too
-    return _single(name, "rock", ROCK, [(v, faces)], clearance=size / 2, meta={"size": size})
+    return _single(name, "rock", ROCK, [(v, faces)], meta={"size": size})
 
 
 def stump_model(seed: int, name: str) -> Model:
@@ -64,7 +67,7 @@ def stump_model(seed: int, name: str) -> Model:
     radii = r * (1 + 0.3 * np.exp(-(z + 0.1) / 0.15))
     pts = np.column_stack([np.zeros_like(z), np.zeros_like(z), z])
     mesh = tube(pts, radii)
-    return _single(name, "stump", STUMP, [mesh], clearance=r * 1.3,
+    return _single(name, "stump", STUMP, [mesh],
                    meta={"height": h, "radius": r})
 
 
@@ -90,5 +93,5 @@ def deadwood_model(seed: int, name: str, length: float = 4.0, radius: float = 0.
     meshes = [tube(p, q) for p, q in pieces]
     volume = wood_volume(meshes, sum(frustum_volume(p, q) for p, q in pieces),
                          names=[f"{name} piece {i}" for i in range(len(meshes))])
-    return _single(name, "deadwood", DEADWOOD, meshes, clearance=length / 2, volume=volume,
+    return _single(name, "deadwood", DEADWOOD, meshes, volume=volume,
                    meta={"length": length, "radius": r})

@@ -67,13 +67,13 @@ class Staging:
         shutil.rmtree(self.path, ignore_errors=True)
 
 
-def write_render_outputs(staging: Staging, *, scene, plan, models, writer, plan_text: str) -> None:
+def write_render_outputs(staging: Staging, *, scene, plan, models, writer) -> None:
     """Write the tables, plan, trajectory and quick looks of one render into ``staging``."""
-    offset = scene["origin"]["offset"]
+    offset = scene.origin.offset
     write_volumes(staging.file("_volumes.csv"), plan, models, offset)
     write_ids(staging.file("_ids.csv"), plan, models, offset)
-    write_text(staging.file("_plan.json"), plan_text)
-    write_trajectory(staging.file("_trajectory.csv"), plan["legs"], offset)
+    write_text(staging.file("_plan.json"), plan.to_json())
+    write_trajectory(staging.file("_trajectory.csv"), plan.legs, offset)
     write_png(staging.file("_top.png"), writer.top.image())
     write_png(staging.file("_side.png"), writer.side.image())
 

@@ -17,8 +17,6 @@ from xml.sax.saxutils import quoteattr
 
 import trimesh
 
-from ..plan.transforms import matrix
-from ..trees.terrain import make_terrain
 from .atomic import atomic_path, write_text
 from .tables import csv_text
 
@@ -28,53 +26,53 @@ def _write_obj(path: Path, vertices, faces) -> None:
         trimesh.Trimesh(vertices, faces, process=False).export(tmp, file_type="obj", include_normals=False)
 
 
-def export_scene(scene: dict, plan: dict, models: dict, folder, log=print) -> list[Path]:
+def export_scene(scene, plan, models: dict, folder, log=print) -> list[Path]:
     """Write the meshes, transforms table and HELIOS++ scene XML of a planned scene into ``folder``."""
     folder = Path(folder)
     (folder / "models").mkdir(parents=True, exist_ok=True)
     written = []
-    for name in sorted({o["model"] for o in plan["objects"]}):
+    for name in sorted({o.model for o in plan.objects}):
         for part in models[name].parts:
             path = folder / "models" / f"{name}_{part.name}.obj"
             _write_obj(path, part.vertices, part.faces)
             written.append(path)
-    ground_v, ground_f = make_terrain(scene["terrain"], plan["area"], plan["seed"]).mesh()
+    ground_v, ground_f = plan.terrain.mesh()
     _write_obj(folder / "ground.obj", ground_v, ground_f)
     written.append(folder / "ground.obj")
-    written.append(_write_transforms(folder / f"{scene['name']}_transforms.csv", plan, scene["origin"]["offset"]))
-    written.append(_write_helios(folder / f"{scene['name']}_helios_scene.xml", scene, plan, models))
-    log(f"exported {len(plan['objects'])} objects of {len({o['model'] for o in plan['objects']})} models to {folder}")
+    written.append(_write_transforms(folder / f"{scene.name}_transforms.csv", plan, scene.origin.offset))
+    written.append(_write_helios(folder / f"{scene.name}_helios_scene.xml", scene, plan, models))
+    log(f"exported {len(plan.objects)} objects of {len({o.model for o in plan.objects})} models to {folder}")
     return written
 
 
-def _write_transforms(path: Path, plan: dict, offset) -> Path:
+def _write_transforms(path: Path, plan, offset) -> Path:
     header = ["instance", "object_id", "components", "kind", "model", "treeid"] + \
         [f"m{r}{c}" for r in range(3) for c in range(4)]
-    rows = [[obj["instance"], obj["object_id"], obj["components"], obj["kind"], obj["model"], obj["treeid"]]
-            + [f"{v:.12g}" for v in matrix(obj)[:3].ravel()] for obj in plan["objects"]]
+    rows = [[obj.instance, obj.object_id, obj.components, obj.kind, obj.model, obj.treeid]
+            + [f"{v:.12g}" for v in obj.matrix[:3].ravel()] for obj in plan.objects]
     comment = f"# local frame; add origin offset {offset[0]:.3f},{offset[1]:.3f},{offset[2]:.3f} for the georeference\n"
     write_text(path, comment + csv_text(header, rows))
     return path
 
 
-def _write_helios(path: Path, scene: dict, plan: dict, models: dict) -> Path:
+def _write_helios(path: Path, scene, plan, models: dict) -> Path:
     parts = ['    <part id="0">\n'
              '      <filter type="objloader">\n'
              '        <param type="string" key="filepath" value="ground.obj"/>\n'
              '        <param type="string" key="up" value="z"/>\n'
              '      </filter>\n'
              '    </part>']
-    for obj in plan["objects"]:
-        names = [p.name for p in models[obj["model"]].parts]
-        pattern = f"models/{obj['model']}_({'|'.join(names)})\\.obj"
-        x, y, z = obj["position"]
-        tilt_x, tilt_y = obj["tilt"]
+    for obj in plan.objects:
+        names = [p.name for p in models[obj.model].parts]
+        pattern = f"models/{obj.model}_({'|'.join(names)})\\.obj"
+        x, y, z = obj.position
+        tilt_x, tilt_y = obj.tilt
         rotations = "".join(
             f'      <filter type="rotate"><param type="rotation" key="rotation">'
             f'<rot axis="{axis}" angle_deg="{angle:.9g}"/></param></filter>\n'
-            for axis, angle in (("z", obj["rotation"]), ("y", tilt_y), ("x", tilt_x)) if angle)
+            for axis, angle in (("z", obj.rotation), ("y", tilt_y), ("x", tilt_x)) if angle)
         parts.append(
-            f'    <part id="{obj["instance"]}">\n'
+            f'    <part id="{obj.instance}">\n'
             f'      <filter type="objloader">\n'
             f'        <param type="string" key="efilepath" value={quoteattr(pattern)}/>\n'
             f'        <param type="string" key="up" value="z"/>\n'
@@ -83,10 +81,10 @@ def _write_helios(path: Path, scene: dict, plan: dict, models: dict) -> Path:
             f'      <filter type="translate"><param type="vec3" key="offset" value="{x:.9g};{y:.9g};{z:.9g}"/></filter>\n'
             f'    </part>')
     text = ('<?xml version="1.0" encoding="UTF-8"?>\n'
-            f'<!-- mitsuforest export of {quoteattr(scene["name"])}: part id = mitsuforest instance (0 = ground);'
+            f'<!-- mitsuforest export of {quoteattr(scene.name)}: part id = mitsuforest instance (0 = ground);'
             ' see the _ids.csv of a render for object ids, classes and tree ids -->\n'
             '<document>\n'
-            f'  <scene id={quoteattr(scene["name"])} name={quoteattr(scene["name"])}>\n'
+            f'  <scene id={quoteattr(scene.name)} name={quoteattr(scene.name)}>\n'
             + "\n".join(parts) + "\n  </scene>\n</document>\n")
     write_text(path, text)
     return path

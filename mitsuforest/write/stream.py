@@ -19,11 +19,11 @@ class PointWriter:
     """Receives local-frame points batch by batch (:meth:`add`) and writes georeferenced files."""
 
     def __init__(self, staging, scene: dict, keep: bool = False):
-        self.offset = np.asarray(scene["origin"]["offset"], np.float64)
-        self.area = scene["area"]["size"]
-        formats = scene["output"]["formats"] if staging else []
+        self.offset = np.asarray(scene.origin.offset, np.float64)
+        self.area = scene.area.size
+        formats = scene.output.formats if staging else []
         self._pcd_file = open(staging.file(".pcd"), "wb") if staging and "pcd" in formats else None  # noqa: SIM115
-        self._las = [LasStream(staging.file("." + f), self.offset, scene["origin"]["crs"])
+        self._las = [LasStream(staging.file("." + f), self.offset, scene.origin.crs)
                      for f in ("las", "laz") if f in formats]
         self._kept = [] if keep else None
         self.count = 0
@@ -31,7 +31,7 @@ class PointWriter:
         self.returns = np.zeros(256, np.int64)
         self.top = TopView(self.area)
         self.side = SideTile(self.area)
-        rng = np.random.default_rng([scene["seed"], 99])
+        rng = np.random.default_rng([scene.seed, 99])
         corner = [rng.uniform(0, max(s - SPACING_TILE, 0), 4) for s in self.area]
         self._tiles = np.column_stack(corner)
         self._tile_points = [[] for _ in self._tiles]

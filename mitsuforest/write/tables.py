@@ -8,7 +8,6 @@ import io
 import numpy as np
 
 from ..classes import GROUND, TREE_LEAVES, TREE_WOOD
-from ..scan.pulses import leg_frame
 from .atomic import write_text
 
 
@@ -25,20 +24,20 @@ def _f(x, digits=9):
     return f"{x:.{digits}g}"
 
 
-def volume_rows(plan: dict, models: dict, offset) -> list[list]:
+def volume_rows(plan, models: dict, offset) -> list[list]:
     """One row per tree archetype and per deadwood piece, then one per placed tree."""
     rows = []
-    for name, spec in plan["models"].items():
-        if spec["kind"] in ("tree", "deadwood") and name in models and models[name].volume:
+    for name, spec in plan.models.items():
+        if spec.kind in ("tree", "deadwood") and name in models and models[name].volume:
             v = models[name].volume
-            rows.append([spec["kind"] + "_model", name, "", _f(v.union), _f(v.analytic), _f(v.naive), v.parts,
+            rows.append([spec.kind + "_model", name, "", _f(v.union), _f(v.analytic), _f(v.naive), v.parts,
                          "", "", "", ""])
-    for obj in plan["objects"]:
-        if obj["kind"] in ("tree", "deadwood"):
-            v = models[obj["model"]].volume
-            x, y, z = (p + o for p, o in zip(obj["position"], offset))
-            rows.append([obj["kind"], obj["model"], obj["instance"], _f(v.union), _f(v.analytic), _f(v.naive),
-                         v.parts, obj["treeid"], f"{x:.4f}", f"{y:.4f}", f"{z:.4f}"])
+    for obj in plan.objects:
+        if obj.kind in ("tree", "deadwood"):
+            v = models[obj.model].volume
+            x, y, z = (p + o for p, o in zip(obj.position, offset))
+            rows.append([obj.kind, obj.model, obj.instance, _f(v.union), _f(v.analytic), _f(v.naive),
+                         v.parts, obj.treeid, f"{x:.4f}", f"{y:.4f}", f"{z:.4f}"])
     return rows
 
 
@@ -50,14 +49,13 @@ def write_volumes(path, plan, models, offset) -> None:
 
 def write_ids(path, plan, models, offset) -> None:
     """Every object and component: object_id, instance, treeid, classification, kind, model, position."""
-    g = plan["ground"]
-    rows = [[g["object_id"], 0, 0, GROUND, "ground", "", "", "", ""]]
-    for obj in plan["objects"]:
-        x, y, z = (f"{p + o:.4f}" for p, o in zip(obj["position"], offset))
-        for k, comp in enumerate(models[obj["model"]].components):
-            treeid = obj["treeid"] if comp.classification in (TREE_WOOD, TREE_LEAVES) or obj["kind"] == "deadwood" else 0
-            rows.append([obj["object_id"] + k, obj["instance"], treeid, comp.classification, comp.kind,
-                         obj["model"], x, y, z])
+    rows = [[plan.ground_object_id, 0, 0, GROUND, "ground", "", "", "", ""]]
+    for obj in plan.objects:
+        x, y, z = (f"{p + o:.4f}" for p, o in zip(obj.position, offset))
+        for k, comp in enumerate(models[obj.model].components):
+            treeid = obj.treeid if comp.classification in (TREE_WOOD, TREE_LEAVES) or obj.kind == "deadwood" else 0
+            rows.append([obj.object_id + k, obj.instance, treeid, comp.classification, comp.kind,
+                         obj.model, x, y, z])
     write_text(path, csv_text(["object_id", "instance", "treeid", "classification", "kind", "model", "x", "y", "z"], rows))
 
 
@@ -65,12 +63,8 @@ def trajectory(legs, rate: float = 10.0) -> np.ndarray:
     """(n, 7) rows time, x, y, z, roll, pitch, yaw (deg, yaw clockwise from north) at ``rate`` Hz."""
     rows = []
     for leg in legs:
-        t = np.arange(leg["t0"], leg["t1"], 1 / rate)
-        f = ((t - leg["t0"]) / (leg["t1"] - leg["t0"]))[:, None]
-        a, b = np.array(leg["start"]), np.array(leg["end"])
-        along = leg_frame(leg)[1]
-        yaw = np.rad2deg(np.arctan2(along[0], along[1])) % 360
-        rows.append(np.column_stack([t, a + f * (b - a), np.zeros((len(t), 2)), np.full(len(t), yaw)]))
+        t = np.arange(leg.t0, leg.t1, 1 / rate)
+        rows.append(np.column_stack([t, leg.position(t), np.zeros((len(t), 2)), np.full(len(t), leg.heading)]))
     return np.vstack(rows) if rows else np.zeros((0, 7))
 
 

@@ -1,4 +1,5 @@
-"""From sub-ray returns to echoes: the pulse's waveform, reduced to its separable peaks.
+"""From sub-ray returns to echoes: the pulse's waveform, reduced to its separable peaks (numpy twin of
+:mod:`mitsuforest.scan.echoes`, the tests' reference).
 
 Model (one-way range axis). The emitted pulse is Gaussian in time with FWHM ``pulse_length``; on the
 range axis its FWHM is the resolving distance ``ΔR = c·pulse_length / 2`` (σ = ΔR / 2.3548). The
@@ -17,13 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-SPEED_OF_LIGHT = 299_792_458.0
-FWHM_PER_SIGMA = 2.0 * np.sqrt(2.0 * np.log(2.0))
-
-
-def resolving_distance(pulse_length: float) -> float:
-    """Range separation below which two returns merge into one echo: ``c·τ/2`` (m)."""
-    return SPEED_OF_LIGHT * pulse_length / 2
+from ..echoes import FWHM_PER_SIGMA
 
 
 @dataclass
@@ -65,13 +60,13 @@ class _Groups:
     member_weight: np.ndarray
 
 
-def detect_echoes(ranges: np.ndarray, power: np.ndarray, resolving: float, threshold: float = 0.0,
+def pulse_echoes(ranges: np.ndarray, power: np.ndarray, resolving: float, threshold: float = 0.0,
                   max_returns: int = 0, range_min: float = 0.0, range_max: float = np.inf) -> Echoes:
     """Echoes of P pulses of S sub-rays each.
 
     :param ranges: (P, S) hit range of each sub-ray (m), ``inf`` where it hit nothing.
     :param power: (P, S) received power of each sub-ray.
-    :param resolving: the resolving distance ΔR (m); see :func:`resolving_distance`.
+    :param resolving: the resolving distance ΔR (m); see ``Sensor.resolving_distance``.
     """
     n_pulses = ranges.shape[0]
     ranges = np.where((ranges >= range_min) & (ranges <= range_max), ranges, np.inf)

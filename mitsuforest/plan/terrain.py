@@ -1,4 +1,4 @@
-"""Ground surfaces: flat, smooth noise relief, or a user mesh, as a height field over the plot.
+"""The ground of a plan. Surfaces: flat, smooth noise relief, or a user mesh, as a height field over the plot.
 
 The ground is a regular grid mesh (1 m cells by default) covering the plot; :class:`Terrain` also
 answers heights at any point so the plan can set objects on it.
@@ -14,8 +14,9 @@ import trimesh
 from ..errors import UserError
 
 
-@dataclass
+@dataclass(frozen=True)
 class Terrain:
+    type: str            # flat | noise | mesh (the scene's terrain.type)
     x: np.ndarray        # (nx,) grid x coordinates, local frame
     y: np.ndarray        # (ny,) grid y coordinates
     z: np.ndarray        # (ny, nx) heights
@@ -46,16 +47,17 @@ class Terrain:
         return vertices, faces.astype(np.uint32)
 
 
-def make_terrain(config: dict, size, seed: int, cell: float = 1.0) -> Terrain:
-    """The terrain of a scene's ``terrain`` section over a plot of ``size`` (m)."""
+def make_terrain(settings, size, seed: int, cell: float = 1.0) -> Terrain:
+    """The terrain of a scene's ``terrain`` section (:class:`~mitsuforest.config.types.TerrainSettings`)
+    over a plot of ``size`` (m)."""
     nx, ny = (max(int(np.ceil(s / cell)), 1) + 1 for s in size)
     x, y = np.linspace(0, size[0], nx), np.linspace(0, size[1], ny)
-    kind = config["type"]
+    kind = settings.type
     if kind == "flat":
-        return Terrain(np.array([0.0, size[0]]), np.array([0.0, size[1]]), np.zeros((2, 2)))
+        return Terrain(kind, np.array([0.0, size[0]]), np.array([0.0, size[1]]), np.zeros((2, 2)))
     if kind == "noise":
-        return Terrain(x, y, _relief(x, y, config["amplitude"], config["wavelength"], seed))
-    return Terrain(x, y, _mesh_heights(config["path"], x, y))
+        return Terrain(kind, x, y, _relief(x, y, settings.amplitude, settings.wavelength, seed))
+    return Terrain(kind, x, y, _mesh_heights(settings.path, x, y))
 
 
 def _relief(x, y, amplitude, wavelength, seed):

@@ -1,0 +1,289 @@
+"""The typed scene: frozen dataclasses that every stage reads.
+
+A :class:`Scene` holds what its file says (defaults filled in, paths absolute); settings that follow
+from others are properties, so they follow every edit: ``scene.pulse_frequency`` (the survey's, or the
+sensor's rate nearest 200 kHz), ``scene.scan_frequency``, ``scene.forest.target_cover``,
+``sensor.detection_threshold``, ``sensor.resolving_distance``, ``sensor.half_fov``.
+
+Every Scene is validated when it is made, with the messages of the YAML files, so an edit is checked
+like the file::
+
+    scene = load_scene("scenes/demo.yaml")
+    scene = scene.with_({"survey.altitude": 40, "sensor": load_sensor("sensors/ideal.yaml")})
+    scene = dataclasses.replace(scene, seed=3)
+    scene.with_({"simulation.beam_samples": 0})   # ConfigError: scenes/demo.yaml: simulation.beam_samples: must be >= 1, got 0
+
+Fields are named as the YAML keys, except where a key's value is a default that a property resolves
+(``detection_threshold``: the field is ``detection_threshold_setting``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from ..trees.archetypes import Archetype
+
+# Australia's National Forest Inventory crown cover classes.
+FOREST_BANDS = {"woodland": (0.20, 0.50), "open": (0.50, 0.80), "closed": (0.80, 1.00)}
+SPEED_OF_LIGHT = 299_792_458.0
+
+
+def _yaml(key: str | None):
+    """Field metadata: the field's YAML key (``None``: not a YAML key)."""
+    return {"yaml": key}
+
+
+@dataclass(frozen=True)
+class Risley:
+    prism_rates: tuple[float, float]          # rotations per second of the two prisms
+    prism_deflection: tuple[float, float]     # deviation of each prism (deg)
+
+
+@dataclass(frozen=True)
+class Sensor:
+    """A sensor file (``sensors/*.yaml``)."""
+
+    name: str
+    source: str
+    deflector: str                            # rotating | oscillating | risley
+    field_of_view: float                      # full angle (deg)
+    pulse_frequencies: tuple[float, ...]      # Hz
+    scan_frequency_range: tuple[float, float]  # Hz
+    beam_divergence: tuple[float, float]      # full angle at 1/e² (rad), across and along the scan plane
+    pulse_length: float                       # FWHM (s)
+    wavelength: float                         # m
+    range_min: float
+    range_max: float
+    range_precision: float                    # 1-σ ranging noise (m)
+    range_accuracy: float                     # reported, not simulated (m)
+    max_returns: int                          # 0 = unlimited
+    detection_threshold_setting: float | None = field(metadata=_yaml("detection_threshold"))
+    risley: Risley
+    file: str | None = field(default=None, metadata=_yaml(None))   # the sensor file, if any
+
+    @property
+    def detection_threshold(self) -> float:
+        """Minimum echo amplitude (unit: see scan/radiometry.py). By default a full-footprint 20 %
+        Lambertian target at normal incidence is just detected at ``range_max``."""
+        if self.detection_threshold_setting is not None:
+            return self.detection_threshold_setting
+        return 0.2 / self.range_max ** 2
+
+    @property
+    def resolving_distance(self) -> float:
+        """Range separation below which two returns merge into one echo: ``c·τ/2`` (m)."""
+        return SPEED_OF_LIGHT * self.pulse_length / 2
+
+    @property
+    def half_fov(self) -> float:
+        """Half the field of view (rad)."""
+        return math.radians(self.field_of_view) / 2
+
+
+@dataclass(frozen=True)
+class Area:
+    size: tuple[float, float]
+
+
+@dataclass(frozen=True)
+class Origin:
+    crs: str | None
+    offset: tuple[float, float, float]        # added to local coordinates on output (float64)
+
+
+@dataclass(frozen=True)
+class TerrainSettings:
+    type: str                                 # flat | noise | mesh
+    amplitude: float
+    wavelength: float
+    path: str | None
+
+
+@dataclass(frozen=True)
+class Forest:
+    type: str                                 # woodland | open | closed
+    canopy_cover: float | None
+    trees: int | None
+    min_spacing: float
+    tilt: float
+    archetypes: tuple[Archetype, ...]
+
+    @property
+    def target_cover(self) -> float | None:
+        """The canopy cover to reach: the given one, the middle of the type's band when neither a
+        cover nor a tree count is given, ``None`` with a tree count."""
+        if self.canopy_cover is not None or self.trees is not None:
+            return self.canopy_cover
+        return sum(FOREST_BANDS[self.type]) / 2
+
+
+@dataclass(frozen=True)
+class Understory:
+    bushes: int
+    rocks: int
+    deadwood: int
+    stumps: int
+
+
+@dataclass(frozen=True)
+class Survey:
+    altitude: float
+    speed: float
+    pulse_frequency: float | None             # None: see Scene.pulse_frequency
+    scan_frequency: float | None              # None: see Scene.scan_frequency
+    line_spacing: float
+    heading: float
+    margin: float
+    lines: tuple | None                       # ((x0, y0), (x1, y1)) per leg, or None (lawnmower)
+
+
+@dataclass(frozen=True)
+class Simulation:
+    beam_samples: int
+    variant: str
+    pulses_per_batch: int | None
+
+
+@dataclass(frozen=True)
+class Output:
+    dir: str
+    formats: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class Scene:
+    """A scene file, validated (see module docstring)."""
+
+    name: str
+    seed: int
+    area: Area
+    origin: Origin
+    terrain: TerrainSettings
+    forest: Forest
+    understory: Understory
+    sensor: Sensor
+    survey: Survey
+    simulation: Simulation
+    output: Output
+    file: str | None = field(default=None, metadata=_yaml(None))   # the scene file, if any
+
+    def __post_init__(self):
+        from . import validate_scene
+        validate_scene(self)
+
+    @property
+    def pulse_frequency(self) -> float:
+        """The survey's pulse frequency, or the sensor's nearest to 200 kHz."""
+        if self.survey.pulse_frequency is not None:
+            return self.survey.pulse_frequency
+        return min(self.sensor.pulse_frequencies, key=lambda f: abs(f - 200_000))
+
+    @property
+    def scan_frequency(self) -> float:
+        """The survey's scan frequency, or 50 Hz clamped to the sensor's range."""
+        if self.survey.scan_frequency is not None:
+            return self.survey.scan_frequency
+        lo, hi = self.sensor.scan_frequency_range
+        return min(max(50.0, lo), hi)
+
+    def with_(self, changes: dict | None = None, **sections) -> Scene:
+        """A copy with ``changes`` applied and validated like the YAML file.
+
+        :param changes: dotted YAML key paths to new values, e.g. ``{"survey.altitude": 40}``; a value
+            may be a mapping, a list, or a section (``sensor=load_sensor(...)``).
+        :param sections: top-level keys, e.g. ``survey={"altitude": 40}`` (merged into the section).
+        """
+        from . import scene_from_mapping
+        data = to_mapping(self)
+        for key, value in sections.items():
+            value = _as_value(value)
+            current = data.get(key)
+            data[key] = {**current, **value} if isinstance(current, dict) and isinstance(value, dict) else value
+        for path, value in (changes or {}).items():
+            *parents, last = path.split(".")
+            node = data
+            for p in parents:
+                if isinstance(node[p], Sensor):     # an edited sensor is no longer its file's
+                    node[p] = to_mapping(node[p])
+                node = node[p]
+            node[last] = _as_value(value)
+        return scene_from_mapping(data, file=self.file)
+
+    def describe(self) -> dict:
+        """The scene as plain JSON-ready data, derived settings resolved (for the run manifest)."""
+        d = to_mapping(self, plain=True)
+        d["file"] = self.file
+        d["sensor"]["file"] = self.sensor.file
+        d["sensor"]["detection_threshold"] = self.sensor.detection_threshold
+        d["survey"]["pulse_frequency"] = self.pulse_frequency
+        d["survey"]["scan_frequency"] = self.scan_frequency
+        d["forest"]["canopy_cover"] = self.forest.target_cover
+        return d
+
+
+SECTIONS = (Risley, Sensor, Area, Origin, TerrainSettings, Forest, Understory, Survey, Simulation, Output, Scene)
+
+
+def _as_value(value):
+    """An edit's value as the parser takes it: sensors and archetypes as they are, other sections as mappings."""
+    if isinstance(value, SECTIONS) and not isinstance(value, Sensor):
+        return to_mapping(value)
+    return value
+
+
+def _keyed_fields(cls):
+    return [(f, f.metadata.get("yaml", f.name)) for f in dataclasses.fields(cls) if f.metadata.get("yaml", f.name)]
+
+
+def to_mapping(section, plain: bool = False) -> dict:
+    """A section as the YAML mapping it came from (lists for tuples).
+
+    A nested sensor and the archetypes stay objects (the parser takes them back as they are), unless
+    ``plain`` asks for JSON-ready data.
+    """
+    if isinstance(section, Archetype):
+        return dataclasses.asdict(section)
+    return {key: _nested(getattr(section, f.name), plain) for f, key in _keyed_fields(type(section))}
+
+
+def _nested(value, plain: bool):
+    if isinstance(value, (tuple, list)):
+        return [_nested(v, plain) for v in value]
+    if isinstance(value, (Sensor, Archetype)) and not plain:
+        return value
+    if dataclasses.is_dataclass(value):
+        return to_mapping(value, plain)
+    return value
+
+
+def from_mapping(cls, data: dict, **extra):
+    """A section from a parsed (validated, defaults filled) mapping; nested sections recursively."""
+    hints = typing.get_type_hints(cls)
+    kwargs = {}
+    for f, key in _keyed_fields(cls):
+        value = data[key]
+        hint = hints[f.name]
+        if dataclasses.is_dataclass(hint) and isinstance(value, dict):
+            value = from_mapping(hint, value)
+        kwargs[f.name] = _frozen(value)
+    return cls(**kwargs, **extra)
+
+
+def _frozen(value):
+    """Lists (also nested) as tuples, so that a frozen section is immutable all the way down."""
+    if isinstance(value, list):
+        return tuple(_frozen(v) for v in value)
+    return value
+
+
+def display_path(path) -> Path:
+    """A path as a user would write it: relative to the working folder when inside it."""
+    path = Path(path)
+    try:
+        return path.resolve().relative_to(Path.cwd())
+    except ValueError:
+        return path

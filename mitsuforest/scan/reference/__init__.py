@@ -1,0 +1,53 @@
+"""The numpy twins of the scan's Dr.Jit stages: the reference the tests check the device path against.
+
+Naming rule: a Dr.Jit module ``scan/X.py`` that has a numpy twin has it at ``scan/reference/X.py``,
+with the same public names (``pulses.reaching_pulses``, ``pulses.reaches_box``, ``deflector.deflect``,
+``echoes.pulse_echoes``). Nothing here runs in a render.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ...labels import label_hits
+from ..radiometry import received_power
+from ..tracer import POINT_DTYPE
+from .echoes import pulse_echoes
+from .pulses import Pulses, reaching_pulses
+
+__all__ = ["Pulses", "reaching_pulses", "pulse_echoes", "trace_reference"]
+
+
+def trace_reference(tracer, pulses: Pulses, first_id: int = 0) -> np.ndarray:
+    """What :meth:`PulseTracer.trace_pulses` computes, with the echo stage in numpy from the sub-ray hits
+    (labels, radiometry, waveform) and without ranging noise."""
+    hits = tracer.cast(pulses, first_id)
+    s, n, sensor = tracer.samples, len(pulses.time), tracer.sensor
+    if n == 0:
+        return np.zeros(0, POINT_DTYPE)
+    labels = label_hits(tracer.table, hits["instance"], hits["shape"], hits["shape_index"], hits["prim"])
+    ray = hits["ray"].astype(np.int64)
+    t = hits["t"].astype(np.float64)
+    incoming = (hits["point"] - pulses.origin[ray // s]) / np.maximum(t, 1e-9)[:, None]
+    cos = np.einsum("ij,ij->i", incoming, labels.normal)
+    power = received_power(tracer.weights[ray % s], tracer.reflectance[labels.classification], cos, t)
+    ranges = np.full(n * s, np.inf)
+    ranges[ray] = t
+    dense_power = np.zeros(n * s)
+    dense_power[ray] = power
+    echoes = pulse_echoes(ranges.reshape(n, s), dense_power.reshape(n, s), sensor.resolving_distance,
+                          sensor.detection_threshold, sensor.max_returns, sensor.range_min, sensor.range_max)
+    row_of_ray = np.full(n * s, -1, np.int64)
+    row_of_ray[ray] = np.arange(len(ray))
+    dominant = row_of_ray[echoes.dominant]
+    out = np.zeros(len(echoes.pulse), POINT_DTYPE)
+    out["x"], out["y"], out["z"] = echoes.weighted_mean(hits["point"], row_of_ray).T
+    for key in ("treeid", "classification", "instance", "object_id"):
+        out[key] = getattr(labels, key)[dominant]
+    out["return_number"], out["number_of_returns"] = echoes.return_number, echoes.number_of_returns
+    out["intensity"] = echoes.amplitude
+    out["gps_time"] = pulses.time[echoes.pulse]
+    out["scan_angle"] = np.rad2deg(pulses.scan_angle[echoes.pulse])
+    out["pulse_id"] = first_id + pulses.index[echoes.pulse]
+    out["range"] = echoes.range
+    return out
