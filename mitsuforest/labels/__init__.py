@@ -26,8 +26,9 @@ def label_hits(table, instance_registry, shape_registry, shape_index, prim_index
     """Labels and normals of hits.
 
     :param instance_registry: (n,) registry id of the instance hit (0 when the hit is no instance).
-    :param shape_registry: (n,) registry id of the plain shape hit (0 on instance hits).
-    :param shape_index: (n,) index of the shape inside the instance's shapegroup.
+    :param shape_registry: (n,) registry id of the shape hit: the plain shape, or (OptiX) the mesh
+        hit inside an instance (Embree gives 0 on instance hits).
+    :param shape_index: (n,) index of the shape inside the instance's shapegroup (Embree).
     :param prim_index: (n,) triangle index inside that shape.
     """
     inst = np.asarray(instance_registry, np.int64)
@@ -42,7 +43,12 @@ def label_hits(table, instance_registry, shape_registry, shape_index, prim_index
     if np.any(row[on_object] < 0):
         raise RuntimeError("a ray hit an instance missing from the hit table")
     r = row[on_object]
-    tri = table.part_base[table.object_part_row[r] + np.asarray(shape_index, np.int64)[on_object]] + prim[on_object]
+    shape = np.asarray(shape_registry, np.int64)[on_object]
+    part_of_shape = np.where(shape < len(table.part_of_registry),
+                             table.part_of_registry[np.minimum(shape, len(table.part_of_registry) - 1)], -1)
+    part = np.where(part_of_shape >= 0, part_of_shape,
+                    table.object_part_row[r] + np.asarray(shape_index, np.int64)[on_object])
+    tri = table.part_base[part] + prim[on_object]
     component = table.triangle_component[tri].astype(np.int64)
     out = HitLabels(
         instance=np.zeros(n, np.uint32), object_id=np.full(n, table.ground_object_id, np.uint32),

@@ -34,6 +34,9 @@ class DeviceHitTable:
         self.registry_size = len(registry)
         self.known = u32(registry >= 0)
         self.object_of_registry = u32(np.maximum(registry, 0))
+        parts = np.asarray(table.part_of_registry)
+        self.is_part = u32(parts >= 0)
+        self.part_of_registry = u32(np.maximum(parts, 0))
         self.ground_registry = int(table.ground_registry)
         self.ground_object_id = int(table.ground_object_id)
         for name in _INDEX_ARRAYS:
@@ -50,9 +53,13 @@ class DeviceHitTable:
         unknown = (on_object & ~known) | (active & ~on_object & (shape != self.ground_registry))
         return on_object, row, unknown
 
-    def _triangle(self, row, shape_index, prim, on_object):
+    def _triangle(self, row, shape, shape_index, prim, on_object):
         dr, mi = self.dr, self.mi
-        part = dr.gather(mi.UInt32, self.object_part_row, row, on_object) + shape_index
+        # OptiX reports the mesh hit inside an instance, Embree its index in the shapegroup.
+        reported = on_object & (shape < self.registry_size)
+        reported &= dr.gather(mi.UInt32, self.is_part, shape, reported) > 0
+        part = dr.select(reported, dr.gather(mi.UInt32, self.part_of_registry, shape, reported),
+                         dr.gather(mi.UInt32, self.object_part_row, row, on_object) + shape_index)
         tri = dr.gather(mi.UInt32, self.part_base, part, on_object) + prim
         return tri, dr.gather(mi.UInt32, self.triangle_component, tri, on_object)
 
@@ -66,7 +73,7 @@ class DeviceHitTable:
         """Class (UInt32) and world-frame unit normal (Vector3f) of each hit, and the ``unknown`` mask."""
         dr, mi = self.dr, self.mi
         on_object, row, unknown = self._hit(instance, shape, active)
-        tri, component = self._triangle(row, shape_index, prim, on_object)
+        tri, component = self._triangle(row, shape, shape_index, prim, on_object)
         cls = self._class(row, component, on_object)
         local = mi.Vector3f([dr.gather(mi.Float, self.triangle_normal, tri * 3 + a, on_object) for a in range(3)])
         m = [dr.gather(mi.Float, self.object_rotation, row * 9 + a, on_object) for a in range(9)]
@@ -80,7 +87,7 @@ class DeviceHitTable:
         """``instance``, ``object_id``, ``treeid`` and ``classification`` (UInt32 each) of each hit."""
         dr, mi = self.dr, self.mi
         on_object, row, _ = self._hit(instance, shape, active)
-        _, component = self._triangle(row, shape_index, prim, on_object)
+        _, component = self._triangle(row, shape, shape_index, prim, on_object)
         return {
             "instance": dr.select(on_object, dr.gather(mi.UInt32, self.object_instance, row, on_object), 0),
             "object_id": dr.select(on_object, dr.gather(mi.UInt32, self.object_id_base, row, on_object) + component,

@@ -24,11 +24,15 @@ class HitTable:
     """Flat lookup arrays from (instance registry id, shape index, primitive) to labels and normals.
 
     ``object_of_registry[r]`` is the row of the object whose instance shape has registry id ``r``
-    (-1 for none). Rows index the ``object_*`` arrays. ``part_base[model_part_row[obj] + shape_index]``
-    is the first row of that part's triangles in ``triangle_component`` and ``triangle_normal``.
+    (-1 for none). Rows index the ``object_*`` arrays. A hit's part (a mesh of its model) is
+    ``part_of_registry[shape]`` where the backend reports the mesh hit inside an instance (OptiX), else
+    ``object_part_row[obj] + shape_index`` (Embree reports the mesh's index in the shapegroup);
+    ``part_base[part]`` is the first row of that part's triangles in ``triangle_component`` and
+    ``triangle_normal``.
     """
 
     object_of_registry: np.ndarray   # (R,) int32
+    part_of_registry: np.ndarray     # (R,) int32: the part row of a model mesh's registry id, -1 for none
     ground_registry: int
     object_instance: np.ndarray      # (O,) uint32
     object_id_base: np.ndarray       # (O,) uint32
@@ -104,27 +108,38 @@ def _build(mi, dr, plan, models, sensor, variant) -> ScanScene:
             culled += 1
     used = sorted({obj.model for obj, _, _ in keep})
     d = {"type": "scene"}
+    part_meshes = []          # in part-row order, as _hit_table numbers parts
     for name in used:
-        d[f"model_{name}"] = {"type": "shapegroup", **{
-            f"p{i:02d}": mitsuba_mesh(f"{name}_{p.name}", p.vertices, p.faces)
-            for i, p in enumerate(models[name].parts)}}
+        meshes = [mitsuba_mesh(f"{name}_{p.name}", p.vertices, p.faces) for p in models[name].parts]
+        part_meshes += meshes
+        d[f"model_{name}"] = {"type": "shapegroup", **{f"p{i:02d}": m for i, m in enumerate(meshes)}}
     for obj, m, _ in keep:
         d[f"object_{obj.instance:07d}"] = {"type": "instance", "shape": {"type": "ref", "id": f"model_{obj.model}"},
                                                "to_world": mi.ScalarTransform4f(m.tolist())}
     d["ground"] = mitsuba_mesh("ground", ground_v, ground_f)
     mi_scene = mi.load_dict(d)
-    table = _hit_table(mi_scene, dr, mi, plan, models, used, keep, ground_v, ground_f)
+    table = _hit_table(mi_scene, dr, mi, plan, models, used, keep, ground_v, ground_f, part_meshes)
     all_bounds = [b for _, _, b in keep] + [np.array([ground_v.min(0), ground_v.max(0)])]
     bbox = np.array([np.min([b[0] for b in all_bounds], 0), np.max([b[1] for b in all_bounds], 0)])
     triangles = sum(models[n].triangles for n in used) + len(ground_f)
     return ScanScene(mi_scene, table, bbox, variant, len(keep), culled, triangles)
 
 
-def _hit_table(mi_scene, dr, mi, plan, models, used, keep, ground_v, ground_f) -> HitTable:
+def _registry_ids(dr, mi, shapes) -> np.ndarray:
+    if not shapes:
+        return np.zeros(0, np.int64)
+    return np.array(dr.reinterpret_array(mi.UInt32, mi.ShapePtr(shapes)), np.int64)
+
+
+def _hit_table(mi_scene, dr, mi, plan, models, used, keep, ground_v, ground_f, part_meshes) -> HitTable:
     registry = np.array(dr.reinterpret_array(mi.UInt32, mi_scene.shapes_dr()), np.int64)
+    part_registry = _registry_ids(dr, mi, part_meshes)
     ids = [s.id() for s in mi_scene.shapes()]
     by_instance = {obj.instance: row for row, (obj, _, _) in enumerate(keep)}
-    object_of_registry = np.full(int(registry.max()) + 1, -1, np.int32)
+    size = int(max(registry.max(), part_registry.max(initial=0))) + 1
+    object_of_registry = np.full(size, -1, np.int32)
+    part_of_registry = np.full(size, -1, np.int32)
+    part_of_registry[part_registry] = np.arange(len(part_registry))
     ground_registry = -1
     for reg, sid in zip(registry, ids):
         if sid == "ground":
@@ -146,6 +161,7 @@ def _hit_table(mi_scene, dr, mi, plan, models, used, keep, ground_v, ground_f) -
     objs = [obj for obj, _, _ in keep]
     return HitTable(
         object_of_registry=object_of_registry,
+        part_of_registry=part_of_registry,
         ground_registry=ground_registry,
         object_instance=np.array([o.instance for o in objs], np.uint32),
         object_id_base=np.array([o.object_id for o in objs], np.uint32),
