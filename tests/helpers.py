@@ -10,6 +10,6 @@ ROOT = Path(__file__).resolve().parents[1]
 SENSORS = ROOT / "sensors"
 
 
-def scene_file(tmp_path, sensor="ideal.yaml", **sections) -> Path:
+def scene_file(tmp_path, sensor="ideal.yaml", variant="llvm_ad_mono", **sections) -> Path:
     """A bare scene in ``tmp_path`` with a sensor from ``sensors/`` (or an inline mapping)."""
-    return bare_scene_file(tmp_path, sensor if isinstance(sensor, dict) else SENSORS / sensor, **sections)
+    return bare_scene_file(tmp_path, sensor if isinstance(sensor, dict) else SENSORS / sensor, variant, **sections)

@@ -1,4 +1,6 @@
-"""The scan against analytic answers (physics.md, steps 1-9), on the CPU variant."""
+"""The scan against analytic answers (physics.md, steps 1-9), on every variant the machine has."""
+
+import dataclasses
 
 import numpy as np
 import pytest
@@ -8,21 +10,21 @@ from mitsuforest.classes import GROUND, ROCK
 from mitsuforest.render import render
 from mitsuforest.scan import PulseTracer, scan
 from mitsuforest.scan.radiometry import reflectance_table
-from mitsuforest.scan.waveform import resolving_distance
+from mitsuforest.scan.reference import reaching_pulses, trace_reference
 
 RNG = np.random.default_rng(0)
 
 
 @pytest.fixture(scope="module")
-def flat(tmp_path_factory):
+def flat(tmp_path_factory, variant):
     """Flat ground at z = 0 over 40 m x 40 m, ideal sensor."""
-    return analytic_scene(scene_file(tmp_path_factory.mktemp("flat")))
+    return analytic_scene(scene_file(tmp_path_factory.mktemp("flat"), variant=variant))
 
 
 def _trace(setup, p, samples=1, **sensor_changes):
     scene, _, _, scan_scene = setup
-    sensor = {**scene["sensor"], **sensor_changes}
-    return PulseTracer(scan_scene, sensor, samples).trace(p, RNG)
+    sensor = dataclasses.replace(scene.sensor, **sensor_changes)
+    return PulseTracer(scan_scene, sensor, samples).trace_pulses(p)
 
 
 def test_range_to_plane_is_exact(flat):
@@ -37,7 +39,7 @@ def test_range_to_plane_is_exact(flat):
 
 
 def test_intensity_follows_cosine_and_inverse_square(flat):
-    rho = reflectance_table(flat[0]["sensor"]["wavelength"])[GROUND]
+    rho = reflectance_table(flat[0].sensor.wavelength)[GROUND]
     theta = np.deg2rad([0, 20, 40, 60, 70])
     d = np.column_stack([np.sin(theta), np.zeros(5), -np.cos(theta)])
     pts = _trace(flat, pulses(np.tile([10.0, 20, 10], (5, 1)), d))
@@ -50,7 +52,7 @@ def test_intensity_follows_cosine_and_inverse_square(flat):
 def test_grazing_incidence_gives_finite_values(flat):
     theta = np.deg2rad([85, 87, 89, 89.5, 89.9])
     d = np.column_stack([np.sin(theta), np.zeros(5), -np.cos(theta)])
-    pts = _trace(flat, pulses(np.tile([0.5, 20, 0.05], (5, 1)), d), samples=19, beam_divergence=[1e-3, 1e-3])
+    pts = _trace(flat, pulses(np.tile([0.5, 20, 0.05], (5, 1)), d), samples=19, beam_divergence=(1e-3, 1e-3))
     for name in ("x", "y", "z", "intensity", "range"):
         assert np.isfinite(pts[name]).all()
     assert (pts["intensity"] >= 0).all()
@@ -58,14 +60,14 @@ def test_grazing_incidence_gives_finite_values(flat):
 
 def test_hits_closer_than_range_min_give_no_points(flat):
     pts = _trace(flat, pulses(np.tile([20.0, 20, 2.0], (5, 1)), [0, 0, -1]), samples=7, range_min=3.0,
-                 beam_divergence=[1e-3, 1e-3])
+                 beam_divergence=(1e-3, 1e-3))
     assert len(pts) == 0
     assert len(_trace(flat, pulses([[20.0, 20, 3.5]], [0, 0, -1]), range_min=3.0)) == 1
 
 
-def test_edge_and_vertex_hits_are_neither_lost_nor_doubled(tmp_path):
+def test_edge_and_vertex_hits_are_neither_lost_nor_doubled(tmp_path, variant):
     # A noise terrain of zero amplitude is a flat 1 m grid mesh: shoot through its vertices and edges.
-    setup = analytic_scene(scene_file(tmp_path, terrain={"type": "noise", "amplitude": 0.0}))
+    setup = analytic_scene(scene_file(tmp_path, variant=variant, terrain={"type": "noise", "amplitude": 0.0}))
     grid = np.stack(np.meshgrid(np.arange(5, 35, 1.0), np.arange(5, 35, 1.0)), -1).reshape(-1, 2)
     targets = np.vstack([grid, grid + [0.5, 0.0], grid + [0.5, 0.5]])  # vertices, edges, diagonals
     pts = _trace(setup, pulses(np.column_stack([targets, np.full(len(targets), 30.0)]), [0, 0, -1]))
@@ -74,26 +76,27 @@ def test_edge_and_vertex_hits_are_neither_lost_nor_doubled(tmp_path):
     assert np.abs(pts["z"]).max() < 1e-4
 
 
-def test_two_half_planes_resolved_by_pulse_length(tmp_path):
+def test_two_half_planes_resolved_by_pulse_length(tmp_path, variant):
     """A plane covering x < 20 at height d over the ground; a 19-sub-ray beam straddles its edge."""
     pulse_length = 4e-9
-    delta = resolving_distance(pulse_length)  # 0.60 m
+    delta = 299_792_458.0 * pulse_length / 2  # ΔR = c·τ/2 = 0.60 m
     counts = {}
     for d in (0.3 * delta, 1.5 * delta):
         model = plane_model("half", 20.0, ROCK)
-        setup = analytic_scene(scene_file(tmp_path / f"d{d:.2f}"), [(model, (10.0, 20.0, d), 0.0, (0, 0), 0)])
+        setup = analytic_scene(scene_file(tmp_path / f"d{d:.2f}", variant=variant),
+                               [(model, (10.0, 20.0, d), 0.0, (0, 0), 0)])
         p = pulses([[20.0, 20.0, 30.0]], [0, 0, -1])
-        pts = _trace(setup, p, samples=19, beam_divergence=[0.2, 0.2], pulse_length=pulse_length)
+        pts = _trace(setup, p, samples=19, beam_divergence=(0.2, 0.2), pulse_length=pulse_length)
         counts[d] = (len(pts), sorted(pts["classification"]))
     assert counts[0.3 * delta][0] == 1
     assert counts[1.5 * delta] == (2, sorted([GROUND, ROCK]))
 
 
-def test_points_lie_on_the_surface_not_on_the_central_ray(tmp_path):
+def test_points_lie_on_the_surface_not_on_the_central_ray(tmp_path, variant):
     """A wide beam on a 45° slope: each point is on the plane, off the beam axis."""
     model = plane_model("slope", 30.0, ROCK)
-    setup = analytic_scene(scene_file(tmp_path), [(model, (20.0, 20.0, 10.0), 0.0, (0, 45), 0)])
-    pts = _trace(setup, pulses([[20.0, 20.0, 30.0]], [0, 0, -1]), samples=19, beam_divergence=[0.05, 0.05])
+    setup = analytic_scene(scene_file(tmp_path, variant=variant), [(model, (20.0, 20.0, 10.0), 0.0, (0, 45), 0)])
+    pts = _trace(setup, pulses([[20.0, 20.0, 30.0]], [0, 0, -1]), samples=19, beam_divergence=(0.05, 0.05))
     normal = np.array([np.sin(np.pi / 4), 0, np.cos(np.pi / 4)])
     xyz = np.column_stack([pts["x"], pts["y"], pts["z"]])
     assert np.abs((xyz - [20, 20, 10]) @ normal).max() < 1e-3
@@ -110,17 +113,17 @@ def test_return_numbers_have_no_gaps(demo_result):
     assert (np.bincount(p["number_of_returns"])[2:].sum()) > 0  # the forest gives multiple returns
 
 
-def test_strip_density_and_spacing_on_flat_ground(tmp_path):
+def test_strip_density_and_spacing_on_flat_ground(tmp_path, variant):
     """Line scanner over flat ground: points within |x| <= X of the track = f_p (L/v) atan(X/A) / π."""
     altitude, speed, f_p, f_s = 30.0, 2.0, 100000, 50
-    path = scene_file(tmp_path, area={"size": [80, 20]},
+    path = scene_file(tmp_path, variant=variant, area={"size": [80, 20]},
                       survey={"lines": [[[40, -5], [40, 25]]], "altitude": altitude, "speed": speed,
                               "pulse_frequency": f_p, "scan_frequency": f_s})
     scene, plan, _, scan_scene = analytic_scene(path)
     result = scan(scene, plan, scan_scene, progress=False)
     pts = result.points
-    leg = plan["legs"][0]
-    assert result.pulses_emitted == int((leg["t1"] - leg["t0"]) * f_p)
+    leg = plan.legs[0]
+    assert result.pulses_emitted == int((leg.t1 - leg.t0) * f_p)
     inside = (pts["y"] > 2) & (pts["y"] < 18)
     for half_width in (5.0, 20.0):
         count = np.sum(inside & (np.abs(pts["x"] - 40) <= half_width))
@@ -136,20 +139,20 @@ def test_strip_density_and_spacing_on_flat_ground(tmp_path):
     assert along == pytest.approx(speed / f_s, rel=0.02)
 
 
-def test_field_of_view_limits_fired_pulses(tmp_path):
-    path = scene_file(tmp_path, sensor="riegl_vux-1uav.yaml", survey={"pulse_frequency": 50000})
+def test_field_of_view_limits_fired_pulses(tmp_path, variant):
+    path = scene_file(tmp_path, sensor="riegl_vux-1uav.yaml", variant=variant, survey={"pulse_frequency": 50000})
     scene, plan, _, scan_scene = analytic_scene(path)
-    plan["legs"] = plan["legs"][:1]
+    plan = dataclasses.replace(plan, legs=plan.legs[:1])
     result = scan(scene, plan, scan_scene, progress=False)
     assert result.pulses_fired == pytest.approx(result.pulses_emitted * 330 / 360, rel=1e-3)
 
 
-def test_origin_offset_changes_nothing_but_the_offset(tmp_path):
-    base = scene_file(tmp_path / "a", area={"size": [10, 10]}, understory={"rocks": 3},
+def test_origin_offset_changes_nothing_but_the_offset(tmp_path, variant):
+    base = scene_file(tmp_path / "a", variant=variant, area={"size": [10, 10]}, understory={"rocks": 3},
                       simulation={"beam_samples": 7}, sensor="riegl_vux-1uav22.yaml",
                       survey={"pulse_frequency": 100000, "line_spacing": 20, "margin": 0})
     offset = [5e5, 6e6, 100.0]
-    shifted = scene_file(tmp_path / "b", area={"size": [10, 10]}, understory={"rocks": 3},
+    shifted = scene_file(tmp_path / "b", variant=variant, area={"size": [10, 10]}, understory={"rocks": 3},
                          simulation={"beam_samples": 7}, sensor="riegl_vux-1uav22.yaml",
                          survey={"pulse_frequency": 100000, "line_spacing": 20, "margin": 0},
                          origin={"offset": offset})
@@ -163,36 +166,51 @@ def test_origin_offset_changes_nothing_but_the_offset(tmp_path):
 
 def test_rays_at_known_trees_return_their_ids(demo_setup):
     scene, plan, models, scan_scene = demo_setup
-    from mitsuforest.plan.transforms import matrix
-    trees = [o for o in plan["objects"] if o["kind"] == "tree"]
+    trees = plan.trees
     origins, targets = [], []
     for tree in trees:
-        m = matrix(tree)
+        m = tree.matrix
         at = m[:3, :3] @ [0, 0, 1.3] + m[:3, 3]
         origins.append(at + [1.0, 0, 0])
         targets.append(at)
     d = np.array(targets) - np.array(origins)
-    pts = PulseTracer(scan_scene, {**scene["sensor"], "range_min": 0.0}, 1).trace(pulses(origins, d), RNG)
+    pts = PulseTracer(scan_scene, dataclasses.replace(scene.sensor, range_min=0.0), 1).trace_pulses(pulses(origins, d))
     first = pts[pts["return_number"] == 1]
-    assert np.array_equal(first["instance"], [t["instance"] for t in trees])
-    assert np.array_equal(first["treeid"], [t["treeid"] for t in trees])
-    assert np.array_equal(first["object_id"], [t["object_id"] for t in trees])  # the stem, component 0
+    assert np.array_equal(first["instance"], [t.instance for t in trees])
+    assert np.array_equal(first["treeid"], [t.treeid for t in trees])
+    assert np.array_equal(first["object_id"], [t.object_id for t in trees])  # the stem, component 0
     assert set(first["classification"]) == {2}
+
+
+def test_rays_at_known_leaves_are_leaves(demo_setup):
+    """Sub-ray hits on a tree's leaf triangles label as leaves (the part is found on every backend:
+    Embree reports a shapegroup index, OptiX the mesh)."""
+    scene, plan, models, scan_scene = demo_setup
+    tree = plan.trees[0]
+    leaves = models[tree.model].parts[1]
+    centres = leaves.vertices[leaves.faces].mean(axis=1)[::200]
+    targets = centres @ tree.matrix[:3, :3].T + tree.matrix[:3, 3]
+    origins = targets + [0.0, 0.0, 0.02]            # 2 cm above each leaf centre, looking down
+    pts = PulseTracer(scan_scene, dataclasses.replace(scene.sensor, range_min=0.0), 1).trace_pulses(
+        pulses(origins, [0, 0, -1]))
+    first = pts[pts["return_number"] == 1]
+    assert len(first) > 0.9 * len(targets)
+    assert (first["classification"] == 3).mean() > 0.95
+    assert set(first["instance"]) == {tree.instance}
 
 
 @pytest.mark.parametrize("samples", [1, 7])
 def test_echo_kernel_matches_the_numpy_reference_in_a_forest(demo_setup, samples):
     """The device path (pulses, rays, labels, radiometry, waveform in Dr.Jit) against the numpy
     reference (pulses in numpy, sub-ray hits copied back, then label_hits, received_power,
-    detect_echoes) over the demo trees."""
-    from mitsuforest.scan.pulses import reaching_pulses
+    pulse_echoes) over the demo trees."""
     scene, plan, _, scan_scene = demo_setup
-    sensor = {**scene["sensor"], "range_precision": 0.0}
-    leg, first, count = plan["legs"][0], 700_000, 100_000          # over the plot centre
+    sensor = dataclasses.replace(scene.sensor, range_precision=0.0)
+    leg, first, count = plan.legs[0], 700_000, 100_000          # over the plot centre
     tracer = PulseTracer(scan_scene, sensor, samples)
-    got, fired, cast = tracer.trace_slots(leg, scene["survey"], first, count, scan_scene.bbox, RNG)
-    p, ref_fired = reaching_pulses(leg, sensor, scene["survey"], first, count, scan_scene.bbox, sensor["range_max"])
-    ref = tracer.trace_reference(p, RNG)
+    got, fired, cast = tracer.trace_slots(leg, scene.pulse_frequency, scene.scan_frequency, first, count)
+    p, ref_fired = reaching_pulses(leg, sensor, scene.pulse_frequency, scene.scan_frequency, first, count, tracer.box)
+    ref = trace_reference(tracer, p)
     assert (fired, cast) == (ref_fired, len(p.time))
     assert len(got) == len(ref) > 10_000
     assert (ref["classification"] != GROUND).mean() > 0.2          # the pulses see trees, not just ground
@@ -203,4 +221,36 @@ def test_echo_kernel_matches_the_numpy_reference_in_a_forest(demo_setup, samples
     for axis in ("x", "y", "z", "range"):
         assert np.abs(got[axis] - ref[axis]).max() < 1e-4, axis
     assert np.allclose(got["intensity"], ref["intensity"], rtol=1e-4)
-    assert np.array_equal(got["gps_time"], ref["gps_time"])
+    assert np.abs(got["gps_time"] - ref["gps_time"]).max() < 1e-9          # float64 rounding of t0 + k/f
+    assert np.abs(got["scan_angle"] - ref["scan_angle"]).max() < 1e-4
+
+
+def test_ranging_noise_is_gaussian_with_the_sensor_sigma(flat):
+    """Noise σ = 2 cm on a plane at 30 m: the residuals are N(0, σ²) and move points along the beam."""
+    sigma, n = 0.02, 40_000
+    xy = RNG.uniform(5, 35, (n, 2))
+    pts = _trace(flat, pulses(np.column_stack([xy, np.full(n, 30.0)]), [0, 0, -1]), range_precision=sigma)
+    residual = pts["range"] - 30.0
+    assert len(pts) == n
+    assert residual.std() == pytest.approx(sigma, rel=0.02)
+    assert abs(residual.mean()) < 4 * sigma / np.sqrt(n)
+    assert np.mean(np.abs(residual) < sigma) == pytest.approx(0.6827, abs=0.01)
+    assert np.mean(np.abs(residual) < 2 * sigma) == pytest.approx(0.9545, abs=0.005)
+    assert np.abs(pts["z"] + residual).max() < 1e-4             # along the (vertical) beam axis
+    again = _trace(flat, pulses(np.column_stack([xy, np.full(n, 30.0)]), [0, 0, -1]), range_precision=sigma)
+    assert np.array_equal(again["range"], pts["range"])         # keyed on the pulse, not drawn
+
+
+def test_same_bytes_for_any_batch_size(tmp_path, variant):
+    """Ranging noise is keyed on the pulse: pulses_per_batch changes nothing in the files."""
+    files = []
+    for batch in (10_000, 100_000):
+        path = scene_file(tmp_path / str(batch), sensor="riegl_vux-1uav22.yaml", variant=variant,
+                          area={"size": [12, 12]}, understory={"rocks": 3},
+                          survey={"pulse_frequency": 100000, "lines": [[[6, -2], [6, 14]]]},
+                          simulation={"beam_samples": 7, "pulses_per_batch": batch})
+        render(path, progress=False, log=lambda *_: None)
+        files.append(tmp_path / str(batch) / "out")
+    for suffix in (".pcd", ".las"):
+        a, b = ((f / f"test{suffix}").read_bytes() for f in files)
+        assert len(a) > 100_000 and a == b, suffix

@@ -23,17 +23,18 @@ from ..trees.models import Component, Model, Part
 from . import build_scene
 
 
-def bare_scene_file(folder, sensor, **sections) -> Path:
+def bare_scene_file(folder, sensor, variant: str = "auto", **sections) -> Path:
     """Write a scene without trees or understory (40 m plot, ideal settings) with ``sections`` merged in.
 
     :param sensor: a sensor file path or an inline sensor mapping.
+    :param variant: the Mitsuba variant it runs on.
     """
     data = {
         "name": "test", "seed": 1, "area": {"size": [40, 40]},
         "forest": {"trees": 0}, "understory": {"bushes": 0, "rocks": 0, "deadwood": 0, "stumps": 0},
         "sensor": sensor if isinstance(sensor, dict) else str(sensor),
         "survey": {"altitude": 30, "pulse_frequency": 100000, "scan_frequency": 50},
-        "simulation": {"beam_samples": 1, "variant": "llvm_ad_mono"},
+        "simulation": {"beam_samples": 1, "variant": variant},
         "output": {"dir": str(Path(folder) / "out")},
     }
     for key, value in sections.items():
