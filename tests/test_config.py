@@ -1,10 +1,16 @@
 """Bad input as a new user would give it: one clear line naming file and key, exit 2, nothing written."""
 
+import dataclasses
+
+import numpy as np
 import pytest
+import yaml
 from helpers import ROOT, SENSORS
 
 from mitsuforest.cli import main
-from mitsuforest.config import load_scene
+from mitsuforest.config import ConfigError, load_scene, load_sensor
+from mitsuforest.plan import make_plan
+from mitsuforest.render import render
 
 GOOD = f"""
 name: t
@@ -66,18 +72,71 @@ def test_errors_inside_a_sensor_file_name_that_file(tmp_path, monkeypatch, capsy
 def test_defaults_and_relative_paths(tmp_path):
     (tmp_path / "scene.yaml").write_text(GOOD)
     scene = load_scene(tmp_path / "scene.yaml")
-    assert scene["simulation"]["beam_samples"] == 7
-    assert scene["survey"]["scan_frequency"] == 50
-    assert scene["sensor"]["beam_divergence"] == [0.5e-3, 0.5e-3]
-    assert scene["forest"]["archetypes"][0]["height"] > 0 and len(scene["forest"]["archetypes"]) == 10
+    assert scene.simulation.beam_samples == 7
+    assert scene.survey.scan_frequency is None and scene.scan_frequency == 50
+    assert scene.sensor.beam_divergence == (0.5e-3, 0.5e-3)
+    assert scene.forest.archetypes[0].height > 0 and len(scene.forest.archetypes) == 10
     demo = load_scene(ROOT / "scenes" / "demo.yaml")
-    assert demo["sensor"]["file"] == str(SENSORS / "riegl_vux-1uav22.yaml")
-    assert demo["output"]["dir"] == str(ROOT / "out" / "demo")
+    assert demo.sensor.file == str(SENSORS / "riegl_vux-1uav22.yaml")
+    assert demo.output.dir == str(ROOT / "out" / "demo")
 
 
 def test_every_shipped_file_loads():
     for path in sorted((ROOT / "scenes").glob("*.yaml")) + sorted((ROOT / "examples").glob("*.yaml")):
-        assert load_scene(path)["name"]
+        assert load_scene(path).name
+
+
+def test_derived_values_follow_edits(tmp_path):
+    """A notebook user replaces the sensor or the altitude: every derived value follows."""
+    (tmp_path / "scene.yaml").write_text(GOOD.replace("pulse_frequency: 200000", "scan_frequency: 100"))
+    scene = load_scene(tmp_path / "scene.yaml")
+    assert scene.pulse_frequency == 200000 and scene.scan_frequency == 100
+    assert scene.sensor.detection_threshold == 2e-7               # the sensor file's own value
+    near = scene.with_({"sensor.detection_threshold": None, "sensor.range_max": 200})
+    assert near.sensor.detection_threshold == pytest.approx(0.2 / 200 ** 2)
+    assert near.sensor.file is None and scene.sensor.file             # an edited sensor is no longer its file
+    mini = scene.with_(sensor=load_sensor(SENSORS / "riegl_minivux-1uav.yaml"), survey={"scan_frequency": None})
+    assert mini.pulse_frequency == 100000 and mini.scan_frequency == 50
+    assert mini.sensor.resolving_distance == pytest.approx(299_792_458.0 * mini.sensor.pulse_length / 2)
+    assert mini.sensor.half_fov == pytest.approx(np.pi)
+    high = dataclasses.replace(scene, survey=dataclasses.replace(scene.survey, altitude=60))
+    assert make_plan(high).legs[0].start[2] == 60
+    cover = scene.with_(forest={"trees": None, "type": "closed"})
+    assert cover.forest.target_cover == pytest.approx(0.9)
+
+
+BAD_EDITS = {
+    "beam samples": ({"simulation.beam_samples": 0}, "scene.yaml: simulation.beam_samples: must be >= 1, got 0"),
+    "beam samples cap": ({"simulation.beam_samples": 62}, "simulation.beam_samples: must be <= 61, got 62"),
+    "altitude": ({"survey.altitude": -5}, "scene.yaml: survey.altitude: must be > 0, got -5"),
+    "sensor value": ({"sensor.range_max": -1}, "scene.yaml: sensor.range_max: must be > 0, got -1"),
+    "unknown key": ({"survey.altitud": 30}, "scene.yaml: survey.altitud: unknown key (did you mean 'altitude'?)"),
+    "pulse rate": ({"survey.pulse_frequency": 150000},
+                   "survey.pulse_frequency: 150000 Hz is not one of the sensor's pulse frequencies"),
+    "variant": ({"simulation.variant": "scalar_rgb"}, "simulation.variant: must be auto or a Mitsuba llvm_*"),
+    "nan": ({"forest.trees": float("nan")}, "forest.trees: must be finite, got nan"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD_EDITS))
+def test_bad_edits_are_refused_like_the_yaml(case, tmp_path):
+    (tmp_path / "scene.yaml").write_text(GOOD)
+    scene = load_scene(tmp_path / "scene.yaml")
+    change, message = BAD_EDITS[case]
+    with pytest.raises(ConfigError) as e:
+        scene.with_(change)
+    assert message in str(e.value)
+
+
+def test_replace_is_validated_and_render_validates_mappings(tmp_path):
+    (tmp_path / "scene.yaml").write_text(GOOD)
+    scene = load_scene(tmp_path / "scene.yaml")
+    with pytest.raises(ConfigError, match="survey.speed: must be > 0, got 0"):
+        dataclasses.replace(scene, survey=dataclasses.replace(scene.survey, speed=0))
+    data = yaml.safe_load(GOOD)
+    data["simulation"] = {"beam_samples": 0}
+    with pytest.raises(ConfigError, match="<scene>: simulation.beam_samples: must be >= 1, got 0"):
+        render(data, write=False)
 
 
 def test_version(capsys):

@@ -1,13 +1,26 @@
-"""Pure physics: beam pattern, deflectors, pulse timing, radiometry and the waveform model."""
+"""Pure physics: beam pattern, deflectors, pulse timing, radiometry and the waveform model; the
+Dr.Jit twins against their numpy references on every variant the machine has."""
+
+import dataclasses
 
 import numpy as np
 import pytest
+from helpers import SENSORS
 
+from mitsuforest.config import load_sensor
+from mitsuforest.plan import Leg
 from mitsuforest.scan.beam import beam_pattern, footprint_radius, ring_counts
-from mitsuforest.scan.deflector import oscillating, risley, rotating
-from mitsuforest.scan.pulses import leg_pulse_count, leg_pulses, platform_position, reaches_box
 from mitsuforest.scan.radiometry import received_power
-from mitsuforest.scan.waveform import detect_echoes, resolving_distance
+from mitsuforest.scan.reference.deflector import oscillating, risley, rotating
+from mitsuforest.scan.reference.echoes import pulse_echoes as detect_echoes
+from mitsuforest.scan.reference.pulses import reaching_pulses, reaches_box
+from mitsuforest.scene.variant import variant_scope
+
+IDEAL = load_sensor(SENSORS / "ideal.yaml")
+
+
+def resolving_distance(pulse_length):
+    return dataclasses.replace(IDEAL, pulse_length=pulse_length).resolving_distance
 
 
 @pytest.mark.parametrize("samples", [1, 7, 19, 37, 61])
@@ -52,12 +65,13 @@ def test_oscillating_and_risley_patterns():
 
 
 def test_pulse_timing_and_platform():
-    leg = {"start": [0, 0, 30], "end": [0, 100, 30], "t0": 10.0, "t1": 60.0}
-    assert leg_pulse_count(leg, 200000) == 50 * 200000
-    p = platform_position(leg, np.array([10.0, 35.0, 60.0]))
+    leg = Leg((0, 0, 30), (0, 100, 30), 10.0, 60.0)
+    assert leg.pulse_count(200000) == 50 * 200000
+    p = leg.position(np.array([10.0, 35.0, 60.0]))
     assert np.allclose(p, [[0, 0, 30], [0, 50, 30], [0, 100, 30]])
-    sensor = {"deflector": "rotating", "field_of_view": 360.0}
-    pulses = leg_pulses(leg, sensor, {"pulse_frequency": 1000, "scan_frequency": 10}, 0, 1000)
+    assert leg.heading == 0.0 and Leg((0, 0, 30), (10, 0, 30), 0, 5).heading == 90.0
+    sensor = dataclasses.replace(IDEAL, deflector="rotating", field_of_view=360.0)
+    pulses, _ = reaching_pulses(leg, sensor, 1000, 10, 0, 1000)
     assert np.allclose(np.diff(pulses.time), 1e-3) and pulses.time[0] == 10.0
     assert np.allclose(np.einsum("ij,ij->i", pulses.direction, pulses.across), 0, atol=1e-12)
 
@@ -110,12 +124,16 @@ def test_echo_amplitude_and_dominant_subray():
 
 
 @pytest.mark.parametrize("samples", [1, 7, 19])
-def test_device_waveform_matches_the_numpy_reference(samples):
-    """echoes.py (Dr.Jit, one lane per pulse) against waveform.py on returns built to be hard: ties,
+def test_device_waveform_matches_the_numpy_reference(samples, variant):
+    """echoes.py (Dr.Jit, one lane per pulse) against its numpy twin on returns built to be hard: ties,
     chains across several sub-rays, misses, zero-power (grazing) returns, more echoes than max_returns."""
-    import mitsuba as mi
-    mi.set_variant("llvm_ad_mono")
+    with variant_scope(variant):
+        _device_waveform_matches_the_numpy_reference(samples)
+
+
+def _device_waveform_matches_the_numpy_reference(samples):
     import drjit as dr
+    import mitsuba as mi
 
     from mitsuforest.scan.echoes import pulse_echoes
     rng = np.random.default_rng(samples)
@@ -153,22 +171,23 @@ def test_device_waveform_matches_the_numpy_reference(samples):
 
 
 @pytest.mark.parametrize("deflector", ["rotating", "oscillating", "risley"])
-def test_device_pulses_match_the_numpy_reference(deflector):
-    """device_pulses.py against pulses.reaching_pulses: same fired and cast pulses, rays within float32."""
-    import mitsuba as mi
-    mi.set_variant("llvm_ad_mono")
-    from mitsuforest.scan.device_pulses import device_pulses
-    from mitsuforest.scan.pulses import reaching_pulses
-    sensor = {"deflector": deflector, "field_of_view": {"rotating": 270, "oscillating": 100, "risley": 30}[deflector],
-              "range_max": 200.0,
-              "risley": {"prism_rates": [121.6, -77.7], "prism_deflection": [8.0, 7.0]}}
-    survey = {"pulse_frequency": 200_000, "scan_frequency": 50}
-    leg = {"start": [-4.0, -20.0, 30.0], "end": [-4.0, 100.0, 30.0], "t0": 12.5, "t1": 72.5}  # beside the box
+def test_device_pulses_match_the_numpy_reference(deflector, variant):
+    """scan/pulses.py against its numpy twin: same fired and cast pulses, times and angles within
+    float64 rounding, rays within float32."""
+    from mitsuforest.scan import pulses as device
+    sensor = dataclasses.replace(
+        IDEAL, deflector=deflector, field_of_view={"rotating": 270, "oscillating": 100, "risley": 30}[deflector],
+        range_max=200.0, risley=dataclasses.replace(IDEAL.risley, prism_rates=(121.6, -77.7),
+                                                    prism_deflection=(8.0, 7.0)))
+    leg = Leg((-4.0, -20.0, 30.0), (-4.0, 100.0, 30.0), 12.5, 72.5)  # beside the box
     box = np.array([[0.0, 0.0, 0.0], [100.0, 100.0, 28.0]])
-    ref, fired = reaching_pulses(leg, sensor, survey, 2_000_000, 50_000, box, sensor["range_max"])
-    got, got_fired = device_pulses(leg, sensor, survey, 2_000_000, 50_000, box, sensor["range_max"])
-    assert got_fired == fired and 1000 < len(ref.index) < fired
-    assert np.array_equal(np.array(got["slot"]), ref.index)
-    for key in ("origin", "direction", "across"):
-        xyz = np.column_stack([np.array(getattr(got[key], a)) for a in "xyz"])
-        assert np.abs(xyz - getattr(ref, key)).max() < 1e-5, key
+    ref, fired = reaching_pulses(leg, sensor, 200_000, 50, 2_000_000, 50_000, box)
+    with variant_scope(variant):
+        got, got_fired = device.reaching_pulses(leg, sensor, 200_000, 50, 2_000_000, 50_000, box, first_id=7)
+        assert got_fired == fired and 1000 < len(ref.index) < fired
+        assert np.array_equal(np.array(got.pulse_id), ref.index + 7)
+        assert np.abs(np.array(got.time) - ref.time).max() < 1e-9
+        assert np.abs(np.array(got.scan_angle) - ref.scan_angle).max() < 1e-6
+        for key in ("origin", "direction", "across"):
+            xyz = np.column_stack([np.array(getattr(getattr(got, key), a)) for a in "xyz"])
+            assert np.abs(xyz - getattr(ref, key)).max() < 1e-5, key

@@ -1,5 +1,7 @@
 """Placement plans: determinism, the paper's three forests, ids, spacing, flight legs."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 from helpers import ROOT
@@ -17,10 +19,10 @@ def test_paper_scenes_match_table_3(name):
     scene = load_scene(ROOT / "scenes" / f"{name}.yaml")
     plan = make_plan(scene)
     trees, cover = PAPER[name]
-    assert sum(o["kind"] == "tree" for o in plan["objects"]) == trees
-    assert abs(plan["canopy_cover"] - cover) <= 0.03
+    assert len(plan.trees) == trees
+    assert abs(plan.canopy_cover - cover) <= 0.03
     lo, hi = FOREST_BANDS[name]
-    assert lo <= plan["canopy_cover"] <= hi
+    assert lo <= plan.canopy_cover <= hi
 
 
 def test_same_seed_same_bytes_other_seed_other_forest():
@@ -33,50 +35,51 @@ def test_same_seed_same_bytes_other_seed_other_forest():
 
 def test_canopy_cover_target_is_met(tmp_path):
     scene = load_scene(ROOT / "scenes" / "demo.yaml")
-    scene["forest"].update(trees=None, canopy_cover=0.55, min_spacing=2.0)
+    scene = scene.with_(forest={"trees": None, "canopy_cover": 0.55, "min_spacing": 2.0})
     plan = make_plan(scene)
-    assert 0.55 <= plan["canopy_cover"] < 0.70
+    assert 0.55 <= plan.canopy_cover < 0.70
 
 
 def test_ids_spacing_tilt_and_terrain():
     scene = load_scene(ROOT / "scenes" / "open.yaml")
     plan = make_plan(scene)
-    objs = plan["objects"]
-    assert [o["instance"] for o in objs] == list(range(1, len(objs) + 1))
-    starts = np.array([o["object_id"] for o in objs])
-    ends = starts + [o["components"] for o in objs]
-    assert starts[0] == plan["ground"]["object_id"] + 1 and np.all(starts[1:] == ends[:-1])  # unique, no gaps
-    trees = [o for o in objs if o["kind"] == "tree"]
-    xy = np.array([o["position"][:2] for o in trees])
+    objs = plan.objects
+    assert [o.instance for o in objs] == list(range(1, len(objs) + 1))
+    starts = np.array([o.object_id for o in objs])
+    ends = starts + [o.components for o in objs]
+    assert starts[0] == plan.ground_object_id + 1 and np.all(starts[1:] == ends[:-1])  # unique, no gaps
+    trees = plan.trees
+    xy = np.array([o.position[:2] for o in trees])
     d = np.hypot(*(xy[:, None] - xy[None]).transpose(2, 0, 1)) + np.eye(len(xy)) * 1e9
-    assert d.min() >= scene["forest"]["min_spacing"]
-    assert all(abs(t) <= 5 for o in trees for t in o["tilt"])
-    assert {o["treeid"] for o in trees} <= set(range(1, 11))
-    assert {o["treeid"] for o in objs if o["kind"] == "deadwood"} == {11}
-    assert {o["treeid"] for o in objs if o["kind"] in ("bush", "rock", "stump")} == {0}
-    counts = {k: sum(o["kind"] == k for o in objs) for k in ("bush", "rock", "deadwood", "stump")}
+    assert d.min() >= scene.forest.min_spacing
+    assert all(abs(t) <= 5 for o in trees for t in o.tilt)
+    assert {o.treeid for o in trees} <= set(range(1, 11))
+    assert {o.treeid for o in objs if o.kind == "deadwood"} == {11}
+    assert {o.treeid for o in objs if o.kind in ("bush", "rock", "stump")} == {0}
+    counts = {k: sum(o.kind == k for o in objs) for k in ("bush", "rock", "deadwood", "stump")}
     assert counts == {"bush": 120, "rock": 40, "deadwood": 25, "stump": 15}
     for o in objs:  # understory keeps clear of stems
-        if o["kind"] != "tree":
-            assert np.hypot(*(xy - o["position"][:2]).T).min() >= 0.6
+        if o.kind != "tree":
+            assert np.hypot(*(xy - o.position[:2]).T).min() >= 0.6
 
 
 def test_noise_terrain_carries_objects():
-    scene = load_scene(ROOT / "scenes" / "demo.yaml")
-    scene["terrain"].update(type="noise", amplitude=3.0)
+    scene = load_scene(ROOT / "scenes" / "demo.yaml").with_(terrain={"type": "noise", "amplitude": 3.0})
     plan = make_plan(scene)
-    z = [o["position"][2] for o in plan["objects"]]
+    z = [o.position[2] for o in plan.objects]
     assert np.ptp(z) > 0.5
 
 
 def test_lawnmower_legs_cover_the_plot():
-    survey = {"lines": None, "heading": 0.0, "margin": 10.0, "line_spacing": 12.0, "speed": 2.0, "altitude": 30.0}
+    survey = load_scene(ROOT / "scenes" / "demo.yaml").survey
+    survey = dataclasses.replace(survey, lines=None, heading=0.0, margin=10.0, line_spacing=12.0, speed=2.0,
+                                 altitude=30.0)
     legs = flight_legs([100, 100], survey, ground_height=0.0)
-    xs = sorted(leg["start"][0] for leg in legs)
+    xs = sorted(leg.start[0] for leg in legs)
     assert xs[0] <= 0 and xs[-1] >= 100 and np.allclose(np.diff(xs), 12)
-    assert all(leg["start"][2] == 30 for leg in legs)
-    assert legs[0]["t1"] - legs[0]["t0"] == pytest.approx(120 / 2.0)
-    assert legs[0]["start"][1] == -10 and legs[0]["end"][1] == 110 and legs[1]["start"][1] == 110
+    assert all(leg.start[2] == 30 for leg in legs)
+    assert legs[0].t1 - legs[0].t0 == pytest.approx(120 / 2.0)
+    assert legs[0].start[1] == -10 and legs[0].end[1] == 110 and legs[1].start[1] == 110
 
 
 def test_plan_command(tmp_path, capsys):
@@ -89,26 +92,35 @@ def test_plan_command(tmp_path, capsys):
 @pytest.mark.parametrize("name", ["open", "closed"])
 def test_understory_never_enters_a_stem(name):
     """No vertex of any bush, rock, stump or log lies inside a tree's stem (checked on the meshes)."""
-    from mitsuforest.plan.transforms import apply, matrix
+    from mitsuforest.plan.transforms import apply
     from mitsuforest.trees import build_models
-    from mitsuforest.trees.archetypes import Archetype
     from mitsuforest.trees.skeleton import stem_radius
     scene = load_scene(ROOT / "scenes" / f"{name}.yaml")
     plan = make_plan(scene)
     models = build_models(plan)
-    trees = [o for o in plan["objects"] if o["kind"] == "tree"]
-    axes = np.array([matrix(t)[:3, :3] @ [0, 0, 1.0] for t in trees])
-    bases = np.array([t["position"] for t in trees])
-    archetypes = [Archetype(**plan["models"][t["model"]]["archetype"]) for t in trees]
-    for obj in plan["objects"]:
-        if obj["kind"] == "tree":
+    trees = plan.trees
+    axes = np.array([t.matrix[:3, :3] @ [0, 0, 1.0] for t in trees])
+    bases = np.array([t.position for t in trees])
+    archetypes = [plan.models[t.model].archetype for t in trees]
+    for obj in plan.objects:
+        if obj.kind == "tree":
             continue
-        v = apply(matrix(obj), models[obj["model"]].vertices())
+        v = apply(obj.matrix, models[obj.model].vertices())
         v = v[v[:, 2] < bases[:, 2].max() + 3.0]
-        near = np.flatnonzero(np.hypot(*(bases[:, :2] - obj["position"][:2]).T) < 10)
+        near = np.flatnonzero(np.hypot(*(bases[:, :2] - obj.position[:2]).T) < 10)
         for k in near:
             rel = v - bases[k]
             along = rel @ axes[k]
             radial = np.linalg.norm(rel - along[:, None] * axes[k], axis=1)
             inside = radial < stem_radius(archetypes[k], np.clip(along, 0, None))
-            assert not inside.any(), (obj["kind"], obj["instance"], trees[k]["instance"])
+            assert not inside.any(), (obj.kind, obj.instance, trees[k].instance)
+
+
+def test_component_counts_agree_between_plan_and_models():
+    """Object ids are numbered by the plan's component counts: each model must have exactly that many."""
+    from mitsuforest.trees import build_models
+    plan = make_plan(load_scene(ROOT / "scenes" / "demo.yaml"))
+    models = build_models(plan)
+    for name, spec in plan.models.items():
+        assert spec.components == len(models[name].components), name
+    assert any(spec.components > 10 for spec in plan.models.values())     # trees: stem, branches, leaves

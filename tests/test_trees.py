@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from mitsuforest.cli import main
+from mitsuforest.plan import ModelSpec
 from mitsuforest.trees import DEFAULT_ARCHETYPES, build_model
 from mitsuforest.trees.models import tree_model
 from mitsuforest.trees.tubes import area_correction, signed_volume, tube
@@ -91,7 +92,7 @@ def test_inverted_part_is_a_clear_error():
 def test_default_trees_are_reproducible_and_in_the_paper_range():
     volumes = []
     for i, a in enumerate(DEFAULT_ARCHETYPES):
-        m = build_model({"kind": "tree", "archetype": dataclasses.asdict(a), "name": f"tree{i + 1:02d}"})
+        m = build_model(f"tree{i + 1:02d}", ModelSpec("tree", 0, archetype=a))
         v = m.volume
         volumes.append(v.union)
         assert 0.28 <= v.union <= 1.45, (i + 1, v.union)
