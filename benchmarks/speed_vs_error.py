@@ -8,7 +8,8 @@ is compared with a reference render at ``--reference`` sub-rays:
 - returns: total-variation distance between the returns-per-pulse histograms;
 - classes: largest difference in any class's share of the points;
 - intensity: median relative difference of the first-return intensity of pulses both renders see;
-- time and pulses/s of the scan stage (the tracer only: kernel, radiometry, waveform, labels).
+- time and pulses/s of the scan stage on the path a render runs (:meth:`PulseTracer.trace_slots`: pulses,
+  rays, radiometry, waveform, labels and finished points, batch by batch).
 
 A "numpy echo stage" row times the 7-sub-ray setting on the reference path (sub-ray hits copied back,
 echoes found in numpy) to show what running the echo stage in Dr.Jit gains at equal error.
@@ -34,8 +35,9 @@ from mitsuforest.config import load_scene
 from mitsuforest.plan import make_plan
 from mitsuforest.scan import PulseTracer
 from mitsuforest.scan.kernel import RayCaster
-from mitsuforest.scan.pulses import leg_pulse_count, reaching_pulses
-from mitsuforest.scene import build_scene
+from mitsuforest.scan.pulses import upload_pulses
+from mitsuforest.scan.reference import reaching_pulses, trace_reference
+from mitsuforest.scene import build_scene, variant_scope
 from mitsuforest.trees import build_models
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -43,28 +45,36 @@ HELIOS_BIN = 0.075  # m: HELIOS++ samples the waveform in 0.25 ns bins of one-wa
 
 
 def setup(scene_file: Path, seconds: float, variant: str):
+    """The scene with one leg of ``seconds`` across the plot centre, noise off; its scan scene, that leg,
+    and the leg's pulses that can reach the scene (numpy: for the truth and HELIOS-like placement)."""
     scene = load_scene(scene_file, variant=variant)
-    w, h = scene["area"]["size"]
-    scene["survey"]["lines"] = [[[w / 2, h / 2 - seconds * scene["survey"]["speed"] / 2],
-                                 [w / 2, h / 2 + seconds * scene["survey"]["speed"] / 2]]]
-    scene["sensor"]["range_precision"] = 0.0
+    (w, h), half = scene.area.size, seconds * scene.survey.speed / 2
+    scene = scene.with_({"survey.lines": [[[w / 2, h / 2 - half], [w / 2, h / 2 + half]]],
+                         "sensor.range_precision": 0.0})
     plan = make_plan(scene)
-    models = build_models(plan)
-    scan_scene = build_scene(plan, models, scene)
-    leg = plan["legs"][0]
-    count = leg_pulse_count(leg, scene["survey"]["pulse_frequency"])
-    pulses, _ = reaching_pulses(leg, scene["sensor"], scene["survey"], 0, count, scan_scene.bbox, scene["sensor"]["range_max"])
-    return scene, scan_scene, pulses
+    scan_scene = build_scene(plan, build_models(plan), scene.sensor, scene.simulation.variant)
+    leg = plan.legs[0]
+    box = PulseTracer(scan_scene, scene.sensor, 1).box
+    pulses, _ = reaching_pulses(leg, scene.sensor, scene.pulse_frequency, scene.scan_frequency, 0,
+                                leg.pulse_count(scene.pulse_frequency), box)
+    return scene, scan_scene, leg, pulses
 
 
-def trace(scene, scan_scene, pulses, samples, batch, reference_path=False):
-    """Points and scan seconds; ``reference_path`` runs the echo stage in numpy instead of Dr.Jit."""
-    tracer = PulseTracer(scan_scene, scene["sensor"], samples)
-    run = tracer.trace_reference if reference_path else tracer.trace
-    rng = np.random.default_rng(0)
-    run(pulses.select(slice(0, 1000)), rng)  # compile outside the timing
+def trace(scene, scan_scene, leg, samples, batch, reference_path=False):
+    """Points and scan seconds of the leg on the path a render runs (:meth:`PulseTracer.trace_slots`);
+    ``reference_path`` runs the numpy twin of the echo stage instead."""
+    tracer = PulseTracer(scan_scene, scene.sensor, samples, scene.seed)
+    f_p, f_s, total = scene.pulse_frequency, scene.scan_frequency, leg.pulse_count(scene.pulse_frequency)
+
+    def run(first, count):
+        if not reference_path:
+            return tracer.trace_slots(leg, f_p, f_s, first, count)[0]
+        pulses, _ = reaching_pulses(leg, scene.sensor, f_p, f_s, first, count, tracer.box)
+        return trace_reference(tracer, pulses)
+
+    run(total // 2, 1000)  # compile outside the timing
     start = time.perf_counter()
-    parts = [run(pulses.select(slice(i, i + batch)), rng) for i in range(0, len(pulses.time), batch)]
+    parts = [run(first, min(batch, total - first)) for first in range(0, total, batch)]
     return np.concatenate(parts), time.perf_counter() - start
 
 
@@ -72,9 +82,10 @@ def surface_samples(scene, scan_scene, pulses, samples, batch):
     """True surface samples: sub-rays at random offsets drawn from the beam's Gaussian profile, so that no
     tested pattern shares its sub-rays with the truth."""
     offsets = np.random.default_rng(1).normal(0.0, 0.5, (samples, 2))  # I ∝ exp(-2r²/w²): σ = w/2 per axis
-    caster = RayCaster(scan_scene.mitsuba, np.tan(offsets * np.asarray(scene["sensor"]["beam_divergence"]) / 2))
-    pts = [caster.cast(pulses.origin[i:i + batch], pulses.direction[i:i + batch], pulses.across[i:i + batch])["point"]
-           for i in range(0, len(pulses.time), batch)]
+    with variant_scope(scan_scene.variant):
+        caster = RayCaster(scan_scene.mitsuba, np.tan(offsets * np.asarray(scene.sensor.beam_divergence) / 2))
+        pts = [caster.cast(upload_pulses(pulses.select(slice(i, i + batch))))["point"]
+               for i in range(0, len(pulses.time), batch)]
     return cKDTree(np.vstack(pts))
 
 
@@ -147,26 +158,26 @@ def main(argv=None):
     p.add_argument("--seconds", type=float, default=10.0, help="flight time across the plot centre")
     p.add_argument("--samples", type=int, nargs="+", default=[1, 7, 19, 37])
     p.add_argument("--reference", type=int, default=61)
-    p.add_argument("--batch", type=int, default=100_000, help="pulses per launch")
+    p.add_argument("--batch", type=int, default=100_000, help="time slots per launch (a render's pulses_per_batch)")
     p.add_argument("--variant", default="llvm_ad_mono")
     p.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "out")
     p.add_argument("--quick", action="store_true", help="0.5 s of flight, samples 1 and 7, reference 19")
     args = p.parse_args(argv)
     if args.quick:
         args.seconds, args.samples, args.reference = 0.5, [1, 7], 19
-    scene, scan_scene, pulses = setup(args.scene, args.seconds, args.variant)
+    scene, scan_scene, leg, pulses = setup(args.scene, args.seconds, args.variant)
     n = len(pulses.time)
     print(f"{n:,} pulses over {args.seconds:g} s of flight, variant {scan_scene.variant}")
-    ref, ref_time = trace(scene, scan_scene, pulses, args.reference, args.batch)
+    ref, ref_time = trace(scene, scan_scene, leg, args.reference, args.batch)
     truth = surface_samples(scene, scan_scene, pulses, 128, args.batch // 4)
     rows = []
     for samples in args.samples:
-        points, seconds = trace(scene, scan_scene, pulses, samples, args.batch)
+        points, seconds = trace(scene, scan_scene, leg, samples, args.batch)
         rows.append({"setting": f"{samples} sub-rays", "samples": samples, "seconds": seconds,
                      "pulses_per_s": n / seconds, "points_per_s": len(points) / seconds,
                      **compare(points, ref, truth, n)})
         if samples == 7:
-            slow, seconds = trace(scene, scan_scene, pulses, samples, args.batch, reference_path=True)
+            slow, seconds = trace(scene, scan_scene, leg, samples, args.batch, reference_path=True)
             rows.append({"setting": "7, numpy echo stage", "samples": 7, "seconds": seconds, "pulses_per_s": n / seconds,
                          "points_per_s": len(slow) / seconds, **compare(slow, ref, truth, n)})
         if samples == 19:

@@ -25,13 +25,13 @@ def load_render(scene_file: Path, out: Path, quick: bool = False) -> tuple[np.nd
     """Points (PCD fields, georeferenced), the scene, and the render folder; renders only if needed."""
     scene = mf.load_scene(scene_file, output_dir=out / "render")
     if quick:
-        w, h = scene["area"]["size"]
-        scene["survey"].update(lines=[[[w / 2, -2.0], [w / 2, h + 2.0]]], pulse_frequency=100000)
-        scene["simulation"]["beam_samples"] = 7
-    folder = Path(scene["output"]["dir"])
-    if not (folder / f"{scene['name']}_manifest.json").exists():
+        w, h = scene.area.size
+        scene = scene.with_({"survey.lines": [[[w / 2, -2.0], [w / 2, h + 2.0]]], "survey.pulse_frequency": 100000,
+                             "simulation.beam_samples": 7})
+    folder = Path(scene.output.dir)
+    if not (folder / f"{scene.name}_manifest.json").exists():
         mf.render(scene, progress=False, log=lambda *_: None)
-    return mf.read_pcd(folder / f"{scene['name']}.pcd"), scene, folder
+    return mf.read_pcd(folder / f"{scene.name}.pcd"), scene, folder
 
 
 def read_csv(path: Path) -> list[dict]:

@@ -30,7 +30,7 @@ cov = np.einsum("nki,nkj->nij", local, local) / 20
 values, vectors = np.linalg.eigh(cov)                     # ascending eigenvalues
 l3, l2, l1 = (np.maximum(values[:, i], 1e-12) for i in range(3))
 features = np.column_stack([
-    tree["z"] - scene["origin"]["offset"][2], np.log(tree["intensity"]), tree["return_number"],
+    tree["z"] - scene.origin.offset[2], np.log(tree["intensity"]), tree["return_number"],
     tree["number_of_returns"], (l1 - l2) / l1, (l2 - l3) / l1, l3 / l1, 1 - np.abs(vectors[:, 2, 2])])
 labels = wood.astype(int)
 

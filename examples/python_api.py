@@ -10,16 +10,15 @@ import mitsuforest as mf
 
 args = arguments(__doc__, "python_api")
 
-scene = mf.load_scene(args.scene, output_dir=args.out)   # a validated dict; every default filled in
-scene["survey"]["altitude"] = 40                          # change anything, then plan
-scene["understory"]["bushes"] = 3
+scene = mf.load_scene(args.scene, output_dir=args.out)   # a frozen, validated Scene; every default filled in
+scene = scene.with_({"survey.altitude": 40}, understory={"bushes": 3})   # edits are checked like the file
 if args.quick:
-    scene["survey"]["lines"] = [[[10.0, -2.0], [10.0, 22.0]]]
-    scene["simulation"]["beam_samples"] = 7
+    scene = scene.with_({"survey.lines": [[[10.0, -2.0], [10.0, 22.0]]], "simulation.beam_samples": 7})
+print(f"{scene.sensor.name}: {scene.pulse_frequency:g} Hz, detection threshold {scene.sensor.detection_threshold:.2g}")
 
-plan = mf.make_plan(scene)                                # deterministic placement, JSON-ready
-trees = [o for o in plan["objects"] if o["kind"] == "tree"]
-print(f"{len(trees)} trees, canopy cover {plan['canopy_cover']:.1%}; first tree at {np.round(trees[0]['position'], 2)}")
+plan = mf.make_plan(scene)                                # deterministic placement; plan.to_json() for a file
+trees = plan.trees
+print(f"{len(trees)} trees, canopy cover {plan.canopy_cover:.1%}; first tree at {np.round(trees[0].position, 2)}")
 
 result = mf.render(scene, write=False, progress=False)    # write=True also writes every file
 pts = result.points                                       # a numpy structured array

@@ -18,15 +18,11 @@ rows = []
 for path in sorted((ROOT / "sensors").glob("*.yaml")):
     sensor = mf.load_sensor(path)
     scene = mf.load_scene(args.scene, output_dir=args.out / path.stem)
-    freqs = sensor["pulse_frequencies"]
-    lo, hi = sensor["scan_frequency_range"]
-    scene["sensor"] = sensor
-    scene["survey"]["pulse_frequency"] = min(freqs, key=lambda f: abs(f - 200_000))
-    scene["survey"]["scan_frequency"] = min(max(50.0, lo), hi)
+    # None: the sensor's pulse frequency nearest 200 kHz and scan frequency nearest 50 Hz (Scene properties).
+    scene = scene.with_(sensor=sensor, survey={"pulse_frequency": None, "scan_frequency": None})
     if args.quick:
-        w, h = scene["area"]["size"]
-        scene["survey"]["lines"] = [[[w / 2, 0.0], [w / 2, h]]]
-        scene["simulation"]["beam_samples"] = 7
+        w, h = scene.area.size
+        scene = scene.with_({"survey.lines": [[[w / 2, 0.0], [w / 2, h]]], "simulation.beam_samples": 7})
     start = time.perf_counter()
     result = mf.render(scene, write=False, progress=False, log=lambda *_: None)
     seconds = time.perf_counter() - start
@@ -34,7 +30,7 @@ for path in sorted((ROOT / "sensors").glob("*.yaml")):
     classes = {name: np.mean(pts["classification"] == code) for code, name in
                ((1, "ground"), (2, "wood"), (3, "leaves"))}
     hist = m["returns_histogram"]
-    rows.append(f"| {sensor['name']} | {scene['survey']['pulse_frequency'] / 1000:g} kHz | {m['points']:,} | "
+    rows.append(f"| {sensor.name} | {scene.pulse_frequency / 1000:g} kHz | {m['points']:,} | "
                 f"{m['density_per_m2']:,.0f} | {' / '.join(str(hist.get(k, 0)) for k in range(1, 5))} | "
                 + " / ".join(f"{v:.0%}" for v in classes.values()) + f" | {seconds:.1f} s |")
 table = ["| sensor | pulse rate | points | points/m² | pulses with 1/2/3/4 returns | ground / wood / leaves | time |",

@@ -13,7 +13,7 @@ from common import arguments, load_render, read_csv
 
 args = arguments(__doc__, "wood_volume")
 points, scene, folder = load_render(args.scene, args.out, args.quick)
-truth = {int(r["instance"]): r for r in read_csv(folder / f"{scene['name']}_volumes.csv") if r["row"] == "tree"}
+truth = {int(r["instance"]): r for r in read_csv(folder / f"{scene.name}_volumes.csv") if r["row"] == "tree"}
 ground_z = np.median(points["z"][points["classification"] == 1])
 
 
