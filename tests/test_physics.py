@@ -46,7 +46,7 @@ def test_footprint_radius():
 
 def test_rotating_deflector_angles_and_field_of_view():
     t = np.arange(0, 0.02, 1e-5)
-    d, theta, fired = rotating(t, 50.0, 330.0)
+    d, theta, fired = rotating(t, 50.0, np.deg2rad(330.0) / 2)
     assert np.allclose(np.linalg.norm(d, axis=1), 1)
     assert np.allclose(np.diff(np.unwrap(theta)), 2 * np.pi * 50 * 1e-5)
     assert fired.mean() == pytest.approx(330 / 360, abs=1e-3)
@@ -55,9 +55,9 @@ def test_rotating_deflector_angles_and_field_of_view():
 
 def test_oscillating_and_risley_patterns():
     t = np.arange(0, 1, 1e-4)
-    _, theta, fired = oscillating(t, 10.0, 60.0)
+    _, theta, fired = oscillating(t, 10.0, np.deg2rad(30.0))
     assert fired.all() and theta.max() == pytest.approx(np.deg2rad(30), rel=1e-3)
-    d, off, fired = risley(t, [121.57, -77.73], [17.6, 17.6], 70.4)
+    d, off, fired = risley(t, [121.57, -77.73], [17.6, 17.6], np.deg2rad(35.2))
     assert fired.all() and off.max() <= np.deg2rad(35.2) + 1e-9
     assert np.allclose(np.linalg.norm(d, axis=1), 1)
     # Non-repetitive: pulses 1 s apart do not retrace the same directions.

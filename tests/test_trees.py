@@ -1,7 +1,5 @@
 """Tree meshes and wood volume against analytic truth (physics.md, "Wood volume")."""
 
-import dataclasses
-
 import numpy as np
 import pytest
 

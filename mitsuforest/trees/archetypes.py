@@ -7,8 +7,6 @@ nothing but these fields, so an archetype is fully described by them; its hash k
 from __future__ import annotations
 
 import dataclasses
-import hashlib
-import json
 from dataclasses import dataclass, field
 
 
@@ -42,11 +40,6 @@ class Archetype:
     lean: float = _p(3.0, "random stem lean and sweep (deg)", 0.0, 30.0)
     seed: int = _p(0, "seed of this archetype's own random choices", 0, 2**31 - 1, True)
     weight: float = _p(1.0, "relative frequency with which the archetype is drawn", 0.0, 1e6)
-
-    def key(self) -> str:
-        """A short hash of the geometry parameters (``weight`` does not change the tree)."""
-        data = {k: v for k, v in dataclasses.asdict(self).items() if k != "weight"}
-        return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()[:16]
 
 
 FIELDS = {f.name: f for f in dataclasses.fields(Archetype)}

@@ -15,12 +15,12 @@ from pathlib import Path
 
 from .atomic import write_text
 from .las import write_las
-from .pcd import read_pcd, write_pcd
+from .pcd import read_pcd
 from .quicklook import write_png
 from .stream import PointWriter, georeference
 from .tables import write_ids, write_trajectory, write_volumes
 
-__all__ = ["Staging", "PointWriter", "georeference", "output_files", "existing_outputs", "write_pcd", "read_pcd",
+__all__ = ["Staging", "PointWriter", "georeference", "output_files", "existing_outputs", "read_pcd",
            "write_las", "write_render_outputs", "write_manifest"]
 
 SUFFIXES = (".pcd", ".las", ".laz", "_volumes.csv", "_ids.csv", "_plan.json", "_trajectory.csv",

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from .atomic import atomic_path
 
 _KIND = {"u": "U", "i": "I", "f": "F"}
 
@@ -33,15 +32,8 @@ def pcd_header(dtype: np.dtype, count: int, digits: int = 0) -> str:
     ]) + "\n"
 
 
-def write_pcd(path, points: np.ndarray) -> None:
-    """Write a structured array (one field per PCD field, little-endian scalars) as binary PCD."""
-    with atomic_path(path) as tmp, open(tmp, "wb") as f:
-        f.write(pcd_header(points.dtype, len(points)).encode("ascii"))
-        f.write(np.ascontiguousarray(points).tobytes())
-
-
 def read_pcd(path) -> np.ndarray:
-    """Read a binary PCD written by :func:`write_pcd` (or any PCD with ``DATA binary``)."""
+    """Read a binary PCD (``DATA binary``), such as a render writes."""
     with open(path, "rb") as f:
         header = {}
         while True:
