@@ -1,4 +1,4 @@
-"""The scan against analytic answers (physics.md, steps 1-9), on every variant the machine has."""
+"""The scan against analytic answers (README, "The physical model"), on every variant the machine has."""
 
 import dataclasses
 

@@ -1,4 +1,4 @@
-"""Tree meshes and wood volume against analytic truth (physics.md, "Wood volume")."""
+"""Tree meshes and wood volume against analytic truth (README, "Wood volume")."""
 
 import numpy as np
 import pytest
