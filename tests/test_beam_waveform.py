@@ -5,6 +5,16 @@ import numpy as np
 import pytest
 
 from mitsuforest.scan.beam import beam_pattern, ring_counts
+from mitsuforest.scan.waveform import (
+    FWHM_PER_SIGMA,
+    detect_echoes,
+    resolving_distance,
+    two_maxima_ratio,
+    waveform_maxima,
+)
+
+DR = resolving_distance(4e-9)          # 0.5996 m
+SIGMA = DR / FWHM_PER_SIGMA
 
 # Beam pattern ---------------------------------------------------------------------------------------
 
@@ -59,3 +69,104 @@ def test_footprint_rms_radius_is_the_one_over_e2_radius(samples):
     betas = np.array([1.6e-3, 0.5e-3])
     spots = R * np.tan(offsets * betas / 2)
     assert np.sqrt(4 * w @ spots ** 2) == pytest.approx(R * betas / 2, rel=1e-6)
+
+
+# Waveform rule ---------------------------------------------------------------------------------------
+
+def _grid_maxima(ranges, powers):
+    """Maxima of Σ p exp(-½((x-r)/σ)²) counted on a fine grid from its values (independent of the
+    package's slope-based counter)."""
+    x = np.arange(min(ranges) - 3 * SIGMA, max(ranges) + 3 * SIGMA, SIGMA / 2000)
+    w = sum(p * np.exp(-0.5 * ((x - r) / SIGMA) ** 2) for r, p in zip(ranges, powers))
+    return int(np.count_nonzero((w[1:-1] > w[:-2]) & (w[1:-1] > w[2:])))
+
+
+def test_unequal_powers_past_resolving_distance_two_echoes_one_maximum():
+    """1.03 ΔR apart, powers 1 : 0.3 < a_min = 0.683: the rule splits what the waveform merges."""
+    ranges, powers = [20.0, 20.0 + 1.03 * DR], [1.0, 0.3]
+    e = detect_echoes(np.array([ranges]), np.array([powers]), DR)
+    assert e.number_of_returns.tolist() == [2, 2] and e.range.tolist() == ranges
+    assert _grid_maxima(ranges, powers) == 1
+    assert waveform_maxima(ranges, powers, DR) == 1
+    assert two_maxima_ratio(1.03 * DR, DR) == pytest.approx(0.6828, abs=1e-4)
+
+
+def test_equal_powers():
+    """Past ΔR equal powers give two echoes and two maxima; 0.9 ΔR apart (between 2σ = 0.849 ΔR
+    and ΔR) they chain into one echo although the waveform has two maxima."""
+    for d, echoes in ((1.03 * DR, 2), (0.9 * DR, 1)):
+        ranges, powers = [20.0, 20.0 + d], [1.0, 1.0]
+        e = detect_echoes(np.array([ranges]), np.array([powers]), DR)
+        assert len(e.range) == echoes
+        assert _grid_maxima(ranges, powers) == 2 and waveform_maxima(ranges, powers, DR) == 2
+    # Two equal Gaussians part at exactly 2σ.
+    assert waveform_maxima([0.0, 1.99 * SIGMA], [1, 1], DR) == 1
+    assert waveform_maxima([0.0, 2.01 * SIGMA], [1, 1], DR) == 2
+    assert 2 * SIGMA / DR == pytest.approx(0.8493, abs=1e-4)
+
+
+@pytest.mark.parametrize("separation", [0.9, 1.0, 1.1, 1.25, 1.5, 1.75])
+def test_two_maxima_ratio_is_the_waveforms_threshold(separation):
+    """Just above a_min(d) the waveform has two maxima, just below one (fine-grid count)."""
+    d = separation * DR
+    a = float(two_maxima_ratio(d, DR))
+    assert 0 < a < 1
+    assert _grid_maxima([0.0, d], [1.0, a * 1.01]) == 2
+    assert _grid_maxima([0.0, d], [1.0, a * 0.99]) == 1
+    assert waveform_maxima([0.0, d], [1.0, a * 1.01], DR) == 2
+    assert waveform_maxima([0.0, d], [1.0, a * 0.99], DR) == 1
+
+
+def test_two_maxima_ratio_table():
+    """The table in waveform.py's docstring."""
+    d = np.array([0.85, 0.9, 1.0, 1.03, 1.1, 1.25, 1.5, 2.0]) * DR
+    assert np.allclose(two_maxima_ratio(d, DR), [1, 0.946, 0.749, 0.683, 0.532, 0.271, 0.061, 0.0009],
+                       atol=6e-4, rtol=0)
+    assert two_maxima_ratio(0.5 * DR, DR) == 1.0
+
+
+def test_chain_amplitude_is_its_gaussian_weighted_power():
+    """Amplitude = Σ p_i exp(-½((r_i - m)/σ)²) with m the energy-weighted mean range."""
+    r1, r2, p1, p2 = 20.0, 20.0 + 0.7 * DR, 2e-3, 5e-4
+    e = detect_echoes(np.array([[r1, r2]]), np.array([[p1, p2]]), DR)
+    m = (p1 * r1 + p2 * r2) / (p1 + p2)
+    expected = p1 * np.exp(-0.5 * ((r1 - m) / SIGMA) ** 2) + p2 * np.exp(-0.5 * ((r2 - m) / SIGMA) ** 2)
+    assert len(e.range) == 1
+    assert e.range[0] == pytest.approx(m, rel=1e-12)
+    assert e.amplitude[0] == pytest.approx(expected, rel=1e-9)
+    assert expected < 0.85 * (p1 + p2)  # the weighting is not a plain sum here
+
+
+def test_chain_amplitude_leaves_out_a_neighbour_chain():
+    """A neighbour 1.03 ΔR away adds 0.3·exp(-½(1.03·2.3548)²) ≈ 1.6 % to the waveform at the first
+    echo, but not to its amplitude: each amplitude is its own chain's power."""
+    ranges, powers = np.array([[20.0, 20.0 + 1.03 * DR]]), np.array([[1.0, 0.3]])
+    e = detect_echoes(ranges, powers, DR)
+    assert e.amplitude.tolist() == [1.0, 0.3]
+    waveform_at_first = 1.0 + 0.3 * np.exp(-0.5 * (1.03 * DR / SIGMA) ** 2)
+    assert waveform_at_first == pytest.approx(1.0158, abs=1e-4)
+
+
+def test_device_kernel_follows_the_same_rule():
+    """echoes.py on the documented cases: 1 : 0.3 at 1.03 ΔR gives two echoes, equal at 0.9 ΔR one."""
+    import mitsuba as mi
+    mi.set_variant("llvm_ad_mono")
+    import drjit as dr
+
+    from mitsuforest.scan.echoes import pulse_echoes
+    ranges = np.array([[20.0, 20.0 + 1.03 * DR], [20.0, 20.0 + 0.9 * DR]], np.float32)
+    powers = np.array([[1.0, 0.3], [1.0, 1.0]], np.float32)
+    t = [mi.Float(np.ascontiguousarray(ranges[:, k])) for k in range(2)]
+    p = [mi.Float(np.ascontiguousarray(powers[:, k])) for k in range(2)]
+    offset = [[mi.Float(np.zeros(2, np.float32)) for _ in range(3)] for _ in range(2)]
+    slots, returns = pulse_echoes(dr, t, p, offset, DR, 0.0, 0)
+    assert np.array(returns).tolist() == [2, 1]
+    assert np.array(slots[0]["amplitude"])[0] == pytest.approx(1.0, rel=1e-6)
+
+
+def test_waveform_maxima_edge_cases():
+    assert waveform_maxima([np.inf, np.inf], [1.0, 1.0], DR) == 0
+    assert waveform_maxima([10.0, 12.0], [0.0, 0.0], DR) == 0
+    assert waveform_maxima([10.0], [1.0], DR) == 1
+    # Far apart: the waveform underflows to 0 between them and is still counted right.
+    assert waveform_maxima([10.0, 30.0, 50.0, np.inf], [1.0, 1e-3, 1.0, 1.0], DR) == 3
