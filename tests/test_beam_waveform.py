@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from mitsuforest.scan.beam import beam_pattern, ring_counts
+from mitsuforest.scan.deflector import risley
 from mitsuforest.scan.waveform import (
     FWHM_PER_SIGMA,
     detect_echoes,
@@ -170,3 +171,63 @@ def test_waveform_maxima_edge_cases():
     assert waveform_maxima([10.0], [1.0], DR) == 1
     # Far apart: the waveform underflows to 0 between them and is still counted right.
     assert waveform_maxima([10.0, 30.0, 50.0, np.inf], [1.0, 1e-3, 1.0, 1.0], DR) == 3
+
+
+# Risley pattern ----------------------------------------------------------------------------------------
+
+RATES = [121.57, -77.73]
+
+
+def test_risley_equal_prisms_off_nadir_closed_form():
+    """|δ e^{iω₁t} + δ e^{iω₂t}| = 2δ|cos(π(f₁ - f₂)t)|."""
+    t = np.random.default_rng(1).uniform(0, 10, 20000)
+    delta = np.deg2rad(8.0)
+    d, off, fired = risley(t, RATES, [8.0, 8.0], 40.0)
+    assert np.allclose(off, 2 * delta * np.abs(np.cos(np.pi * (RATES[0] - RATES[1]) * t)), rtol=0, atol=1e-9)
+    assert np.allclose(np.linalg.norm(d, axis=1), 1, rtol=0, atol=1e-12)
+    assert np.allclose(np.arccos(np.clip(-d[:, 2], -1, 1)), off, rtol=0, atol=1e-7)  # arccos loses digits near 0
+    assert np.allclose(np.arctan2(np.hypot(d[:, 0], d[:, 1]), -d[:, 2]), off, rtol=0, atol=1e-12)
+    assert fired.all()
+
+
+def test_risley_extremes():
+    """Off-nadir angle is δ₁ + δ₂ when the prisms align, |δ₁ - δ₂| when opposed (nadir for equal)."""
+    beat = RATES[0] - RATES[1]
+    aligned, opposed = np.arange(5) / beat, (np.arange(5) + 0.5) / beat
+    _, off, _ = risley(aligned, RATES, [8.0, 8.0], 40.0)
+    assert np.allclose(off, np.deg2rad(16.0), rtol=0, atol=1e-9)
+    d, off, _ = risley(opposed, RATES, [8.0, 8.0], 40.0)
+    assert np.allclose(off, 0, atol=1e-9) and np.allclose(d, [0, 0, -1], atol=1e-9)
+    _, off, _ = risley(opposed, RATES, [8.0, 5.0], 40.0)
+    assert np.allclose(off, np.deg2rad(3.0), rtol=0, atol=1e-9)
+    t = np.random.default_rng(2).uniform(0, 1, 20000)
+    _, off, fired = risley(t, RATES, [8.0, 5.0], 20.0)
+    assert off.min() >= np.deg2rad(3.0) - 1e-12 and off.max() <= np.deg2rad(13.0) + 1e-12
+    assert np.array_equal(fired, off <= np.deg2rad(10.0) + 1e-9)
+
+
+def test_risley_azimuth_is_the_deviations_argument():
+    """atan2(d_y, d_x) = arg(δ₁e^{iω₁t} + δ₂e^{iω₂t}); for equal prisms (ω₁ + ω₂)t/2, plus π where the
+    cosine is negative."""
+    t = np.random.default_rng(3).uniform(0, 10, 20000)
+    w1, w2 = 2 * np.pi * np.array(RATES)
+    d, off, _ = risley(t, RATES, [8.0, 5.0], 40.0)
+    deviation = np.deg2rad(8.0) * np.exp(1j * w1 * t) + np.deg2rad(5.0) * np.exp(1j * w2 * t)
+    assert np.allclose(off, np.abs(deviation), rtol=0, atol=1e-12)
+    gap = np.angle(np.exp(1j * (np.arctan2(d[:, 1], d[:, 0]) - np.angle(deviation))))
+    assert np.abs(gap).max() < 1e-9
+    d, _, _ = risley(t, RATES, [8.0, 8.0], 40.0)
+    half = np.cos((w1 - w2) * t / 2)
+    expected = (w1 + w2) * t / 2 + np.where(half < 0, np.pi, 0.0)
+    gap = np.angle(np.exp(1j * (np.arctan2(d[:, 1], d[:, 0]) - expected)))
+    assert np.abs(gap[np.abs(half) > 1e-6]).max() < 1e-9
+
+
+def test_risley_period_is_one_over_the_rates_gcd():
+    """Rates 30 and -20 Hz repeat after 1/gcd = 0.1 s, and not after half of it."""
+    t = np.random.default_rng(4).uniform(0, 1, 1000)
+    d0, _, _ = risley(t, [30.0, -20.0], [8.0, 5.0], 40.0)
+    d1, _, _ = risley(t + 0.1, [30.0, -20.0], [8.0, 5.0], 40.0)
+    d2, _, _ = risley(t + 0.05, [30.0, -20.0], [8.0, 5.0], 40.0)
+    assert np.abs(d1 - d0).max() < 1e-9
+    assert np.abs(d2 - d0).max() > 0.1
