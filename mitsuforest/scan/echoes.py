@@ -1,6 +1,14 @@
 """The waveform model (see :mod:`mitsuforest.scan.reference.echoes`, its numpy twin, for the model) run
 on the device: one Dr.Jit lane per pulse.
 
+The rule, as in its numpy twin: a pulse's returns sorted by range are chained while consecutive ranges
+are within ΔR, and each chain is one echo at its energy-weighted mean range ``m``, with amplitude
+``Σ_(i in chain) p_i exp(-½((r_i - m)/σ)²)`` (its own returns only, σ = ΔR/2.3548), kept if > 0 and
+≥ the detection threshold. Chains are not the maxima of the summed waveform W: two chains more than
+ΔR apart with power ratio below ``a_min(d)`` (0.75 at d = ΔR, 0.27 at 1.25 ΔR, 0.06 at 1.5 ΔR) are
+one maximum of W but two echoes, and returns 0.85 ΔR < d ≤ ΔR apart of similar power are two maxima
+of W but one echo; ``scan/reference/echoes.py`` derives ``a_min`` and tabulates it.
+
 A pulse's S sub-ray returns are held in registers (Python lists of S arrays), sorted by range with a
 sorting network, then chained, summed and detected in unrolled passes, so no sub-ray data leaves
 the device and every sum is taken in a fixed order (results do not depend on thread scheduling).
@@ -107,7 +115,8 @@ def _chain_means(dr, totals, end) -> list:
 
 
 def _chain_amplitudes(dr, rows, valid, start, mean, sigma: float) -> list:
-    """Forward pass: the waveform's value at each chain's mean range (Gaussian pulse of FWHM ΔR)."""
+    """Forward pass: each chain's own returns' waveform at its mean range (Gaussian pulse of FWHM ΔR;
+    other chains' returns are not included)."""
     amplitude, running = [], None
     for k, r in enumerate(rows):
         if sigma > 0:

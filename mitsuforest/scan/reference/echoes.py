@@ -1,15 +1,47 @@
-"""From sub-ray returns to echoes: the pulse's waveform, reduced to its separable peaks (numpy twin of
+"""From sub-ray returns to echoes: chains of returns on the pulse's range axis (numpy twin of
 :mod:`mitsuforest.scan.echoes`, the tests' reference).
 
 Model (one-way range axis). The emitted pulse is Gaussian in time with FWHM ``pulse_length``; on the
-range axis its FWHM is the resolving distance ``ΔR = c·pulse_length / 2`` (σ = ΔR / 2.3548). The
-received waveform is the sum of the sub-rays' powers, each laid at its hit range and shaped by the
-pulse. Returns closer together than ΔR cannot be separated by a detector, so sub-ray returns are
-sorted by range and chained while consecutive ranges are within ΔR: each chain is one echo. Two
-equal surfaces further apart than ΔR always give two waveform maxima (two Gaussians separate once
-their distance exceeds 2σ = 0.85·ΔR), so every chain is a peak of the waveform. An echo's amplitude is
-the waveform's value at the chain's energy-weighted mean range; echoes below the detection threshold
-are dropped; the first ``max_returns`` in range order are kept (0 = no limit).
+range axis its FWHM is the resolving distance ``ΔR = c·pulse_length / 2`` (``σ = ΔR / 2.3548``). The
+received waveform of a pulse whose sub-rays return powers ``p_i`` at ranges ``r_i`` is
+
+    W(x) = Σ_i p_i exp(-½ ((x - r_i) / σ)²).
+
+What is detected. Not the maxima of W, but chains: a pulse's returns are sorted by range and chained
+while consecutive ranges are within ΔR (``r_(j+1) - r_j ≤ ΔR``); each chain is one echo candidate at
+the chain's energy-weighted mean range ``m``. Its amplitude is the chain's own part of the waveform
+at ``m``, ``Σ_(i in chain) p_i exp(-½ ((r_i - m) / σ)²)``: returns of other chains are left out, even
+a neighbour just past ΔR, so it is not ``W(m)``. Candidates with amplitude > 0 and
+≥ ``detection_threshold`` are echoes; the first ``max_returns`` in range order are kept (0 = no limit).
+``scan/echoes.py`` runs the same rule on the device.
+
+When chains and waveform maxima differ. For two returns ``d`` apart with power ratio
+``a = p_weak / p_strong``, W has two maxima iff ``δ = d/σ > 2`` and ``a > a_min(δ)``, where
+
+    a_min(δ) = (x₊ / x₋) · exp(-δ √(δ² - 4) / 2),   x± = (δ ± √(δ² - 4)) / 2
+
+(:func:`two_maxima_ratio`): with the stronger return at 0, W' = 0 where
+``a = x/(δ - x) · exp(δ²/2 - δx)``; on (0, δ) the right side goes from 0 to ∞, monotonically if
+δ ≤ 2, else with a local maximum and minimum where ``x(δ - x) = 1``, and W has three stationary
+points (two maxima) iff ``a`` lies between those two values (``a_min`` and ``1/a_min``). The weakest ratio still resolved into two maxima:
+
+    ====================  ======  ======  ======  ======  ======  ======  ======  ======
+    separation d / ΔR     ≤ 0.85  0.9     1.0     1.03    1.1     1.25    1.5     2.0
+    a_min                 (none)  0.946   0.749   0.683   0.532   0.271   0.061   0.0009
+    ====================  ======  ======  ======  ======  ======  ======  ======  ======
+
+and, the other way, the separation a ratio needs: 1 → 0.85 ΔR (= 2σ), 0.75 → 1.00 ΔR,
+0.5 → 1.12 ΔR, 0.3 → 1.23 ΔR, 0.1 → 1.42 ΔR, 0.01 → 1.74 ΔR, 0.001 → 1.99 ΔR. So the chain rule
+
+* splits what W merges: two chains more than ΔR apart are two echoes although W has one maximum
+  when ``a < a_min`` (e.g. 1.03 ΔR apart with powers 1 : 0.3). Returns of equal power more than ΔR
+  apart always give two maxima (``ΔR > 2σ``), so there the rule is right;
+* merges what W separates: returns 0.85 ΔR < d ≤ ΔR apart with ``a > a_min(d)`` (e.g. equal powers
+  0.9 ΔR apart) are one chain although W has two maxima; and a chain has no length limit, only gaps
+  ≤ ΔR, so one long chain can hold several maxima of W.
+
+:func:`waveform_maxima` counts the maxima of W of one pulse; ``benchmarks/stability.py`` measures how
+often that count differs from the number of chains in canopy-like pulses.
 """
 
 from __future__ import annotations
@@ -19,6 +51,46 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..echoes import FWHM_PER_SIGMA
+
+
+def waveform_maxima(ranges: np.ndarray, powers: np.ndarray, resolving: float, grid_step: float | None = None) -> int:
+    """Number of local maxima of one pulse's summed waveform ``W(x) = Σ p_i exp(-½((x - r_i)/σ)²)``.
+
+    The maxima lie between the nearest and farthest return (W' > 0 before, < 0 after); they are
+    counted as sign changes + to - of W', evaluated in closed form on a grid over that span, so a
+    maximum and a minimum closer than ``grid_step`` can be missed.
+
+    :param ranges: (S,) return ranges (m); ``inf`` (no return) is ignored.
+    :param powers: (S,) return powers; returns of zero power are ignored.
+    :param resolving: ΔR (m), the pulse's FWHM on the range axis.
+    :param grid_step: grid spacing (m); σ/50 by default.
+    """
+    ranges, powers = np.asarray(ranges, np.float64), np.asarray(powers, np.float64)
+    keep = np.isfinite(ranges) & (powers > 0)
+    r, p = ranges[keep], powers[keep]
+    if len(r) == 0:
+        return 0
+    sigma = resolving / FWHM_PER_SIGMA
+    step = sigma / 50 if grid_step is None else grid_step
+    x = np.arange(r.min() - step, r.max() + 2 * step, step)
+    z = (x[:, None] - r) / sigma
+    slope = np.sign(-(p * z * np.exp(-0.5 * z ** 2)).sum(axis=1))
+    slope = slope[slope != 0]                       # flat where far from every return (underflow)
+    return int(np.count_nonzero((slope[:-1] > 0) & (slope[1:] < 0)))
+
+
+def two_maxima_ratio(separation, resolving: float):
+    """The weakest power ratio (weaker / stronger) at which two returns ``separation`` apart give two
+    maxima of the waveform: ``a_min(δ)`` of the module docstring, 1 where ``δ = d/σ ≤ 2`` (never).
+
+    :param separation: (n,) or scalar range separation d (m).
+    """
+    delta = np.abs(np.asarray(separation, np.float64)) / (resolving / FWHM_PER_SIGMA)
+    q = np.sqrt(np.maximum(delta ** 2 - 4, 0))
+    x_plus, x_minus = (delta + q) / 2, (delta - q) / 2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = x_plus / x_minus * np.exp(-delta * q / 2)
+    return np.where(delta > 2, ratio, 1.0)
 
 
 @dataclass
@@ -62,7 +134,9 @@ class _Groups:
 
 def pulse_echoes(ranges: np.ndarray, power: np.ndarray, resolving: float, threshold: float = 0.0,
                   max_returns: int = 0, range_min: float = 0.0, range_max: float = np.inf) -> Echoes:
-    """Echoes of P pulses of S sub-rays each.
+    """Echoes of P pulses of S sub-rays each: chains of returns within ``resolving`` of the next, with
+    the amplitude of each chain's own returns (see the module docstring for how this differs from the
+    maxima of the summed waveform).
 
     :param ranges: (P, S) hit range of each sub-ray (m), ``inf`` where it hit nothing.
     :param power: (P, S) received power of each sub-ray.
