@@ -14,6 +14,10 @@ is compared with a reference render at ``--reference`` sub-rays:
 A "numpy echo stage" row times the 7-sub-ray setting on the reference path (sub-ray hits copied back,
 echoes found in numpy) to show what running the echo stage in Dr.Jit gains at equal error.
 
+For each sub-ray count, "chains_not_maxima" is the share of pulses (of 5,000 that return something)
+whose number of echoes under the waveform's chain rule differs from the number of maxima of their
+summed waveform ("more_chains" / "fewer_chains": which way), the bias of that rule (README, step 6).
+
 A "HELIOS-like" row places the 19-sub-ray echoes as HELIOS++ does (on the central ray, range
 quantised to 7.5 cm) to compare point error with the incumbent's method.
 
@@ -36,7 +40,8 @@ from mitsuforest.plan import make_plan
 from mitsuforest.scan import PulseTracer
 from mitsuforest.scan.kernel import RayCaster
 from mitsuforest.scan.pulses import upload_pulses
-from mitsuforest.scan.reference import reaching_pulses, trace_reference
+from mitsuforest.scan.reference import reaching_pulses, sub_ray_returns, trace_reference
+from mitsuforest.scan.reference.echoes import pulse_echoes, waveform_maxima
 from mitsuforest.scene import build_scene, variant_scope
 from mitsuforest.trees import build_models
 
@@ -87,6 +92,20 @@ def surface_samples(scene, scan_scene, pulses, samples, batch):
         pts = [caster.cast(upload_pulses(pulses.select(slice(i, i + batch))))["point"]
                for i in range(0, len(pulses.time), batch)]
     return cKDTree(np.vstack(pts))
+
+
+def chain_rule_bias(scene, scan_scene, pulses, samples, count=5000):
+    """How often the waveform's chain rule (scan/reference/echoes.py) finds another number of echoes
+    than the summed waveform has maxima, over ``count`` pulses of the leg that return something:
+    (share differing, share with more chains, share with fewer)."""
+    tracer = PulseTracer(scan_scene, scene.sensor, samples)
+    returns = sub_ray_returns(tracer, pulses.select(slice(0, len(pulses.time), max(len(pulses.time) // (3 * count), 1))))
+    hit = np.flatnonzero(np.isfinite(returns["ranges"]).any(axis=1))[:count]
+    ranges, power = returns["ranges"][hit], returns["power"][hit]
+    resolving = scene.sensor.resolving_distance
+    chains = np.bincount(pulse_echoes(ranges, power, resolving).pulse, minlength=len(hit))
+    maxima = np.array([waveform_maxima(r, p, resolving) for r, p in zip(ranges, power)])
+    return float(np.mean(chains != maxima)), float(np.mean(chains > maxima)), float(np.mean(chains < maxima))
 
 
 def helios_like(points, pulses):
@@ -173,9 +192,11 @@ def main(argv=None):
     rows = []
     for samples in args.samples:
         points, seconds = trace(scene, scan_scene, leg, samples, args.batch)
+        differ, more, fewer = chain_rule_bias(scene, scan_scene, pulses, samples, 1000 if args.quick else 5000)
         rows.append({"setting": f"{samples} sub-rays", "samples": samples, "seconds": seconds,
                      "pulses_per_s": n / seconds, "points_per_s": len(points) / seconds,
-                     **compare(points, ref, truth, n)})
+                     **compare(points, ref, truth, n), "chains_not_maxima": differ,
+                     "more_chains": more, "fewer_chains": fewer})
         if samples == 7:
             slow, seconds = trace(scene, scan_scene, leg, samples, args.batch, reference_path=True)
             rows.append({"setting": "7, numpy echo stage", "samples": 7, "seconds": seconds, "pulses_per_s": n / seconds,
@@ -186,10 +207,12 @@ def main(argv=None):
     rows.append({"setting": f"reference {args.reference}", "samples": args.reference, "seconds": ref_time,
                  "pulses_per_s": n / ref_time, "points_per_s": len(ref) / ref_time, **compare(ref, ref, truth, n)})
     header = ("setting", "seconds", "pulses_per_s", "points", "point_error_mean_mm", "point_error_p95_mm",
-              "returns_tv_distance", "class_share_max_diff", "intensity_median_rel_error", "multi_return_share")
+              "returns_tv_distance", "class_share_max_diff", "intensity_median_rel_error", "multi_return_share",
+              "chains_not_maxima", "more_chains", "fewer_chains")
     print(" | ".join(header))
     for r in rows:
-        print(" | ".join("-" if r[k] is None else f"{r[k]:.4g}" if isinstance(r[k], float) else str(r[k]) for k in header))
+        print(" | ".join("-" if r.get(k) is None else f"{r[k]:.4g}" if isinstance(r[k], float) else str(r[k])
+                         for k in header))
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "speed_vs_error.json").write_text(json.dumps({"pulses": n, "rows": rows}, indent=1))
     plot(rows, args.out / "speed_vs_error.png")

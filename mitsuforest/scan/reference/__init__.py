@@ -15,30 +15,38 @@ from ..tracer import POINT_DTYPE
 from .echoes import pulse_echoes
 from .pulses import Pulses, reaching_pulses
 
-__all__ = ["Pulses", "reaching_pulses", "pulse_echoes", "trace_reference"]
+__all__ = ["Pulses", "reaching_pulses", "pulse_echoes", "sub_ray_returns", "trace_reference"]
 
 
-def trace_reference(tracer, pulses: Pulses, first_id: int = 0) -> np.ndarray:
-    """What :meth:`PulseTracer.trace_pulses` computes, with the echo stage in numpy from the sub-ray hits
-    (labels, radiometry, waveform) and without ranging noise."""
+def sub_ray_returns(tracer, pulses: Pulses, first_id: int = 0) -> dict:
+    """Every sub-ray's return of hand-made pulses, in numpy: ``hits`` (see ``RayCaster.cast``), their
+    ``labels``, and dense (P, S) ``ranges`` (``inf`` for no hit) and received ``power``."""
     hits = tracer.cast(pulses, first_id)
-    s, n, sensor = tracer.samples, len(pulses.time), tracer.sensor
-    if n == 0:
-        return np.zeros(0, POINT_DTYPE)
+    s, n = tracer.samples, len(pulses.time)
     labels = label_hits(tracer.table, hits["instance"], hits["shape"], hits["shape_index"], hits["prim"])
     ray = hits["ray"].astype(np.int64)
     t = hits["t"].astype(np.float64)
     incoming = (hits["point"] - pulses.origin[ray // s]) / np.maximum(t, 1e-9)[:, None]
     cos = np.einsum("ij,ij->i", incoming, labels.normal)
-    power = received_power(tracer.weights[ray % s], tracer.reflectance[labels.classification], cos, t)
     ranges = np.full(n * s, np.inf)
     ranges[ray] = t
-    dense_power = np.zeros(n * s)
-    dense_power[ray] = power
-    echoes = pulse_echoes(ranges.reshape(n, s), dense_power.reshape(n, s), sensor.resolving_distance,
+    power = np.zeros(n * s)
+    power[ray] = received_power(tracer.weights[ray % s], tracer.reflectance[labels.classification], cos, t)
+    return {"hits": hits, "labels": labels, "ranges": ranges.reshape(n, s), "power": power.reshape(n, s)}
+
+
+def trace_reference(tracer, pulses: Pulses, first_id: int = 0) -> np.ndarray:
+    """What :meth:`PulseTracer.trace_pulses` computes, with the echo stage in numpy from the sub-ray hits
+    (labels, radiometry, waveform) and without ranging noise."""
+    s, n, sensor = tracer.samples, len(pulses.time), tracer.sensor
+    if n == 0:
+        return np.zeros(0, POINT_DTYPE)
+    returns = sub_ray_returns(tracer, pulses, first_id)
+    hits, labels = returns["hits"], returns["labels"]
+    echoes = pulse_echoes(returns["ranges"], returns["power"], sensor.resolving_distance,
                           sensor.detection_threshold, sensor.max_returns, sensor.range_min, sensor.range_max)
     row_of_ray = np.full(n * s, -1, np.int64)
-    row_of_ray[ray] = np.arange(len(ray))
+    row_of_ray[hits["ray"].astype(np.int64)] = np.arange(len(hits["ray"]))
     dominant = row_of_ray[echoes.dominant]
     out = np.zeros(len(echoes.pulse), POINT_DTYPE)
     out["x"], out["y"], out["z"] = echoes.weighted_mean(hits["point"], row_of_ray).T
