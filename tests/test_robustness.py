@@ -1,0 +1,118 @@
+"""Robustness and interoperability: a best-effort model cache."""
+
+import logging
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mitsuforest.trees import cache
+from mitsuforest.trees.understory import rock_model
+
+
+class Builds:
+    """A model builder that counts its calls."""
+
+    def __init__(self):
+        self.calls = 0
+
+    def __call__(self):
+        self.calls += 1
+        return rock_model(seed=3, name="rock")
+
+
+@pytest.fixture
+def model_cache(tmp_path, monkeypatch):
+    monkeypatch.setenv("MITSUFOREST_CACHE", str(tmp_path / "cache"))
+    monkeypatch.setattr(cache, "_write_failed", False)
+    return tmp_path / "cache" / "models"
+
+
+def _warnings(caplog):
+    return [r for r in caplog.records if r.levelno == logging.WARNING and "model cache" in r.getMessage()]
+
+
+def test_cache_reuses_a_stored_model(model_cache):
+    build = Builds()
+    first = cache.cached("rock", {"seed": 3}, build)
+    again = cache.cached("rock", {"seed": 3}, build)
+    assert build.calls == 1 and len(list(model_cache.glob("rock-*.npz"))) == 1
+    assert np.array_equal(first.parts[0].vertices, again.parts[0].vertices)
+
+
+def test_unwritable_cache_builds_and_warns_once(tmp_path, monkeypatch, caplog):
+    not_a_folder = tmp_path / "cache"
+    not_a_folder.write_text("a file where the cache folder should be")
+    monkeypatch.setenv("MITSUFOREST_CACHE", str(not_a_folder))
+    monkeypatch.setattr(cache, "_write_failed", False)
+    build = Builds()
+    models = [cache.cached("rock", {"seed": s}, build) for s in (1, 2, 3)]
+    assert build.calls == 3 and all(m.parts[0].faces.size for m in models)
+    [warning] = _warnings(caplog)
+    assert str(not_a_folder) in warning.getMessage() and "MITSUFOREST_CACHE" in warning.getMessage()
+
+
+def test_full_cache_builds_warns_and_leaves_no_temporary(model_cache, monkeypatch, caplog):
+    def disk_full(*_):
+        raise OSError(28, "No space left on device")
+    monkeypatch.setattr(cache.os, "replace", disk_full)
+    build = Builds()
+    assert cache.cached("rock", {"seed": 3}, build).parts and build.calls == 1
+    assert "No space left" in _warnings(caplog)[0].getMessage()
+    assert list(model_cache.iterdir()) == []
+
+
+def test_key_follows_the_generator_code(model_cache, monkeypatch):
+    assert cache.code_hash() == cache.code_hash() and len(cache.code_hash()) == 20
+    build = Builds()
+    key = cache.cache_key("rock", {"seed": 3})
+    cache.cached("rock", {"seed": 3}, build)
+    monkeypatch.setattr(cache, "code_hash", lambda: "edited generators")
+    assert cache.cache_key("rock", {"seed": 3}) != key
+    cache.cached("rock", {"seed": 3}, build)
+    assert build.calls == 2 and len(list(model_cache.glob("rock-*.npz"))) == 2
+
+
+@pytest.mark.parametrize("edited, counts", [("skeleton.py", True), ("understory.py", True), ("classes.py", True),
+                                             ("gallery.py", False), ("cache.py", False)])
+def test_code_hash_changes_with_the_generators_source(monkeypatch, edited, counts):
+    read = Path.read_bytes
+    before = cache.code_hash()
+    monkeypatch.setattr(Path, "read_bytes", lambda p: read(p) + (b"# edited" if p.name == edited else b""))
+    cache.code_hash.cache_clear()
+    try:
+        assert (cache.code_hash() != before) == counts
+    finally:
+        cache.code_hash.cache_clear()
+
+
+def test_code_hash_changes_with_a_library_version(monkeypatch):
+    before = cache.code_hash()
+    monkeypatch.setattr(cache.importlib.metadata, "version", lambda dist: "0.0")
+    cache.code_hash.cache_clear()
+    try:
+        assert cache.code_hash() != before
+    finally:
+        cache.code_hash.cache_clear()
+
+
+@pytest.mark.parametrize("damage", [b"", b"not a zip file", b"PK\x03\x04 truncated zip"])
+def test_damaged_entry_is_rebuilt(model_cache, damage):
+    build = Builds()
+    good = cache.cached("rock", {"seed": 3}, build)
+    [entry] = model_cache.glob("rock-*.npz")
+    entry.write_bytes(damage)
+    rebuilt = cache.cached("rock", {"seed": 3}, build)
+    assert build.calls == 2 and np.array_equal(rebuilt.parts[0].faces, good.parts[0].faces)
+    cache.cached("rock", {"seed": 3}, build)
+    assert build.calls == 2  # the rebuilt entry replaced the damaged one
+
+
+def test_unreadable_entry_is_rebuilt(model_cache, monkeypatch):
+    build = Builds()
+    cache.cached("rock", {"seed": 3}, build)
+
+    def denied(*_):
+        raise PermissionError(13, "Permission denied")
+    monkeypatch.setattr(cache.np, "load", denied)
+    assert cache.cached("rock", {"seed": 3}, build).parts and build.calls == 2
