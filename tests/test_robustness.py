@@ -1,6 +1,10 @@
-"""Robustness and interoperability: a best-effort model cache."""
+"""Robustness and interoperability: a best-effort model cache, and staging folders that leave
+concurrent renders alone."""
 
 import logging
+import os
+import socket
+import subprocess
 from pathlib import Path
 
 import numpy as np
@@ -8,6 +12,10 @@ import pytest
 
 from mitsuforest.trees import cache
 from mitsuforest.trees.understory import rock_model
+from mitsuforest.write import Staging
+from mitsuforest.write.atomic import TMP_MARK, remove_temporaries
+
+HOST = socket.gethostname()
 
 
 class Builds:
@@ -116,3 +124,55 @@ def test_unreadable_entry_is_rebuilt(model_cache, monkeypatch):
         raise PermissionError(13, "Permission denied")
     monkeypatch.setattr(cache.np, "load", denied)
     assert cache.cached("rock", {"seed": 3}, build).parts and build.calls == 2
+
+
+@pytest.fixture
+def pids():
+    """(pid of a running process, pid of a process that has ended)."""
+    live = subprocess.Popen(["sleep", "60"])
+    ended = subprocess.Popen(["true"])
+    ended.wait()
+    yield live.pid, ended.pid
+    live.kill()
+    live.wait()
+
+
+def test_staging_removes_only_its_own_and_dead_renders_folders(tmp_path, pids):
+    live, dead = pids
+    running_here = tmp_path / f".test.partial-abc123-{HOST}-{live}"
+    dead_here = tmp_path / f".test.partial-def456-{HOST}-{dead}"
+    other_host = tmp_path / f".test.partial-ghi789-other.host-{dead}"
+    unknown_owner = tmp_path / f".test.partial-{dead}"
+    other_scene = tmp_path / f".other.partial-jkl012-{HOST}-{dead}"
+    for p in (running_here, dead_here, other_host, unknown_owner, other_scene):
+        p.mkdir()
+        (p / "test.pcd").write_text("points of another render")
+
+    staging = Staging(tmp_path, "test")
+    assert not dead_here.exists()
+    staging.file(".pcd").write_text("ours")
+    staging.file("_manifest.json").write_text("{}")
+    assert [p.name for p in staging.commit()] == ["test.pcd", "test_manifest.json"]
+    Staging(tmp_path, "test").discard()
+
+    hidden = sorted(p.name for p in tmp_path.iterdir() if p.name.startswith("."))
+    assert hidden == sorted(p.name for p in (running_here, other_host, unknown_owner, other_scene))
+    assert (running_here / "test.pcd").read_text() == "points of another render"
+    assert (tmp_path / "test.pcd").read_text() == "ours"
+
+
+def test_two_stagings_of_one_process_are_apart(tmp_path):
+    a, b = Staging(tmp_path, "test"), Staging(tmp_path, "test")
+    assert a.path != b.path and a.path.name.endswith(f"-{HOST}-{os.getpid()}")
+    a.discard()
+    assert b.path.is_dir()
+
+
+def test_remove_temporaries_spares_running_writers(tmp_path, pids):
+    live, dead = pids
+    running = tmp_path / f"a.las{TMP_MARK}{HOST}-{live}"
+    ended = tmp_path / f"b.las{TMP_MARK}{HOST}-{dead}"
+    running.write_text("x")
+    ended.write_text("x")
+    remove_temporaries(tmp_path)
+    assert running.exists() and not ended.exists()
