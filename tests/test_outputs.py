@@ -61,6 +61,7 @@ def test_las_round_trip(rendered):
     las = laspy.read(str(rendered / "a" / "test.las"))
     assert las.header.version.major == 1 and las.header.version.minor == 4 and las.header.point_format.id == 6
     assert np.allclose(las.header.offsets, OFFSET)
+    assert las.header.global_encoding.wkt and las.header.parse_crs().to_epsg() == 28355  # origin.crs
     assert np.abs(np.asarray(las.x) - pcd["x"]).max() < 1e-4
     assert np.abs(np.asarray(las.z) - pcd["z"]).max() < 1e-4
     for name in ("treeid", "instance", "object_id"):

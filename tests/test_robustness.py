@@ -1,5 +1,5 @@
-"""Robustness and interoperability: a best-effort model cache, and staging folders that leave
-concurrent renders alone."""
+"""Robustness and interoperability: a best-effort model cache, staging folders that leave concurrent
+renders alone, and a CRS that LAS readers understand."""
 
 import logging
 import os
@@ -7,13 +7,17 @@ import socket
 import subprocess
 from pathlib import Path
 
+import laspy
 import numpy as np
 import pytest
 
+from mitsuforest.errors import UserError
+from mitsuforest.scan import POINT_DTYPE
 from mitsuforest.trees import cache
 from mitsuforest.trees.understory import rock_model
 from mitsuforest.write import Staging
 from mitsuforest.write.atomic import TMP_MARK, remove_temporaries
+from mitsuforest.write.las import crs_wkt, write_las
 
 HOST = socket.gethostname()
 
@@ -176,3 +180,41 @@ def test_remove_temporaries_spares_running_writers(tmp_path, pids):
     ended.write_text("x")
     remove_temporaries(tmp_path)
     assert running.exists() and not ended.exists()
+
+
+def _points(n=5):
+    points = np.zeros(n, POINT_DTYPE)
+    points["x"], points["y"], points["z"] = 500000 + np.arange(n), 6000000.0, 1.0
+    points["return_number"] = points["number_of_returns"] = 1
+    return points
+
+
+@pytest.mark.parametrize("suffix", [".las", ".laz"])
+def test_las_carries_a_standard_wkt_crs(tmp_path, suffix):
+    path = tmp_path / ("t" + suffix)
+    write_las(path, _points(), [500000.0, 6000000.0, 0.0], crs="EPSG:7855")
+    header = laspy.read(str(path)).header
+    assert header.global_encoding.wkt
+    assert header.parse_crs().to_epsg() == 7855
+    assert header.parse_crs().name == "GDA2020 / MGA zone 55"
+
+
+def test_las_without_crs_has_no_crs_vlr_but_the_wkt_bit(tmp_path):
+    write_las(tmp_path / "t.las", _points(), [500000.0, 6000000.0, 0.0])
+    header = laspy.read(str(tmp_path / "t.las")).header
+    assert header.parse_crs() is None
+    assert header.global_encoding.wkt  # LAS 1.4 demands it for point format 6; PDAL refuses files without
+
+
+@pytest.mark.parametrize("text, reason", [("EPSG:999999", "crs not found"), ("UTM 55 south", "unknown name")])
+def test_invalid_crs_is_a_user_error(tmp_path, text, reason):
+    with pytest.raises(UserError, match=rf"^origin\.crs: '{text}' is not a coordinate reference system \(.*{reason}"):
+        crs_wkt(text)
+    with pytest.raises(UserError, match="origin.crs"):
+        write_las(tmp_path / "t.las", _points(), [0.0, 0.0, 0.0], crs=text)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_crs_wkt_is_wkt1_with_the_epsg_authority():
+    wkt = crs_wkt("EPSG:7855")
+    assert wkt.startswith('PROJCS["GDA2020 / MGA zone 55"') and wkt.endswith('AUTHORITY["EPSG","7855"]]')
