@@ -1,7 +1,7 @@
 """What a render writes: independent readers, label consistency, determinism, atomicity."""
 
+import contextlib
 import json
-import os
 import signal
 import subprocess
 import sys
@@ -13,7 +13,7 @@ import pytest
 from helpers import scene_file
 
 from mitsuforest.cli import main
-from mitsuforest.write import output_files, read_pcd
+from mitsuforest.write import Staging, output_files, read_pcd
 
 FIELDS = ["treeid", "x", "y", "z", "classification", "instance", "object_id", "number_of_returns",
           "return_number", "intensity"]
@@ -61,6 +61,7 @@ def test_las_round_trip(rendered):
     las = laspy.read(str(rendered / "a" / "test.las"))
     assert las.header.version.major == 1 and las.header.version.minor == 4 and las.header.point_format.id == 6
     assert np.allclose(las.header.offsets, OFFSET)
+    assert las.header.global_encoding.wkt and las.header.parse_crs().to_epsg() == 28355  # origin.crs
     assert np.abs(np.asarray(las.x) - pcd["x"]).max() < 1e-4
     assert np.abs(np.asarray(las.z) - pcd["z"]).max() < 1e-4
     for name in ("treeid", "instance", "object_id"):
@@ -125,36 +126,56 @@ def test_refuses_to_overwrite_older_results(rendered, capsys):
 
 
 def _start(path, out):
-    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-    return subprocess.Popen([sys.executable, "-m", "mitsuforest", "render", str(path), "-o", str(out)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    return subprocess.Popen([sys.executable, "-m", "mitsuforest", "render", str(path), "-o", str(out), "--quiet"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
-def _wait_for_scan(proc, timeout=60):
-    """Read stderr until the scan starts (the 'scene:' line); the render then runs for many seconds."""
-    start = time.time()
-    while time.time() - start < timeout:
-        line = proc.stderr.readline()
-        if line.startswith("scene:"):
+def _staged_bytes(out) -> int:
+    """Bytes in the point file a running render stages in ``out`` (0 until its first batch arrives)."""
+    sizes = []
+    for pcd in out.glob(".test.partial-*/test.pcd"):
+        with contextlib.suppress(FileNotFoundError):
+            sizes.append(pcd.stat().st_size)
+    return max(sizes, default=0)
+
+
+def _wait_for_points(proc, out, timeout=300):
+    """Poll until the render streams points into its staging folder: it is then scanning, inside the
+    part of the render that cleans up after itself, with nearly all of its survey still ahead."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if _staged_bytes(out) > 0:
             return
+        if proc.poll() is not None:
+            raise AssertionError(f"the render ended before scanning: {proc.communicate()[1]}")
+        time.sleep(0.02)
+    proc.kill()
+    proc.wait()
     raise AssertionError("the render did not reach the scan")
 
 
 @pytest.mark.parametrize("how", ["kill", "interrupt"])
 def test_stopped_render_leaves_nothing_that_looks_complete(tmp_path, how):
-    path = _small_scene(tmp_path, pulse_frequency=300000, lines=None, line_spacing=4)
+    # 36 minutes of flight (624 M pulse slots): far longer than the wait for its first points on a CPU or GPU.
+    path = _small_scene(tmp_path, pulse_frequency=300000, speed=0.2, lines=None, line_spacing=1)
     out = tmp_path / "out"
     proc = _start(path, out)
-    _wait_for_scan(proc)
-    time.sleep(1.0)
+    _wait_for_points(proc, out)
     proc.send_signal(signal.SIGKILL if how == "kill" else signal.SIGINT)
-    _, err = proc.communicate(timeout=60)
-    leftovers = [p.name for p in out.iterdir()] if out.exists() else []
+    _, err = proc.communicate(timeout=120)
+    leftovers = sorted(p.name for p in out.iterdir())
     assert not set(leftovers) & set(output_files("test"))
     if how == "interrupt":
         assert proc.returncode == 130
-        assert "interrupted" in err and "Run the same command again" in err
+        assert err.splitlines() == [("mitsuforest: interrupted; no finished output was written (partial files "
+                                     "removed). Run the same command again to redo it.")]
         assert leftovers == []
+    else:
+        assert proc.returncode == -signal.SIGKILL
+        [staged] = leftovers
+        assert staged.startswith(".test.partial-") and staged.endswith(f"-{proc.pid}")
+        Staging(out, "test").discard()  # the next render clears the killed one's folder
+        assert list(out.iterdir()) == []
 
 
 def test_laz_matches_las(rendered, tmp_path):

@@ -1,13 +1,24 @@
-"""Disk cache of models, keyed by a hash of their parameters and the geometry code version.
+"""Disk cache of models, keyed by their parameters and by the code that generates them.
 
 Location: ``$MITSUFOREST_CACHE`` or ``~/.cache/mitsuforest``. Delete the folder to clear it.
+
+The key hashes the model's parameters together with :func:`code_hash`: the source of the
+generating modules and the versions of the libraries they call, so editing a generator or
+upgrading a library makes new entries without anyone bumping a version number. The cache is best
+effort: a damaged entry is rebuilt, and a cache that cannot be written (read-only, full, not a
+folder) costs one warning per process and the time of building models anew.
 """
 
 from __future__ import annotations
 
+import contextlib
+import functools
 import hashlib
+import importlib.metadata
 import json
+import logging
 import os
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -15,29 +26,58 @@ import numpy as np
 from .models import Component, Model, Part
 from .volume import WoodVolume
 
-GEOMETRY_VERSION = 4  # bump when a change to the generators changes any mesh
+log = logging.getLogger(__name__)
+
+NOT_GENERATORS = ("cache.py", "gallery.py")                   # trees/ modules that make no geometry
+GENERATOR_LIBRARIES = ("numpy", "trimesh", "manifold3d")      # their results can change between versions
+LOAD_ERRORS = (OSError, EOFError, ValueError, KeyError, TypeError, zipfile.BadZipFile)
+
+_write_failed = False   # set once a write failed, so the warning is given once per process
 
 
 def cache_dir() -> Path:
     return Path(os.environ.get("MITSUFOREST_CACHE", Path.home() / ".cache" / "mitsuforest")) / "models"
 
 
+@functools.cache
+def code_hash() -> str:
+    """A hash of everything besides the parameters that decides a model's geometry: the source of
+    ``mitsuforest/trees/*.py`` (less :data:`NOT_GENERATORS`) and ``classes.py`` (the component
+    classes stored with each model), and the versions of :data:`GENERATOR_LIBRARIES`."""
+    trees = Path(__file__).parent
+    sources = [p for p in sorted(trees.glob("*.py")) if p.name not in NOT_GENERATORS]
+    digest = hashlib.sha256()
+    for path in [*sources, trees.parent / "classes.py"]:
+        digest.update(f"{path.name}\0".encode() + path.read_bytes() + b"\0")
+    for dist in GENERATOR_LIBRARIES:
+        digest.update(f"{dist}={importlib.metadata.version(dist)}\0".encode())
+    return digest.hexdigest()[:20]
+
+
 def cache_key(kind: str, params: dict) -> str:
-    text = json.dumps({"kind": kind, "params": params, "version": GEOMETRY_VERSION}, sort_keys=True)
+    text = json.dumps({"kind": kind, "params": params, "code": code_hash()}, sort_keys=True)
     return f"{kind}-{hashlib.sha256(text.encode()).hexdigest()[:20]}"
 
 
 def cached(kind: str, params: dict, build) -> Model:
-    """Load the model for ``(kind, params)`` from the cache, or ``build()`` it and store it."""
+    """Load the model for ``(kind, params)`` from the cache, or ``build()`` it and try to store it."""
     path = cache_dir() / (cache_key(kind, params) + ".npz")
-    if path.exists():
-        try:
-            return _load(path)
-        except (OSError, ValueError, KeyError):
-            pass  # a damaged entry is rebuilt
+    with contextlib.suppress(*LOAD_ERRORS):  # no entry yet, or an unreadable or damaged one: build it
+        return _load(path)
     model = build()
-    _save(model, path)
+    try:
+        _save(model, path)
+    except OSError as e:
+        _warn_write_failed(path.parent, e)
     return model
+
+
+def _warn_write_failed(folder: Path, error: OSError) -> None:
+    global _write_failed
+    if not _write_failed:
+        _write_failed = True
+        log.warning("mitsuforest: cannot write the model cache in %s (%s); going on without it, so models "
+                    "are built anew (set MITSUFOREST_CACHE to a writable folder to keep them)", folder, error)
 
 
 def _save(model: Model, path: Path):
@@ -50,8 +90,12 @@ def _save(model: Model, path: Path):
               "volume": model.volume.as_dict() if model.volume else None,
               "meta": model.meta}
     tmp = path.with_suffix(f".tmp-{os.getpid()}.npz")
-    np.savez(tmp, header=np.array(json.dumps(header)), **arrays)
-    os.replace(tmp, path)
+    try:
+        np.savez(tmp, header=np.array(json.dumps(header)), **arrays)
+        os.replace(tmp, path)
+    finally:
+        with contextlib.suppress(OSError):
+            tmp.unlink(missing_ok=True)
 
 
 def _load(path: Path) -> Model:

@@ -11,9 +11,10 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import tempfile
 from pathlib import Path
 
-from .atomic import write_text
+from .atomic import owner_is_gone, owner_tag, write_text
 from .las import write_las
 from .pcd import read_pcd
 from .quicklook import write_png
@@ -37,15 +38,29 @@ def existing_outputs(folder, name: str) -> list[str]:
 
 
 class Staging:
-    """A hidden folder collecting one render's files until :meth:`commit` moves them into place."""
+    """A hidden folder collecting one render's files until :meth:`commit` moves them into place.
+
+    It is named ``.NAME.partial-RANDOM-HOST-PID``. Creating one removes the staging folders of renders
+    of ``NAME`` that died on this host (killed, so they could not clean up), and no other: a render
+    still running, here or on another host sharing the folder, keeps its own.
+    """
 
     def __init__(self, folder, name: str):
         self.folder, self.name = Path(folder), name
         self.folder.mkdir(parents=True, exist_ok=True)
-        for stale in self.folder.glob(f".{name}.partial-*"):
+        for stale in self.stale_folders():
             shutil.rmtree(stale, ignore_errors=True)
-        self.path = self.folder / f".{name}.partial-{os.getpid()}"
-        self.path.mkdir()
+        self.path = Path(tempfile.mkdtemp(prefix=self._prefix, suffix=f"-{owner_tag()}", dir=self.folder))
+
+    @property
+    def _prefix(self) -> str:
+        return f".{self.name}.partial-"
+
+    def stale_folders(self) -> list[Path]:
+        """Staging folders of ``name`` in ``folder`` whose render has ended on this host."""
+        ours = [p for p in self.folder.iterdir() if p.name.startswith(self._prefix) and p.is_dir()]
+        # After the prefix: mkdtemp's random part (no "-" in it), then the owner tag.
+        return [p for p in ours if owner_is_gone(p.name[len(self._prefix):].partition("-")[2])]
 
     def file(self, suffix: str) -> Path:
         return self.path / (self.name + suffix)

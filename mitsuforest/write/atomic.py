@@ -1,19 +1,53 @@
-"""Atomic file writes: content goes to a temporary name in the same folder and is renamed when complete."""
+"""Atomic file writes: content goes to a temporary name in the same folder and is renamed when complete.
+
+Temporary names carry their writer's :func:`owner_tag` (host and process id), so that a process
+cleaning up removes only what it wrote itself or what a process that has died on this host left:
+another render writing into the same folder, on this host or another sharing the file system, is
+never disturbed.
+"""
 
 from __future__ import annotations
 
 import contextlib
 import os
+import socket
 from pathlib import Path
 
 TMP_MARK = ".tmp-"
+
+
+def owner_tag() -> str:
+    """``HOST-PID`` of this process, for the names of its temporary files and folders."""
+    return f"{socket.gethostname()}-{os.getpid()}"
+
+
+def owner_is_gone(tag: str) -> bool:
+    """Whether the process named by an :func:`owner_tag` has ended: only answerable on its own host
+    (anything else, including a tag that cannot be parsed, counts as alive)."""
+    host, _, pid = tag.rpartition("-")
+    if host != socket.gethostname() or not pid.isdigit():
+        return False
+    return not pid_alive(int(pid))
+
+
+def pid_alive(pid: int) -> bool:
+    """Whether process ``pid`` exists on this host (a zombie counts as alive)."""
+    if pid <= 0 or os.name == "nt":  # kill(0, ...) means the process group; on Windows kill terminates
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True  # another user's process
+    return True
 
 
 @contextlib.contextmanager
 def atomic_path(path):
     """Yield a temporary path next to ``path``; rename it to ``path`` only if the block succeeds."""
     path = Path(path)
-    tmp = path.with_name(f"{path.name}{TMP_MARK}{os.getpid()}")
+    tmp = path.with_name(f"{path.name}{TMP_MARK}{owner_tag()}")
     try:
         yield tmp
         os.replace(tmp, path)
@@ -33,6 +67,7 @@ def write_bytes(path, data: bytes) -> None:
 
 
 def remove_temporaries(folder) -> None:
-    """Delete temporary files an interrupted run left in ``folder``."""
+    """Delete the temporary files that processes which have ended on this host left in ``folder``."""
     for p in Path(folder).glob(f"*{TMP_MARK}*"):
-        p.unlink(missing_ok=True)
+        if owner_is_gone(p.name.rpartition(TMP_MARK)[2]):
+            p.unlink(missing_ok=True)

@@ -6,7 +6,9 @@ classes (1-7, as in the PCD) are in the extra dimension ``label``; ``treeid``, `
 ``object_id`` are extra dimensions too. Intensity is scaled to 16 bits by a fixed factor
 (INTENSITY_SCALE, also written in the header's VLR and the file description): the float amplitude
 is kept exact in the extra dimension ``amplitude``. Coordinates are stored at 0.1 mm with the
-georeference in the header offsets.
+georeference in the header offsets. The scene's ``origin.crs`` is written as the standard OGC WKT
+coordinate system VLR, which PDAL, QGIS and lidR read; the WKT bit of the global encoding is set,
+as LAS 1.4 requires for point format 6 (with or without a CRS).
 """
 
 from __future__ import annotations
@@ -15,8 +17,10 @@ import json
 
 import laspy
 import numpy as np
+from laspy.vlrs.known import WktCoordinateSystemVlr
 
 from ..classes import BUSH, DEADWOOD, GROUND, ROCK, STUMP, TREE_LEAVES, TREE_WOOD
+from ..errors import UserError
 from .atomic import atomic_path
 
 ASPRS_CODE = {GROUND: 2, TREE_WOOD: 5, TREE_LEAVES: 5, BUSH: 4, DEADWOOD: 64, ROCK: 65, STUMP: 66}
@@ -24,8 +28,30 @@ INTENSITY_SCALE = 1e-6   # amplitude units per LAS intensity count (65535 ≙ a 
 COORDINATE_SCALE = 1e-4  # m
 
 
+def crs_wkt(text: str) -> str:
+    """The OGC WKT of the coordinate reference system ``text`` (``origin.crs``: ``"EPSG:7855"``, a
+    PROJ string, WKT...), in WKT1 as GDAL and PDAL write it, which every LAS reader understands
+    (WKT2 only for a system WKT1 cannot express).
+
+    :raises UserError: ``origin.crs: ...`` when pyproj cannot make a coordinate system of ``text``.
+    """
+    import pyproj  # here, so that scenes without a CRS do not pay for importing it
+    try:
+        crs = pyproj.CRS.from_user_input(text)
+    except pyproj.exceptions.CRSError as e:
+        raise UserError(f"origin.crs: {text!r} is not a coordinate reference system ({_proj_reason(e)}); "
+                        "give an EPSG code such as 'EPSG:7855', a PROJ string or WKT") from None
+    return crs.to_wkt("WKT1_GDAL") or crs.to_wkt()
+
+
+def _proj_reason(error: Exception) -> str:
+    """PROJ's own words from a pyproj error, without pyproj's repetition of the input."""
+    return str(error).rpartition("proj_create: ")[2].removesuffix(")") or str(error)
+
+
 def las_header(offset, crs: str | None = None) -> laspy.LasHeader:
-    """A LAS 1.4 point format 6 header with our extra dimensions and the coding VLR."""
+    """A LAS 1.4 point format 6 header with our extra dimensions, the coding VLR and, when ``crs``
+    is given, its WKT VLR (see :func:`crs_wkt`, which raises :class:`UserError` for a bad one)."""
     header = laspy.LasHeader(point_format=6, version="1.4")
     header.offsets = np.asarray(offset, float)
     header.scales = np.full(3, COORDINATE_SCALE)
@@ -39,6 +65,9 @@ def las_header(offset, crs: str | None = None) -> laspy.LasHeader:
     header.vlrs.append(laspy.VLR("mitsuforest", 1, "intensity and classes", json.dumps(
         {"intensity_scale": INTENSITY_SCALE, "classification": {str(k): v for k, v in ASPRS_CODE.items()},
          "crs": crs}).encode()))
+    header.global_encoding.wkt = True  # LAS 1.4 requires it for point formats 6-10; PDAL refuses files without
+    if crs:
+        header.vlrs.append(WktCoordinateSystemVlr(crs_wkt(crs)))
     return header
 
 

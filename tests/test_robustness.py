@@ -1,0 +1,220 @@
+"""Robustness and interoperability: a best-effort model cache, staging folders that leave concurrent
+renders alone, and a CRS that LAS readers understand."""
+
+import logging
+import os
+import socket
+import subprocess
+from pathlib import Path
+
+import laspy
+import numpy as np
+import pytest
+
+from mitsuforest.errors import UserError
+from mitsuforest.scan import POINT_DTYPE
+from mitsuforest.trees import cache
+from mitsuforest.trees.understory import rock_model
+from mitsuforest.write import Staging
+from mitsuforest.write.atomic import TMP_MARK, remove_temporaries
+from mitsuforest.write.las import crs_wkt, write_las
+
+HOST = socket.gethostname()
+
+
+class Builds:
+    """A model builder that counts its calls."""
+
+    def __init__(self):
+        self.calls = 0
+
+    def __call__(self):
+        self.calls += 1
+        return rock_model(seed=3, name="rock")
+
+
+@pytest.fixture
+def model_cache(tmp_path, monkeypatch):
+    monkeypatch.setenv("MITSUFOREST_CACHE", str(tmp_path / "cache"))
+    monkeypatch.setattr(cache, "_write_failed", False)
+    return tmp_path / "cache" / "models"
+
+
+def _warnings(caplog):
+    return [r for r in caplog.records if r.levelno == logging.WARNING and "model cache" in r.getMessage()]
+
+
+def test_cache_reuses_a_stored_model(model_cache):
+    build = Builds()
+    first = cache.cached("rock", {"seed": 3}, build)
+    again = cache.cached("rock", {"seed": 3}, build)
+    assert build.calls == 1 and len(list(model_cache.glob("rock-*.npz"))) == 1
+    assert np.array_equal(first.parts[0].vertices, again.parts[0].vertices)
+
+
+def test_unwritable_cache_builds_and_warns_once(tmp_path, monkeypatch, caplog):
+    not_a_folder = tmp_path / "cache"
+    not_a_folder.write_text("a file where the cache folder should be")
+    monkeypatch.setenv("MITSUFOREST_CACHE", str(not_a_folder))
+    monkeypatch.setattr(cache, "_write_failed", False)
+    build = Builds()
+    models = [cache.cached("rock", {"seed": s}, build) for s in (1, 2, 3)]
+    assert build.calls == 3 and all(m.parts[0].faces.size for m in models)
+    [warning] = _warnings(caplog)
+    assert str(not_a_folder) in warning.getMessage() and "MITSUFOREST_CACHE" in warning.getMessage()
+
+
+def test_full_cache_builds_warns_and_leaves_no_temporary(model_cache, monkeypatch, caplog):
+    def disk_full(*_):
+        raise OSError(28, "No space left on device")
+    monkeypatch.setattr(cache.os, "replace", disk_full)
+    build = Builds()
+    assert cache.cached("rock", {"seed": 3}, build).parts and build.calls == 1
+    assert "No space left" in _warnings(caplog)[0].getMessage()
+    assert list(model_cache.iterdir()) == []
+
+
+def test_key_follows_the_generator_code(model_cache, monkeypatch):
+    assert cache.code_hash() == cache.code_hash() and len(cache.code_hash()) == 20
+    build = Builds()
+    key = cache.cache_key("rock", {"seed": 3})
+    cache.cached("rock", {"seed": 3}, build)
+    monkeypatch.setattr(cache, "code_hash", lambda: "edited generators")
+    assert cache.cache_key("rock", {"seed": 3}) != key
+    cache.cached("rock", {"seed": 3}, build)
+    assert build.calls == 2 and len(list(model_cache.glob("rock-*.npz"))) == 2
+
+
+@pytest.mark.parametrize("edited, counts", [("skeleton.py", True), ("understory.py", True), ("classes.py", True),
+                                             ("gallery.py", False), ("cache.py", False)])
+def test_code_hash_changes_with_the_generators_source(monkeypatch, edited, counts):
+    read = Path.read_bytes
+    before = cache.code_hash()
+    monkeypatch.setattr(Path, "read_bytes", lambda p: read(p) + (b"# edited" if p.name == edited else b""))
+    cache.code_hash.cache_clear()
+    try:
+        assert (cache.code_hash() != before) == counts
+    finally:
+        cache.code_hash.cache_clear()
+
+
+def test_code_hash_changes_with_a_library_version(monkeypatch):
+    before = cache.code_hash()
+    monkeypatch.setattr(cache.importlib.metadata, "version", lambda dist: "0.0")
+    cache.code_hash.cache_clear()
+    try:
+        assert cache.code_hash() != before
+    finally:
+        cache.code_hash.cache_clear()
+
+
+@pytest.mark.parametrize("damage", [b"", b"not a zip file", b"PK\x03\x04 truncated zip"])
+def test_damaged_entry_is_rebuilt(model_cache, damage):
+    build = Builds()
+    good = cache.cached("rock", {"seed": 3}, build)
+    [entry] = model_cache.glob("rock-*.npz")
+    entry.write_bytes(damage)
+    rebuilt = cache.cached("rock", {"seed": 3}, build)
+    assert build.calls == 2 and np.array_equal(rebuilt.parts[0].faces, good.parts[0].faces)
+    cache.cached("rock", {"seed": 3}, build)
+    assert build.calls == 2  # the rebuilt entry replaced the damaged one
+
+
+def test_unreadable_entry_is_rebuilt(model_cache, monkeypatch):
+    build = Builds()
+    cache.cached("rock", {"seed": 3}, build)
+
+    def denied(*_):
+        raise PermissionError(13, "Permission denied")
+    monkeypatch.setattr(cache.np, "load", denied)
+    assert cache.cached("rock", {"seed": 3}, build).parts and build.calls == 2
+
+
+@pytest.fixture
+def pids():
+    """(pid of a running process, pid of a process that has ended)."""
+    live = subprocess.Popen(["sleep", "60"])
+    ended = subprocess.Popen(["true"])
+    ended.wait()
+    yield live.pid, ended.pid
+    live.kill()
+    live.wait()
+
+
+def test_staging_removes_only_its_own_and_dead_renders_folders(tmp_path, pids):
+    live, dead = pids
+    running_here = tmp_path / f".test.partial-abc123-{HOST}-{live}"
+    dead_here = tmp_path / f".test.partial-def456-{HOST}-{dead}"
+    other_host = tmp_path / f".test.partial-ghi789-other.host-{dead}"
+    unknown_owner = tmp_path / f".test.partial-{dead}"
+    other_scene = tmp_path / f".other.partial-jkl012-{HOST}-{dead}"
+    for p in (running_here, dead_here, other_host, unknown_owner, other_scene):
+        p.mkdir()
+        (p / "test.pcd").write_text("points of another render")
+
+    staging = Staging(tmp_path, "test")
+    assert not dead_here.exists()
+    staging.file(".pcd").write_text("ours")
+    staging.file("_manifest.json").write_text("{}")
+    assert [p.name for p in staging.commit()] == ["test.pcd", "test_manifest.json"]
+    Staging(tmp_path, "test").discard()
+
+    hidden = sorted(p.name for p in tmp_path.iterdir() if p.name.startswith("."))
+    assert hidden == sorted(p.name for p in (running_here, other_host, unknown_owner, other_scene))
+    assert (running_here / "test.pcd").read_text() == "points of another render"
+    assert (tmp_path / "test.pcd").read_text() == "ours"
+
+
+def test_two_stagings_of_one_process_are_apart(tmp_path):
+    a, b = Staging(tmp_path, "test"), Staging(tmp_path, "test")
+    assert a.path != b.path and a.path.name.endswith(f"-{HOST}-{os.getpid()}")
+    a.discard()
+    assert b.path.is_dir()
+
+
+def test_remove_temporaries_spares_running_writers(tmp_path, pids):
+    live, dead = pids
+    running = tmp_path / f"a.las{TMP_MARK}{HOST}-{live}"
+    ended = tmp_path / f"b.las{TMP_MARK}{HOST}-{dead}"
+    running.write_text("x")
+    ended.write_text("x")
+    remove_temporaries(tmp_path)
+    assert running.exists() and not ended.exists()
+
+
+def _points(n=5):
+    points = np.zeros(n, POINT_DTYPE)
+    points["x"], points["y"], points["z"] = 500000 + np.arange(n), 6000000.0, 1.0
+    points["return_number"] = points["number_of_returns"] = 1
+    return points
+
+
+@pytest.mark.parametrize("suffix", [".las", ".laz"])
+def test_las_carries_a_standard_wkt_crs(tmp_path, suffix):
+    path = tmp_path / ("t" + suffix)
+    write_las(path, _points(), [500000.0, 6000000.0, 0.0], crs="EPSG:7855")
+    header = laspy.read(str(path)).header
+    assert header.global_encoding.wkt
+    assert header.parse_crs().to_epsg() == 7855
+    assert header.parse_crs().name == "GDA2020 / MGA zone 55"
+
+
+def test_las_without_crs_has_no_crs_vlr_but_the_wkt_bit(tmp_path):
+    write_las(tmp_path / "t.las", _points(), [500000.0, 6000000.0, 0.0])
+    header = laspy.read(str(tmp_path / "t.las")).header
+    assert header.parse_crs() is None
+    assert header.global_encoding.wkt  # LAS 1.4 demands it for point format 6; PDAL refuses files without
+
+
+@pytest.mark.parametrize("text, reason", [("EPSG:999999", "crs not found"), ("UTM 55 south", "unknown name")])
+def test_invalid_crs_is_a_user_error(tmp_path, text, reason):
+    with pytest.raises(UserError, match=rf"^origin\.crs: '{text}' is not a coordinate reference system \(.*{reason}"):
+        crs_wkt(text)
+    with pytest.raises(UserError, match="origin.crs"):
+        write_las(tmp_path / "t.las", _points(), [0.0, 0.0, 0.0], crs=text)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_crs_wkt_is_wkt1_with_the_epsg_authority():
+    wkt = crs_wkt("EPSG:7855")
+    assert wkt.startswith('PROJCS["GDA2020 / MGA zone 55"') and wkt.endswith('AUTHORITY["EPSG","7855"]]')
