@@ -25,7 +25,7 @@ from .trees import build_models
 from .write import PointWriter, Staging, existing_outputs, write_manifest, write_render_outputs
 from .write.background import Background
 
-DEPENDENCIES = ("mitsuba", "drjit", "numpy", "trimesh", "manifold3d", "laspy", "scipy", "pyyaml")
+DEPENDENCIES = ("mitsuba", "drjit", "numpy", "trimesh", "manifold3d", "laspy", "scipy", "pyyaml", "pyproj")
 
 
 @dataclass
@@ -72,9 +72,10 @@ def render(scene, *, output_dir=None, seed=None, variant=None, overwrite=False, 
     log(f"scene: {scan_scene.objects} objects ({scan_scene.culled} out of reach), "
         f"{scan_scene.triangles:,} distinct triangles, variant {scan_scene.variant}")
     staging = Staging(out, name) if write else None
-    writer = PointWriter(staging, scene, keep=keep_points)
-    sink = Background(writer.add)
+    writer = None
     try:
+        writer = PointWriter(staging, scene, keep=keep_points)
+        sink = Background(writer.add)
         try:
             result = scan(scene, plan, scan_scene, progress=progress, on_points=sink)
         finally:
@@ -91,7 +92,8 @@ def render(scene, *, output_dir=None, seed=None, variant=None, overwrite=False, 
             write_manifest(staging, manifest)
             files = staging.commit()
     except BaseException:
-        writer.abort()
+        if writer:
+            writer.abort()
         if staging:
             staging.discard()
         raise

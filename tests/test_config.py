@@ -115,6 +115,7 @@ BAD_EDITS = {
                    "survey.pulse_frequency: 150000 Hz is not one of the sensor's pulse frequencies"),
     "variant": ({"simulation.variant": "scalar_rgb"}, "simulation.variant: must be auto or a Mitsuba llvm_*"),
     "nan": ({"forest.trees": float("nan")}, "forest.trees: must be finite, got nan"),
+    "crs": ({"origin.crs": "EPSG:999999"}, "scene.yaml: origin.crs: 'EPSG:999999' is not a coordinate reference system"),
 }
 
 

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import yaml
 
-from ..errors import ConfigError
+from ..errors import ConfigError, UserError
 from ..trees.archetypes import DEFAULT_ARCHETYPES, FIELDS as ARCHETYPE_FIELDS, Archetype
 from .schema import REQUIRED, Context, Custom, FilePath, ListOf, Number, Text, Vector, parse_mapping
 from .types import FOREST_BANDS, Scene, Sensor, display_path, from_mapping, to_mapping
@@ -92,6 +92,20 @@ def _checked_sensor_object(sensor: Sensor, ctx: Context, key: str) -> Sensor:
     return _sensor_from_mapping(to_mapping(sensor), ctx, key + ".")
 
 
+def _crs(value, ctx: Context, key: str):
+    """A coordinate reference system pyproj knows (written as the LAS WKT CRS record)."""
+    if value is None:
+        return None
+    if not isinstance(value, str):
+        ctx.fail(key, f"must be a string such as 'EPSG:7855', got {value!r}")
+    from ..write.las import crs_wkt
+    try:
+        crs_wkt(value)
+    except UserError as e:
+        ctx.fail(key, str(e).removeprefix("origin.crs: "))
+    return value
+
+
 def _legs(value, ctx: Context, key: str):
     if value is None:
         return None
@@ -109,7 +123,7 @@ SCENE_SPEC = {
     "name": Text(None, nullable=True),
     "seed": Number(0, integer=True, ge=0),
     "area": {"size": Vector(2, Number(gt=0), [100.0, 100.0])},
-    "origin": {"crs": Text(None, nullable=True), "offset": Vector(3, Number(), [0.0, 0.0, 0.0])},
+    "origin": {"crs": Custom(_crs, None), "offset": Vector(3, Number(), [0.0, 0.0, 0.0])},
     "terrain": {
         "type": Text("flat", choices=("flat", "noise", "mesh")),
         "amplitude": Number(1.5, ge=0),
