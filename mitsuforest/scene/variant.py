@@ -33,6 +33,17 @@ def check_llvm() -> None:
         raise UserError(f"only libLLVM {max(versions)} found. {LLVM_HELP}")
 
 
+def llvm_available() -> bool:
+    """Whether Dr.Jit's CPU backend can start (a usable libLLVM was found)."""
+    if not os.environ.get("DRJIT_LIBLLVM_PATH") and _llvm_versions() and max(_llvm_versions()) < 17:
+        return False
+    try:
+        import drjit as dr
+        return bool(dr.has_backend(dr.JitBackend.LLVM))
+    except Exception:  # no libLLVM at all
+        return False
+
+
 def cuda_available() -> bool:
     try:
         import drjit as dr
@@ -46,7 +57,7 @@ def available_variants() -> list[str]:
     ``cuda_ad_mono`` when a GPU is usable."""
     import mitsuba as mi
     out = []
-    if "llvm_ad_mono" in mi.variants() and not (_llvm_versions() and max(_llvm_versions()) < 17):
+    if "llvm_ad_mono" in mi.variants() and llvm_available():
         out.append("llvm_ad_mono")
     if "cuda_ad_mono" in mi.variants() and cuda_available():
         out.append("cuda_ad_mono")
