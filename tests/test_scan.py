@@ -199,15 +199,15 @@ def test_rays_at_known_leaves_are_leaves(demo_setup):
     assert set(first["instance"]) == {tree.instance}
 
 
-@pytest.mark.parametrize("samples", [1, 7])
-def test_echo_kernel_matches_the_numpy_reference_in_a_forest(demo_setup, samples):
+@pytest.mark.parametrize(("samples", "pattern"), [(1, "fixed"), (7, "fixed"), (7, "stratified")])
+def test_echo_kernel_matches_the_numpy_reference_in_a_forest(demo_setup, samples, pattern):
     """The device path (pulses, rays, labels, radiometry, waveform in Dr.Jit) against the numpy
     reference (pulses in numpy, sub-ray hits copied back, then label_hits, received_power,
     pulse_echoes) over the demo trees."""
     scene, plan, _, scan_scene = demo_setup
     sensor = dataclasses.replace(scene.sensor, range_precision=0.0)
     leg, first, count = plan.legs[0], 700_000, 100_000          # over the plot centre
-    tracer = PulseTracer(scan_scene, sensor, samples)
+    tracer = PulseTracer(scan_scene, sensor, samples, pattern=pattern)
     got, fired, cast = tracer.trace_slots(leg, scene.pulse_frequency, scene.scan_frequency, first, count)
     p, ref_fired = reaching_pulses(leg, sensor, scene.pulse_frequency, scene.scan_frequency, first, count, tracer.box)
     ref = trace_reference(tracer, p)
@@ -241,14 +241,16 @@ def test_ranging_noise_is_gaussian_with_the_sensor_sigma(flat):
     assert np.array_equal(again["range"], pts["range"])         # keyed on the pulse, not drawn
 
 
-def test_same_bytes_for_any_batch_size(tmp_path, variant):
-    """Ranging noise is keyed on the pulse: pulses_per_batch changes nothing in the files."""
+@pytest.mark.parametrize("pattern", ["fixed", "stratified"])
+def test_same_bytes_for_any_batch_size(tmp_path, variant, pattern):
+    """Ranging noise and stratified sub-rays are keyed on the pulse: pulses_per_batch changes nothing
+    in the files."""
     files = []
     for batch in (10_000, 100_000):
         path = scene_file(tmp_path / str(batch), sensor="riegl_vux-1uav22.yaml", variant=variant,
                           area={"size": [12, 12]}, understory={"rocks": 3},
                           survey={"pulse_frequency": 100000, "lines": [[[6, -2], [6, 14]]]},
-                          simulation={"beam_samples": 7, "pulses_per_batch": batch})
+                          simulation={"beam_samples": 7, "pulses_per_batch": batch, "beam_pattern": pattern})
         render(path, progress=False, log=lambda *_: None)
         files.append(tmp_path / str(batch) / "out")
     for suffix in (".pcd", ".las"):

@@ -17,6 +17,7 @@ from pathlib import Path
 import yaml
 
 from ..errors import ConfigError, UserError
+from ..scan.beam import PATTERNS
 from ..trees.archetypes import DEFAULT_ARCHETYPES, FIELDS as ARCHETYPE_FIELDS, Archetype
 from .schema import REQUIRED, Context, Custom, FilePath, ListOf, Number, Text, Vector, parse_mapping
 from .types import FOREST_BANDS, Scene, Sensor, display_path, from_mapping, to_mapping
@@ -153,6 +154,7 @@ SCENE_SPEC = {
     },
     "simulation": {
         "beam_samples": Number(7, integer=True, ge=1, le=MAX_BEAM_SAMPLES),
+        "beam_pattern": Text("fixed", choices=PATTERNS),
         "variant": Text("auto"),
         "pulses_per_batch": Number(None, integer=True, gt=0, nullable=True),
     },

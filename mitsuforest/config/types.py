@@ -144,6 +144,7 @@ class Survey:
 @dataclass(frozen=True)
 class Simulation:
     beam_samples: int
+    beam_pattern: str                         # fixed | stratified
     variant: str
     pulses_per_batch: int | None
 

@@ -41,7 +41,8 @@ def scan(scene, plan, scan_scene, progress: bool = True, on_points=None) -> Scan
         without it, the points are collected in ``ScanResult.points``.
     """
     batch = scene.simulation.pulses_per_batch or BATCH_SLOTS[scan_scene.variant.split("_")[0]]
-    tracer = PulseTracer(scan_scene, scene.sensor, scene.simulation.beam_samples, scene.seed)
+    sim = scene.simulation
+    tracer = PulseTracer(scan_scene, scene.sensor, sim.beam_samples, scene.seed, sim.beam_pattern)
     result = ScanResult()
     chunks, first_id = [], 0
     start = time.perf_counter()

@@ -39,7 +39,11 @@ whose total second moment is exact but lies on one axis.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
+
+PATTERNS = ("fixed", "stratified")
 
 
 def ring_counts(samples: int) -> list[int]:
@@ -79,6 +83,52 @@ def beam_pattern(samples: int) -> tuple[np.ndarray, np.ndarray]:
         offsets.append(radius * np.column_stack([np.cos(angle), np.sin(angle)]))
         weights.append(np.full(n, (energy_below[k + 1] - energy_below[k]) / n))
     return np.vstack(offsets), np.concatenate(weights)
+
+
+@dataclass(frozen=True)
+class BeamCells:
+    """The beam's cells, one row per sub-ray: what the stratified pattern draws from.
+
+    Ring k holds ``size`` sub-rays that share the annulus ``u_lo <= u < u_hi`` (``u = 2r²/w²``; the
+    centre cell is the disc from 0); each carries ``weight``, the annulus' exact energy over its size.
+    """
+
+    ring: np.ndarray      # (S,) int: the sub-ray's ring
+    index: np.ndarray     # (S,) int: its place in the ring, 0 .. size-1
+    size: np.ndarray      # (S,) int: sub-rays in its ring
+    u_lo: np.ndarray      # (S,) float
+    u_hi: np.ndarray      # (S,) float, inf for the outermost ring
+    weight: np.ndarray    # (S,) float, summing to 1
+
+
+def beam_cells(samples: int) -> BeamCells:
+    """The cells of :func:`beam_pattern`'s rings (see :func:`stratified_offsets`)."""
+    counts = ring_counts(samples)
+    u = _cell_edges_u(counts)
+    energy = -np.diff(np.exp(-u))                                  # exact energy of each annulus
+    ring = np.repeat(np.arange(len(counts)), counts)
+    index = np.concatenate([np.arange(n) for n in counts])
+    size = np.repeat(counts, counts)
+    return BeamCells(ring, index, size, u[ring], u[ring + 1], energy[ring] / size)
+
+
+def stratified_offsets(cells: BeamCells, radius_uniform: np.ndarray, rotation_uniform: np.ndarray) -> np.ndarray:
+    """Sub-ray offsets of the stratified pattern (numpy twin of the Dr.Jit sampler in scan/sampling.py).
+
+    Each ring is turned by its own uniform rotation, and each sub-ray sits at a radius drawn from its
+    annulus' share of the Gaussian (inverse CDF of ``u ~ Exp(1)`` truncated to ``[u_lo, u_hi)``), so
+    every sub-ray is an unbiased sample of its annulus: the expected energy on any region of the beam,
+    ``E[Σ w 1(o ∈ A)]``, is the Gaussian's, and so is the expected second moment ``E[Σ w |o|²] = 1/2``.
+
+    :param radius_uniform: (P, S) uniforms in [0, 1), one per sub-ray.
+    :param rotation_uniform: (P, S) uniforms in [0, 1) of each sub-ray's ring (equal within a ring).
+    :returns: offsets (P, S, 2) in units of the 1/e² radius.
+    """
+    span = -np.expm1(-(cells.u_hi - cells.u_lo))                  # 1 - exp(-(u_hi - u_lo)), 1 for the last ring
+    u = cells.u_lo - np.log1p(-radius_uniform * span)
+    radius = np.sqrt(0.5 * u)
+    angle = 2 * np.pi * (cells.index + rotation_uniform) / cells.size
+    return np.stack([radius * np.cos(angle), radius * np.sin(angle)], axis=-1)
 
 
 def _cell_edges_u(counts: list[int]) -> np.ndarray:

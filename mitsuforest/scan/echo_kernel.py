@@ -15,7 +15,7 @@ import numpy as np
 from ..labels.device import DeviceHitTable
 from .echoes import pulse_echoes
 from .kernel import RayCaster
-from .noise import seed_word, standard_normal
+from .noise import noise_key, standard_normal
 
 ECHO_FIELDS = {"pulse_id": np.uint64, "gps_time": np.float64, "scan_angle": np.float32, "return_number": np.uint32,
                "number_of_returns": np.uint32, "range": np.float32, "amplitude": np.float32, "x": np.float32,
@@ -26,6 +26,7 @@ ECHO_FIELDS = {"pulse_id": np.uint64, "gps_time": np.float64, "scan_angle": np.f
 class EchoKernel(RayCaster):
     """Turns batches of pulses into echoes on the device.
 
+    :param sample_tangents, beam: the beam pattern (see :class:`~mitsuforest.scan.kernel.RayCaster`).
     :param weights: (S,) beam energy of each sub-ray.
     :param reflectance: (8,) reflectance by class code.
     :param sensor: the :class:`~mitsuforest.config.types.Sensor` (range limits, detection threshold,
@@ -33,8 +34,8 @@ class EchoKernel(RayCaster):
     :param seed: the scene's seed (keys the ranging noise; see noise.py).
     """
 
-    def __init__(self, mi_scene, sample_tangents, weights, table, reflectance, sensor, seed: int):
-        super().__init__(mi_scene, sample_tangents)
+    def __init__(self, mi_scene, *, weights, table, reflectance, sensor, seed: int, **beam):
+        super().__init__(mi_scene, **beam)
         mi = self.mi
         self.table = DeviceHitTable(table)
         self.weights = mi.Float(np.asarray(weights, np.float32))
@@ -44,7 +45,7 @@ class EchoKernel(RayCaster):
         self.max_returns = int(sensor.max_returns)
         self.resolving = float(sensor.resolving_distance)
         self.sigma = float(sensor.range_precision)
-        self.noise_key = seed_word(seed)
+        self.noise_key = noise_key(seed)
 
     def echoes(self, pulses) -> dict:
         """Echoes of a batch of :class:`~mitsuforest.scan.pulses.DevicePulses`, in pulse then range order.
@@ -57,15 +58,15 @@ class EchoKernel(RayCaster):
         n = pulses.count
         if n == 0:
             return _no_echoes()
-        lane, hit_id = self._sub_ray_returns(pulses.origin, pulses.direction, pulses.across)
+        lane, hit_id = self._sub_ray_returns(pulses)
         flat, returns = self._ranked_echoes(lane, n)
         return self._echo_records(flat, returns, hit_id, pulses)
 
-    def _sub_ray_returns(self, origin, direction, across):
+    def _sub_ray_returns(self, pulses):
         """Trace, label and weigh every sub-ray (lane = pulse*S + sub-ray): its range (``inf`` when it
         gave no valid return), received power and hit offset from the origin, and its hit ids."""
         dr, mi = self.dr, self.mi
-        ray, _, d, _, sample = self.subrays(origin, direction, across)
+        ray, _, d, _, sample = self.subrays(pulses.origin, pulses.direction, pulses.across, pulses.pulse_id)
         pi = self.intersect(ray)
         hit = pi.is_valid()
         instance = dr.reinterpret_array(mi.UInt32, pi.instance)

@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .sampling import stratified_offsets
+
 
 def aligned(a: np.ndarray) -> np.ndarray:
     """A 64-byte-aligned contiguous copy: Dr.Jit bakes input alignment into kernels (recompiles)."""
@@ -23,23 +25,37 @@ def aligned(a: np.ndarray) -> np.ndarray:
 
 
 class RayCaster:
-    """Casts the sub-rays of batches of pulses into a loaded Mitsuba scene."""
+    """Casts the sub-rays of batches of pulses into a loaded Mitsuba scene.
 
-    def __init__(self, mi_scene, sample_tangents: np.ndarray):
-        """:param sample_tangents: (S, 2) tangents of each sub-ray's angular offset along the beam's
-        two frame axes (across, along)."""
+    The beam pattern is either fixed, ``sample_tangents`` (S, 2): the tangents of each sub-ray's
+    angular offset along the beam's two frame axes (across, along); or stratified, ``cells``
+    (:class:`~mitsuforest.scan.beam.BeamCells`): each pulse draws its own offsets (sampling.py,
+    keyed on ``key`` and the pulse id), scaled by ``half_divergence`` (rad, across and along).
+    """
+
+    def __init__(self, mi_scene, sample_tangents: np.ndarray | None = None, *, cells=None,
+                 half_divergence=(0.0, 0.0), key: int = 0):
         import drjit as dr
         import mitsuba as mi
         self.dr, self.mi, self.scene = dr, mi, mi_scene
-        self.samples = len(sample_tangents)
-        self.tan_x = mi.Float(aligned(sample_tangents[:, 0].astype(np.float32)))
-        self.tan_y = mi.Float(aligned(sample_tangents[:, 1].astype(np.float32)))
+        self.cells = None
+        if cells is not None:
+            self.samples = len(cells.weight)
+            self.cells = {k: mi.UInt32(aligned(np.asarray(getattr(cells, k), np.uint32))) for k in ("ring", "index", "size")}
+            self.cells["u_lo"] = mi.Float(aligned(cells.u_lo.astype(np.float32)))
+            self.cells["span"] = mi.Float(aligned(-np.expm1(-(cells.u_hi - cells.u_lo)).astype(np.float32)))
+            self.half_divergence = tuple(float(h) for h in half_divergence)
+            self.key = int(key)
+        else:
+            self.samples = len(sample_tangents)
+            self.tan_x = mi.Float(aligned(sample_tangents[:, 0].astype(np.float32)))
+            self.tan_y = mi.Float(aligned(sample_tangents[:, 1].astype(np.float32)))
 
-    def subrays(self, origin, direction, across):
+    def subrays(self, origin, direction, across, pulse_id=None):
         """The sub-rays of P pulses as one Dr.Jit ray of P*S lanes, lane = pulse*S + sub-ray.
 
         :param origin: Point3f (P,) beam origins; ``direction``, ``across``: Vector3f (P,) unit beam
-            axes and first frame axes.
+            axes and first frame axes; ``pulse_id``: UInt64 (P,) (keys the stratified pattern).
         :returns: ``ray`` (Ray3f), ``origin`` (Point3f), ``direction`` (Vector3f, unit), ``pulse``
             and ``sample`` (UInt32) per lane.
         """
@@ -52,8 +68,16 @@ class RayCaster:
         d = dr.gather(mi.Vector3f, direction, pulse)
         e1 = dr.gather(mi.Vector3f, across, pulse)
         e2 = dr.cross(d, e1)
-        d = dr.normalize(d + dr.gather(mi.Float, self.tan_x, sample) * e1 + dr.gather(mi.Float, self.tan_y, sample) * e2)
+        tan_x, tan_y = self._tangents(pulse, sample, pulse_id)
+        d = dr.normalize(d + tan_x * e1 + tan_y * e2)
         return mi.Ray3f(o, d), o, d, pulse, sample
+
+    def _tangents(self, pulse, sample, pulse_id):
+        dr, mi = self.dr, self.mi
+        if self.cells is None:
+            return dr.gather(mi.Float, self.tan_x, sample), dr.gather(mi.Float, self.tan_y, sample)
+        ox, oy = stratified_offsets(dr, mi, self.cells, self.key, dr.gather(mi.UInt64, pulse_id, pulse), sample)
+        return dr.tan(ox * self.half_divergence[0]), dr.tan(oy * self.half_divergence[1])
 
     def intersect(self, ray):
         """Each lane's first surface (``PreliminaryIntersection3f``)."""
@@ -73,7 +97,7 @@ class RayCaster:
             empty = np.zeros(0, np.uint32)
             return {"ray": empty, "t": np.zeros(0, np.float32), "point": np.zeros((0, 3)), "instance": empty,
                     "shape": empty, "shape_index": empty, "prim": empty}
-        ray, o, d, _, _ = self.subrays(pulses.origin, pulses.direction, pulses.across)
+        ray, o, d, _, _ = self.subrays(pulses.origin, pulses.direction, pulses.across, pulses.pulse_id)
         pi = self.intersect(ray)
         hit = dr.compress(pi.is_valid())
         t = dr.gather(mi.Float, pi.t, hit)

@@ -1,0 +1,49 @@
+"""Counter-based random numbers in Dr.Jit: the same numbers for a pulse however pulses are batched.
+
+A draw is a function of (key, pulse id, stream) alone: the Tiny Encryption Algorithm
+(``mi.sample_tea_32``, 8 rounds) turns that triple into two 32-bit words. So a render's bytes do not
+depend on ``pulses_per_batch``, and llvm and cuda draw the same numbers (the float32 functions
+applied to them may differ in the last bits). Uses: ranging noise (noise.py) and the stratified beam
+(:func:`stratified_offsets`, the twin of :func:`mitsuforest.scan.beam.stratified_offsets`).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+
+TEA_ROUNDS = 8
+TWO_PI = 2 * math.pi
+RING_STREAM = 1 << 16          # streams of ring rotations start here (sub-ray streams are 0 .. S-1)
+
+
+def key_word(seed: int, purpose: str) -> int:
+    """A 32-bit key of a scene seed of any size, one per purpose (noise, beam, ...)."""
+    return int.from_bytes(hashlib.sha256(f"{purpose}:{seed}".encode()).digest()[:4], "little")
+
+
+def uniform_pair(mi, key: int, pulse_id, stream):
+    """Two uniforms in [0, 1) (Float, 24 bits each) per lane, keyed on ``key``, the UInt64 ``pulse_id``
+    and the UInt32 ``stream``."""
+    low = mi.UInt32(pulse_id & 0xFFFFFFFF)
+    high = mi.UInt32(pulse_id >> 32)
+    a, b = mi.sample_tea_32(low, (high * 0x9E3779B9) ^ (stream * 0x85EBCA6B) ^ key, TEA_ROUNDS)
+    return mi.Float(a >> 8) * (1.0 / 16777216.0), mi.Float(b >> 8) * (1.0 / 16777216.0)
+
+
+def stratified_offsets(dr, mi, cells: dict, key: int, pulse_id, sample):
+    """Offsets (two Float arrays, units of the 1/e² radius) of the stratified beam, one per lane.
+
+    :param cells: :class:`~mitsuforest.scan.beam.BeamCells` columns as Dr.Jit arrays (``index``,
+        ``size``, ``ring`` UInt32; ``u_lo``, ``span`` = 1 - exp(-(u_hi - u_lo)) Float).
+    :param pulse_id: UInt64 per lane; ``sample``: UInt32 per lane, the sub-ray.
+    """
+    ring = dr.gather(mi.UInt32, cells["ring"], sample)
+    radius_u, _ = uniform_pair(mi, key, pulse_id, sample)
+    rotation_u, _ = uniform_pair(mi, key, pulse_id, ring + RING_STREAM)
+    u = dr.gather(mi.Float, cells["u_lo"], sample) - dr.log(1.0 - radius_u * dr.gather(mi.Float, cells["span"], sample))
+    radius = dr.sqrt(0.5 * u)
+    index = mi.Float(dr.gather(mi.UInt32, cells["index"], sample))
+    size = mi.Float(dr.gather(mi.UInt32, cells["size"], sample))
+    s, c = dr.sincos(TWO_PI * (index + rotation_u) / size)
+    return radius * c, radius * s
