@@ -65,10 +65,10 @@ def setup(scene_file: Path, seconds: float, variant: str):
     return scene, scan_scene, leg, pulses
 
 
-def trace(scene, scan_scene, leg, samples, batch, reference_path=False):
+def trace(scene, scan_scene, leg, samples, batch, pattern="fixed", reference_path=False):
     """Points and scan seconds of the leg on the path a render runs (:meth:`PulseTracer.trace_slots`);
     ``reference_path`` runs the numpy twin of the echo stage instead."""
-    tracer = PulseTracer(scan_scene, scene.sensor, samples, scene.seed)
+    tracer = PulseTracer(scan_scene, scene.sensor, samples, scene.seed, pattern)
     f_p, f_s, total = scene.pulse_frequency, scene.scan_frequency, leg.pulse_count(scene.pulse_frequency)
 
     def run(first, count):
@@ -94,11 +94,11 @@ def surface_samples(scene, scan_scene, pulses, samples, batch):
     return cKDTree(np.vstack(pts))
 
 
-def chain_rule_bias(scene, scan_scene, pulses, samples, count=5000):
+def chain_rule_bias(scene, scan_scene, pulses, samples, pattern, count=5000):
     """How often the waveform's chain rule (scan/reference/echoes.py) finds another number of echoes
     than the summed waveform has maxima, over ``count`` pulses of the leg that return something:
     (share differing, share with more chains, share with fewer)."""
-    tracer = PulseTracer(scan_scene, scene.sensor, samples)
+    tracer = PulseTracer(scan_scene, scene.sensor, samples, scene.seed, pattern)
     returns = sub_ray_returns(tracer, pulses.select(slice(0, len(pulses.time), max(len(pulses.time) // (3 * count), 1))))
     hit = np.flatnonzero(np.isfinite(returns["ranges"]).any(axis=1))[:count]
     ranges, power = returns["ranges"][hit], returns["power"][hit]
@@ -158,14 +158,19 @@ def plot(rows, path):
             ("class_share_max_diff", "largest class share difference"),
             ("intensity_median_rel_error", "first-return intensity, median rel. error")]
     fig, axes = plt.subplots(1, 4, figsize=(16, 3.8))
+    colours = {"fixed": "tab:blue", "stratified": "tab:orange"}
     for ax, (key, label) in zip(axes, keys):
-        for r in rows:
-            if r["seconds"] is None or r[key] is None:
-                continue
-            ax.scatter(r["seconds"], r[key], color="k")
-            ax.annotate(r["setting"], (r["seconds"], r[key]), textcoords="offset points", xytext=(4, 4), fontsize=8)
+        for pattern, colour in colours.items():
+            curve = [r for r in rows if r.get("pattern") == pattern and r["seconds"] is not None
+                     and r[key] is not None and "," not in r["setting"] and not r["setting"].startswith("reference")]
+            ax.plot([r["seconds"] for r in curve], [r[key] for r in curve], "o-", color=colour, label=pattern)
+            for r in curve:
+                ax.annotate(str(r["samples"]), (r["seconds"], r[key]), textcoords="offset points", xytext=(3, 3),
+                            fontsize=7)
+        ax.set_xscale("log")
         ax.set_xlabel("scan time (s)")
         ax.set_title(label, fontsize=9)
+    axes[0].legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     print(f"wrote {path}")
@@ -175,8 +180,11 @@ def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--scene", type=Path, default=ROOT / "scenes" / "open.yaml")
     p.add_argument("--seconds", type=float, default=10.0, help="flight time across the plot centre")
-    p.add_argument("--samples", type=int, nargs="+", default=[1, 7, 19, 37])
+    p.add_argument("--samples", type=int, nargs="+", default=[1, 3, 5, 7, 11, 19, 37])
+    p.add_argument("--patterns", nargs="+", default=["fixed", "stratified"], choices=["fixed", "stratified"])
     p.add_argument("--reference", type=int, default=61)
+    p.add_argument("--reference-pattern", default="stratified", choices=["fixed", "stratified"],
+                   help="stratified (default): unbiased, so its only error is noise averaged over the leg's pulses")
     p.add_argument("--batch", type=int, default=100_000, help="time slots per launch (a render's pulses_per_batch)")
     p.add_argument("--variant", default="llvm_ad_mono")
     p.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "out")
@@ -186,26 +194,35 @@ def main(argv=None):
         args.seconds, args.samples, args.reference = 0.5, [1, 7], 19
     scene, scan_scene, leg, pulses = setup(args.scene, args.seconds, args.variant)
     n = len(pulses.time)
-    print(f"{n:,} pulses over {args.seconds:g} s of flight, variant {scan_scene.variant}")
-    ref, ref_time = trace(scene, scan_scene, leg, args.reference, args.batch)
+    print(f"{n:,} pulses over {args.seconds:g} s of flight, variant {scan_scene.variant}", flush=True)
+    ref, ref_time = trace(scene, scan_scene, leg, args.reference, args.batch, args.reference_pattern)
     truth = surface_samples(scene, scan_scene, pulses, 128, args.batch // 4)
     rows = []
-    for samples in args.samples:
-        points, seconds = trace(scene, scan_scene, leg, samples, args.batch)
-        differ, more, fewer = chain_rule_bias(scene, scan_scene, pulses, samples, 1000 if args.quick else 5000)
-        rows.append({"setting": f"{samples} sub-rays", "samples": samples, "seconds": seconds,
-                     "pulses_per_s": n / seconds, "points_per_s": len(points) / seconds,
-                     **compare(points, ref, truth, n), "chains_not_maxima": differ,
-                     "more_chains": more, "fewer_chains": fewer})
-        if samples == 7:
-            slow, seconds = trace(scene, scan_scene, leg, samples, args.batch, reference_path=True)
-            rows.append({"setting": "7, numpy echo stage", "samples": 7, "seconds": seconds, "pulses_per_s": n / seconds,
-                         "points_per_s": len(slow) / seconds, **compare(slow, ref, truth, n)})
-        if samples == 19:
-            rows.append({"setting": "HELIOS-like (19)", "samples": 19, "seconds": None, "pulses_per_s": None,
-                         "points_per_s": None, **compare(helios_like(points, pulses), ref, truth, n)})
-    rows.append({"setting": f"reference {args.reference}", "samples": args.reference, "seconds": ref_time,
-                 "pulses_per_s": n / ref_time, "points_per_s": len(ref) / ref_time, **compare(ref, ref, truth, n)})
+    for pattern in args.patterns:
+        for samples in args.samples:
+            if samples == 1 and pattern == "stratified":
+                continue                                  # one random ray: a Monte Carlo beam, not a thin one
+            points, seconds = trace(scene, scan_scene, leg, samples, args.batch, pattern)
+            differ, more, fewer = chain_rule_bias(scene, scan_scene, pulses, samples, pattern,
+                                                  1000 if args.quick else 5000)
+            rows.append({"setting": f"{samples} {pattern}", "samples": samples, "pattern": pattern,
+                         "seconds": seconds, "pulses_per_s": n / seconds, "points_per_s": len(points) / seconds,
+                         **compare(points, ref, truth, n), "chains_not_maxima": differ,
+                         "more_chains": more, "fewer_chains": fewer})
+            print(f"  {rows[-1]['setting']}: {seconds:.2f} s, TV {rows[-1]['returns_tv_distance']:.4f}, "
+                  f"class {rows[-1]['class_share_max_diff']:.4f}", flush=True)
+            if samples == 7 and pattern == "fixed":
+                slow, seconds = trace(scene, scan_scene, leg, samples, args.batch, pattern, reference_path=True)
+                rows.append({"setting": "7 fixed, numpy echo stage", "samples": 7, "pattern": pattern,
+                             "seconds": seconds, "pulses_per_s": n / seconds, "points_per_s": len(slow) / seconds,
+                             **compare(slow, ref, truth, n)})
+            if samples == 19 and pattern == "fixed":
+                rows.append({"setting": "HELIOS-like (19 fixed)", "samples": 19, "pattern": pattern, "seconds": None,
+                             "pulses_per_s": None, "points_per_s": None,
+                             **compare(helios_like(points, pulses), ref, truth, n)})
+    rows.append({"setting": f"reference {args.reference} {args.reference_pattern}", "samples": args.reference,
+                 "pattern": args.reference_pattern, "seconds": ref_time, "pulses_per_s": n / ref_time,
+                 "points_per_s": len(ref) / ref_time, **compare(ref, ref, truth, n)})
     header = ("setting", "seconds", "pulses_per_s", "points", "point_error_mean_mm", "point_error_p95_mm",
               "returns_tv_distance", "class_share_max_diff", "intensity_median_rel_error", "multi_return_share",
               "chains_not_maxima", "more_chains", "fewer_chains")
