@@ -111,6 +111,8 @@ BAD_EDITS = {
     "altitude": ({"survey.altitude": -5}, "scene.yaml: survey.altitude: must be > 0, got -5"),
     "sensor value": ({"sensor.range_max": -1}, "scene.yaml: sensor.range_max: must be > 0, got -1"),
     "unknown key": ({"survey.altitud": 30}, "scene.yaml: survey.altitud: unknown key (did you mean 'altitude'?)"),
+    "unknown section": ({"surve.altitude": 30}, "scene.yaml: surve: unknown key (did you mean 'survey'?)"),
+    "not a section": ({"seed.x": 1}, "scene.yaml: seed.x: seed is not a section"),
     "pulse rate": ({"survey.pulse_frequency": 150000},
                    "survey.pulse_frequency: 150000 Hz is not one of the sensor's pulse frequencies"),
     "variant": ({"simulation.variant": "scalar_rgb"}, "simulation.variant: must be auto or a Mitsuba llvm_*"),

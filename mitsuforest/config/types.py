@@ -25,6 +25,7 @@ import typing
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from ..errors import ConfigError
 from ..trees.archetypes import Archetype
 
 # Australia's National Forest Inventory crown cover classes.
@@ -208,9 +209,12 @@ class Scene:
             *parents, last = path.split(".")
             node = data
             for p in parents:
-                if isinstance(node[p], Sensor):     # an edited sensor is no longer its file's
+                if isinstance(node.get(p), Sensor):     # an edited sensor is no longer its file's
                     node[p] = to_mapping(node[p])
-                node = node[p]
+                node = node.setdefault(p, {})           # an unknown section is reported by the parser
+                if not isinstance(node, dict):
+                    raise ConfigError(display_path(self.file) if self.file else "<scene>", path,
+                                      f"{p} is not a section")
             node[last] = _as_value(value)
         return scene_from_mapping(data, file=self.file)
 
