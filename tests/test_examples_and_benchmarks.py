@@ -54,3 +54,9 @@ def test_speed_vs_error_benchmark_quick(tmp_path):
 def test_full_scenes_benchmark_quick(tmp_path):
     stdout = _run([str(ROOT / "benchmarks" / "full_scenes.py", ), "open", "--quick", "--out", str(tmp_path)], ROOT)
     assert "pts/m2 (paper 3593)" in stdout
+
+
+def test_profile_leg_benchmark():
+    stdout = _run([str(ROOT / "benchmarks" / "profile_leg.py"), "--scene", str(ROOT / "scenes" / "demo.yaml"),
+                   "--leg", "1"], ROOT)
+    assert "rays and labels" in stdout and "points/s" in stdout

@@ -1,0 +1,106 @@
+"""Where one flight leg's scan time goes, stage by stage, on the path a render runs.
+
+Runs one leg of a scene twice (the first compiles the kernels) and reports the second: pulse
+generation, tracing and labelling the sub-rays, the waveform, the echo records (compaction and the
+copy back to numpy), the point array, and the writer (PCD and LAS into a temporary folder). Each
+stage ends with ``dr.sync_thread()`` so that its time is its own; the total is therefore a little
+above a render's, where stages overlap.
+
+    python benchmarks/profile_leg.py                                  # open scene, leg 5, the scene's settings
+    python benchmarks/profile_leg.py --samples 19 --pattern stratified --variant cuda_ad_mono --batch 1000000
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+from collections import defaultdict
+from pathlib import Path
+
+from mitsuforest.config import load_scene
+from mitsuforest.plan import make_plan
+from mitsuforest.scan import PulseTracer, tracer as tracer_module
+from mitsuforest.scene import build_scene, variant_scope
+from mitsuforest.trees import build_models
+from mitsuforest.write import PointWriter, Staging
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+class Stopwatch:
+    """Accumulates the time of wrapped calls, each ended by a device sync."""
+
+    def __init__(self, dr):
+        self.dr, self.seconds = dr, defaultdict(float)
+
+    def wrap(self, name, fn):
+        def timed(*args, **kwargs):
+            start = time.perf_counter()
+            out = fn(*args, **kwargs)
+            self.dr.sync_thread()
+            self.seconds[name] += time.perf_counter() - start
+            return out
+        return timed
+
+
+def profile(scene, leg_index: int, batch: int, folder: Path) -> tuple[dict, int, int]:
+    import drjit as dr
+    plan = make_plan(scene)
+    scan_scene = build_scene(plan, build_models(plan), scene.sensor, scene.simulation.variant)
+    sim = scene.simulation
+    tracer = PulseTracer(scan_scene, scene.sensor, sim.beam_samples, scene.seed, sim.beam_pattern)
+    leg = plan.legs[leg_index]
+    total = leg.pulse_count(scene.pulse_frequency)
+    watch = Stopwatch(dr)
+    caster = tracer.caster
+    tracer_module.reaching_pulses = watch.wrap("pulses", tracer_module.reaching_pulses)
+    for name, method in (("rays and labels", "_sub_ray_returns"), ("waveform", "_ranked_echoes"),
+                         ("echo records to numpy", "_echo_records")):
+        setattr(caster, method, watch.wrap(name, getattr(caster, method)))
+    tracer._points = watch.wrap("point array", tracer._points)
+    points = 0
+    for run in range(2):                                  # the first run compiles
+        watch.seconds.clear()
+        writer = PointWriter(Staging(folder / str(run), scene.name), scene)
+        add = watch.wrap("writer (PCD, LAS, statistics)", writer.add)
+        start = time.perf_counter()
+        with variant_scope(scan_scene.variant):
+            for first in range(0, total, batch):
+                pts, _, _ = tracer.trace_slots(leg, scene.pulse_frequency, scene.scan_frequency, first,
+                                               min(batch, total - first))
+                add(pts)
+                points += len(pts) if run else 0
+        writer.close()
+        watch.seconds["total"] = time.perf_counter() - start
+    return dict(watch.seconds), total, points
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--scene", type=Path, default=ROOT / "scenes" / "open.yaml")
+    p.add_argument("--leg", type=int, default=5, help="leg index (0-based)")
+    p.add_argument("--samples", type=int, help="beam_samples (default: the scene's)")
+    p.add_argument("--pattern", choices=["fixed", "stratified"], help="beam_pattern (default: the scene's)")
+    p.add_argument("--batch", type=int, help="time slots per launch (default: the backend's)")
+    p.add_argument("--variant", default="auto")
+    args = p.parse_args(argv)
+    scene = load_scene(args.scene, variant=args.variant)
+    changes = {"simulation.beam_samples": args.samples, "simulation.beam_pattern": args.pattern}
+    scene = scene.with_({k: v for k, v in changes.items() if v is not None})
+    from mitsuforest.scan import BATCH_SLOTS
+    from mitsuforest.scene import select_variant
+    variant = select_variant(scene.simulation.variant)
+    batch = args.batch or scene.simulation.pulses_per_batch or BATCH_SLOTS[variant.split("_")[0]]
+    with tempfile.TemporaryDirectory() as tmp:
+        seconds, slots, points = profile(scene.with_({"simulation.variant": variant}), args.leg, batch, Path(tmp))
+    total = seconds.pop("total")
+    print(f"{args.scene.name}, leg {args.leg}: {slots:,} time slots, {points:,} points, {variant}, "
+          f"{scene.simulation.beam_samples} {scene.simulation.beam_pattern} sub-rays, batch {batch:,}")
+    for name, s in seconds.items():
+        print(f"  {name:32s} {s:7.2f} s  {s / total:6.1%}")
+    print(f"  {'total (with syncs)':32s} {total:7.2f} s  -> {points / total:,.0f} points/s")
+
+
+if __name__ == "__main__":
+    main()
