@@ -99,6 +99,7 @@ class RayCaster:
                     "shape": empty, "shape_index": empty, "prim": empty}
         ray, o, d, _, _ = self.subrays(pulses.origin, pulses.direction, pulses.across, pulses.pulse_id)
         pi = self.intersect(ray)
+        dr.eval(pi.t, pi.instance, pi.shape, pi.shape_index, pi.prim_index)   # trace once, not once per use
         hit = dr.compress(pi.is_valid())
         t = dr.gather(mi.Float, pi.t, hit)
         p = dr.gather(mi.Point3f, o, hit) + dr.gather(mi.Vector3f, d, hit) * t

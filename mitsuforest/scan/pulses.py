@@ -72,8 +72,10 @@ def reaching_pulses(leg, sensor, pulse_frequency: float, scan_frequency: float, 
     a, b = [leg_value(x) for x in leg.start], [leg_value(x) for x in leg.end]
     f = (t - t0) / (t1 - t0)
     origin = [a[k] + f * (b[k] - a[k]) for k in range(3)]
+    reach = fired & reaches_box(dr, origin, direction, box, sensor.range_max)
+    dr.eval(fired, reach)                      # one kernel for both masks, then the count and compaction
     n_fired = int(dr.count(fired)[0])
-    keep = dr.compress(fired & reaches_box(dr, origin, direction, box, sensor.range_max))
+    keep = dr.compress(reach)
     if dr.width(keep) == 0:
         return DevicePulses(mi.UInt64(), Float64(), mi.Float(), mi.Point3f(), mi.Vector3f(), mi.Vector3f()), n_fired
     direction = mi.Vector3f(*(mi.Float(dr.gather(Float64, c, keep)) for c in direction))

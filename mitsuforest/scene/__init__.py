@@ -42,6 +42,7 @@ class HitTable:
     object_class_row: np.ndarray     # (O,) int64: first row of the model's components in component_class
     part_base: np.ndarray            # (parts,) int64
     triangle_component: np.ndarray   # (T,) uint16
+    triangle_class: np.ndarray       # (T,) uint8: the class of the triangle's component
     triangle_normal: np.ndarray      # (T, 3) float32, model frame
     component_class: np.ndarray      # (C,) uint8
     ground_normal: np.ndarray        # (G, 3) float32
@@ -146,14 +147,16 @@ def _hit_table(mi_scene, dr, mi, plan, models, used, keep, ground_v, ground_f, p
             ground_registry = int(reg)
         elif sid.startswith("object_"):
             object_of_registry[reg] = by_instance[int(sid.split("_")[1])]
-    part_row, class_row, part_base, comps, normals, classes = {}, {}, [], [], [], []
+    part_row, class_row, part_base, comps, normals, classes, tri_classes = {}, {}, [], [], [], [], []
     tri_count = comp_count = 0
     for name in used:
         model = models[name]
         part_row[name], class_row[name] = len(part_base), comp_count
+        model_classes = np.array([c.classification for c in model.components], np.uint8)
         for p in model.parts:
             part_base.append(tri_count)
             comps.append(p.component)
+            tri_classes.append(model_classes[p.component])
             normals.append(face_normals(p.vertices, p.faces))
             tri_count += len(p.faces)
         classes += [c.classification for c in model.components]
@@ -171,6 +174,7 @@ def _hit_table(mi_scene, dr, mi, plan, models, used, keep, ground_v, ground_f, p
         object_class_row=np.array([class_row[o.model] for o in objs], np.int64),
         part_base=np.array(part_base, np.int64),
         triangle_component=np.concatenate(comps) if comps else np.zeros(0, np.uint16),
+        triangle_class=np.concatenate(tri_classes) if tri_classes else np.zeros(0, np.uint8),
         triangle_normal=np.vstack(normals) if normals else np.zeros((0, 3), np.float32),
         component_class=np.array(classes, np.uint8),
         ground_normal=face_normals(ground_v, ground_f),
