@@ -59,7 +59,7 @@ def setup(scene_file: Path, seconds: float, variant: str):
     plan = make_plan(scene)
     scan_scene = build_scene(plan, build_models(plan), scene.sensor, scene.simulation.variant)
     leg = plan.legs[0]
-    box = PulseTracer(scan_scene, scene.sensor, 1).box
+    box = PulseTracer(scan_scene, scene.sensor, 1, pattern="stratified").box   # the widest reach of any setting
     pulses, _ = reaching_pulses(leg, scene.sensor, scene.pulse_frequency, scene.scan_frequency, 0,
                                 leg.pulse_count(scene.pulse_frequency), box)
     return scene, scan_scene, leg, pulses

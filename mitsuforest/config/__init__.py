@@ -153,8 +153,8 @@ SCENE_SPEC = {
         "lines": Custom(_legs, None),
     },
     "simulation": {
-        "beam_samples": Number(7, integer=True, ge=1, le=MAX_BEAM_SAMPLES),
-        "beam_pattern": Text("fixed", choices=PATTERNS),
+        "beam_samples": Number(19, integer=True, ge=1, le=MAX_BEAM_SAMPLES),   # see README, "Choosing beam_samples"
+        "beam_pattern": Text("stratified", choices=PATTERNS),
         "variant": Text("auto"),
         "pulses_per_batch": Number(None, integer=True, gt=0, nullable=True),
     },

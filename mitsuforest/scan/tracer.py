@@ -33,8 +33,9 @@ class PulseTracer:
 
     :param sensor: a :class:`~mitsuforest.config.types.Sensor`.
     :param seed: the scene's seed (keys the ranging noise and the stratified beam).
-    :param pattern: ``fixed`` (one sub-ray pattern for every pulse) or ``stratified`` (each pulse
-        draws its sub-rays inside the pattern's cells; see beam.py).
+    :param pattern: ``fixed`` (one sub-ray pattern for every pulse; the default here, for analytic
+        checks) or ``stratified`` (each pulse draws its sub-rays inside the pattern's cells; see
+        beam.py). A render uses the scene's ``simulation.beam_pattern`` (stratified by default).
     """
 
     def __init__(self, scan_scene, sensor, beam_samples: int, seed: int = 0, pattern: str = "fixed"):
