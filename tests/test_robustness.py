@@ -16,7 +16,6 @@ from mitsuforest.scan import POINT_DTYPE
 from mitsuforest.trees import cache
 from mitsuforest.trees.understory import rock_model
 from mitsuforest.write import Staging
-from mitsuforest.write.atomic import TMP_MARK, remove_temporaries
 from mitsuforest.write.las import crs_wkt, write_las
 
 HOST = socket.gethostname()
@@ -170,16 +169,6 @@ def test_two_stagings_of_one_process_are_apart(tmp_path):
     assert a.path != b.path and a.path.name.endswith(f"-{HOST}-{os.getpid()}")
     a.discard()
     assert b.path.is_dir()
-
-
-def test_remove_temporaries_spares_running_writers(tmp_path, pids):
-    live, dead = pids
-    running = tmp_path / f"a.las{TMP_MARK}{HOST}-{live}"
-    ended = tmp_path / f"b.las{TMP_MARK}{HOST}-{dead}"
-    running.write_text("x")
-    ended.write_text("x")
-    remove_temporaries(tmp_path)
-    assert running.exists() and not ended.exists()
 
 
 def _points(n=5):

@@ -59,15 +59,3 @@ def atomic_path(path):
 def write_text(path, text: str) -> None:
     with atomic_path(path) as tmp:
         tmp.write_text(text)
-
-
-def write_bytes(path, data: bytes) -> None:
-    with atomic_path(path) as tmp:
-        tmp.write_bytes(data)
-
-
-def remove_temporaries(folder) -> None:
-    """Delete the temporary files that processes which have ended on this host left in ``folder``."""
-    for p in Path(folder).glob(f"*{TMP_MARK}*"):
-        if owner_is_gone(p.name.rpartition(TMP_MARK)[2]):
-            p.unlink(missing_ok=True)
