@@ -48,7 +48,7 @@ def test_stability_benchmark_quick():
 
 def test_speed_vs_error_benchmark_quick(tmp_path):
     stdout = _run([str(ROOT / "benchmarks" / "speed_vs_error.py"), "--quick", "--out", str(tmp_path)], ROOT)
-    assert "7 sub-rays" in stdout and "chains_not_maxima" in stdout and (tmp_path / "speed_vs_error.json").exists()
+    assert "7 fixed" in stdout and "7 stratified" in stdout and "chains_not_maxima" in stdout and (tmp_path / "speed_vs_error.json").exists()
 
 
 def test_full_scenes_benchmark_quick(tmp_path):
