@@ -12,20 +12,23 @@ naming the file, the key path and the reason; an edit (``scene.with_(...)``,
 from __future__ import annotations
 
 import dataclasses
+import math
 from pathlib import Path
 
 import yaml
 
 from ..errors import ConfigError, UserError
-from ..scan.beam import PATTERNS
 from ..trees.archetypes import DEFAULT_ARCHETYPES, FIELDS as ARCHETYPE_FIELDS, Archetype
 from .schema import REQUIRED, Context, Custom, FilePath, ListOf, Number, Text, Vector, parse_mapping
-from .types import FOREST_BANDS, Scene, Sensor, display_path, from_mapping, to_mapping
+from .types import BEAM_PATTERNS, FOREST_BANDS, Scene, Sensor, display_path, from_mapping, to_mapping
 
-__all__ = ["load_scene", "load_sensor", "scene_from_mapping", "read_yaml", "validate_scene", "Scene", "Sensor",
+__all__ = ["load_scene", "load_sensor", "scene_from_mapping", "read_yaml", "validate_scene", "scene_error", "Scene", "Sensor",
            "ConfigError", "FOREST_BANDS"]
 
 MAX_BEAM_SAMPLES = 61   # the speed-against-error benchmark stops here; compile time grows faster than linearly
+MAX_PLOT_SIDE = 2000.0  # m: the 0.25 m cover raster of a 2 km plot is 64 MB (a 1000 km one would be 14.6 TiB)
+MIN_BATCH = 1000        # time slots per launch: fewer spend their time launching kernels
+RSA_JAMMING = 0.547     # random sequential adsorption of discs fills at most this share of a plane
 SENSOR_SPEC = {
     "name": Text(REQUIRED),
     "source": Text(""),
@@ -117,13 +120,15 @@ def _legs(value, ctx: Context, key: str):
 def _pair(v, ctx, key):
     if not isinstance(v, list) or len(v) != 2:
         ctx.fail(key, f"a leg must be [[x0, y0], [x1, y1]], got {v!r}")
+    if v[0] == v[1]:
+        ctx.fail(key, f"a leg needs two distinct ends, got {v!r}")
     return v
 
 
 SCENE_SPEC = {
     "name": Text(None, nullable=True),
     "seed": Number(0, integer=True, ge=0),
-    "area": {"size": Vector(2, Number(gt=0), [100.0, 100.0])},
+    "area": {"size": Vector(2, Number(gt=0, le=MAX_PLOT_SIDE), [100.0, 100.0])},
     "origin": {"crs": Custom(_crs, None), "offset": Vector(3, Number(), [0.0, 0.0, 0.0])},
     "terrain": {
         "type": Text("flat", choices=("flat", "noise", "mesh")),
@@ -154,9 +159,9 @@ SCENE_SPEC = {
     },
     "simulation": {
         "beam_samples": Number(19, integer=True, ge=1, le=MAX_BEAM_SAMPLES),   # see README, "Choosing beam_samples"
-        "beam_pattern": Text("stratified", choices=PATTERNS),
+        "beam_pattern": Text("stratified", choices=BEAM_PATTERNS),
         "variant": Text("auto"),
-        "pulses_per_batch": Number(None, integer=True, gt=0, nullable=True),
+        "pulses_per_batch": Number(None, integer=True, ge=MIN_BATCH, nullable=True),
     },
     "output": {
         "dir": FilePath(None, nullable=True, must_exist=False),
@@ -165,13 +170,26 @@ SCENE_SPEC = {
 }
 
 
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """A safe loader that refuses a mapping with a key given twice (PyYAML keeps the last silently)."""
+
+    def construct_mapping(self, node, deep=False):
+        seen = set()
+        for key_node, _ in node.value:
+            key = self.construct_object(key_node, deep=deep)
+            if key in seen:
+                raise yaml.constructor.ConstructorError(None, None, f"duplicate key {key!r}", key_node.start_mark)
+            seen.add(key)
+        return super().construct_mapping(node, deep)
+
+
 def read_yaml(path) -> tuple[object, Context]:
     """Read one YAML file; a missing file or a syntax error is a :class:`ConfigError`."""
     path = Path(path)
     if not path.is_file():
         raise ConfigError(display_path(path), "", "file not found" if not path.exists() else "not a file")
     try:
-        data = yaml.safe_load(path.read_text())
+        data = yaml.load(path.read_text(), Loader=_UniqueKeyLoader)
     except yaml.YAMLError as e:
         mark = getattr(e, "problem_mark", None)
         where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark else ""
@@ -227,6 +245,11 @@ def scene_from_mapping(data, file=None) -> Scene:
     return from_mapping(Scene, parsed, file=str(Path(file).resolve()) if file else None)
 
 
+def scene_error(scene: Scene, key: str, reason: str) -> ConfigError:
+    """A problem found after loading (planning, say), reported like the file's own errors."""
+    return ConfigError(display_path(scene.file) if scene.file else Path("<scene>"), key, reason)
+
+
 def validate_scene(scene: Scene) -> None:
     """Check a scene by the rules of its file (``Scene`` calls this whenever one is made)."""
     _parsed_scene(to_mapping(scene), Context(display_path(scene.file) if scene.file else Path("<scene>")))
@@ -246,6 +269,12 @@ def _check_scene(scene: dict, ctx: Context):
     forest, survey, sensor = scene["forest"], scene["survey"], scene["sensor"]
     if forest["canopy_cover"] is not None and forest["trees"] is not None:
         ctx.fail("forest.trees", "give either forest.canopy_cover or forest.trees, not both")
+    if forest["trees"] and forest["min_spacing"] > 0:
+        w, h = scene["area"]["size"]
+        fit = int(RSA_JAMMING * w * h / (math.pi * (forest["min_spacing"] / 2) ** 2)) + 1
+        if forest["trees"] > fit:
+            ctx.fail("forest.trees", f"{forest['trees']} trees at min_spacing {forest['min_spacing']:g} m do not fit "
+                     f"in a {w:g} x {h:g} m plot (random placement fills at most about {fit})")
     cover = forest["canopy_cover"]
     lo, hi = FOREST_BANDS[forest["type"]]
     if cover is not None and not lo <= cover <= hi:

@@ -30,6 +30,7 @@ from ..trees.archetypes import Archetype
 
 # Australia's National Forest Inventory crown cover classes.
 FOREST_BANDS = {"woodland": (0.20, 0.50), "open": (0.50, 0.80), "closed": (0.80, 1.00)}
+BEAM_PATTERNS = ("stratified", "fixed")   # see scan/beam.py
 SPEED_OF_LIGHT = 299_792_458.0
 
 

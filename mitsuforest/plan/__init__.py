@@ -14,6 +14,7 @@ import dataclasses
 import numpy as np
 
 from ..classes import DEADWOOD_TREEID, GROUND_OBJECT_ID
+from ..config import RSA_JAMMING, scene_error
 from ..errors import UserError
 from ..trees.models import tree_components
 from ..trees.skeleton import grow
@@ -31,12 +32,35 @@ MAX_TREES = 5000
 UNDERSTORY_MODELS = ("bush", "rock", "deadwood", "stump")
 
 
+class _Refusal(Exception):
+    """A scene the plan cannot be made of: raised as the scene file's ConfigError by make_plan."""
+
+    def __init__(self, key: str, reason: str):
+        super().__init__(reason)
+        self.key, self.reason = key, reason
+
+
 def make_plan(scene) -> Plan:
     """Place trees and understory, measure canopy cover, lay out the flight legs of a
-    :class:`~mitsuforest.config.types.Scene`."""
+    :class:`~mitsuforest.config.types.Scene`.
+
+    :raises ConfigError: ``FILE: key.path: reason`` when the scene cannot be planned.
+    """
+    try:
+        return _plan(scene)
+    except _Refusal as r:
+        raise scene_error(scene, r.key, r.reason) from None
+
+
+def _plan(scene) -> Plan:
     rng = np.random.default_rng(scene.seed)
     size = scene.area.size
-    terrain = make_terrain(scene.terrain, size, scene.seed)
+    try:
+        terrain = make_terrain(scene.terrain, size, scene.seed)
+    except UserError as e:
+        raise _Refusal("terrain.path", str(e)) from None
+    legs = _checked_legs(scene, flight_legs(size, scene.survey, terrain.mean_height))   # before the slow part
+    _check_understory_fits(scene)
     archetypes = scene.forest.archetypes
     summaries = [_summarise(a) for a in archetypes]
     models = {f"tree{i + 1:02d}": ModelSpec("tree", components, archetype=a)
@@ -48,8 +72,44 @@ def make_plan(scene) -> Plan:
         scene=scene.name, seed=scene.seed, area=tuple(size), forest_type=scene.forest.type,
         canopy_cover=round(cover, 6), terrain=terrain, models=models,
         objects=tuple(_with_ids(trees + understory, models)),
-        legs=tuple(flight_legs(size, scene.survey, terrain.mean_height)),
+        legs=tuple(legs),
     )
+
+
+MAX_LEG_PULSES = 2 ** 32     # time slots are numbered in 32 bits within a leg
+
+
+def _checked_legs(scene, legs: list[Leg]) -> list[Leg]:
+    """Refuse legs that overflow the per-leg pulse counter or never come within reach of the plot."""
+    for i, leg in enumerate(legs):
+        key = f"survey.lines[{i}]" if scene.survey.lines else "survey"
+        count = leg.pulse_count(scene.pulse_frequency)
+        if count >= MAX_LEG_PULSES:
+            raise _Refusal("survey.speed", f"leg {i + 1} lasts {leg.t1 - leg.t0:,.0f} s: {count:,} pulses, more "
+                           f"than the {MAX_LEG_PULSES:,} a leg can number; fly faster or split the leg")
+        gap, reach = _leg_gap(leg, scene.area.size), _reach(scene)
+        if gap > reach:
+            raise _Refusal(key, f"the leg passes {gap:,.1f} m from the plot, beyond the sensor's reach of "
+                           f"{reach:,.1f} m at this altitude")
+    return legs
+
+
+def _leg_gap(leg: Leg, size) -> float:
+    """Horizontal distance (m) between a leg and the plot rectangle (0 when it crosses the plot)."""
+    a, b = np.array(leg.start[:2]), np.array(leg.end[:2])
+    along = np.linspace(0.0, 1.0, 1001)[:, None] * (b - a) + a
+    outside = np.maximum(np.maximum(-along, along - np.asarray(size)), 0.0)
+    return float(np.hypot(outside[:, 0], outside[:, 1]).min())
+
+
+def _reach(scene) -> float:
+    """How far from the track (m) a pulse can reach the ground: the field of view's edge at the flying
+    height (less the terrain's relief), and never beyond ``range_max``."""
+    sensor = scene.sensor
+    if sensor.half_fov >= np.pi / 2:
+        return sensor.range_max
+    height = scene.survey.altitude + scene.terrain.amplitude
+    return min(sensor.range_max, height * float(np.tan(sensor.half_fov)))
 
 
 def plan_json(plan: Plan) -> str:
@@ -95,8 +155,8 @@ def _place_trees(forest, size, crowns, terrain, rng) -> tuple[list[PlacedObject]
         if len(positions) and np.min(np.hypot(*(positions - xy).T)) < spacing:
             misses += 1
             if misses > 20_000:
-                raise UserError(f"forest: cannot place tree {len(trees) + 1} with min_spacing {spacing:g} m "
-                                f"in a {size[0]:g} x {size[1]:g} m plot; lower forest.min_spacing or the target")
+                raise _Refusal("forest.min_spacing", f"cannot place tree {len(trees) + 1} at {spacing:g} m from "
+                               f"the others in a {size[0]:g} x {size[1]:g} m plot; lower it or the tree target")
             continue
         misses = 0
         k = int(rng.choice(len(weights), p=weights))
@@ -105,7 +165,8 @@ def _place_trees(forest, size, crowns, terrain, rng) -> tuple[list[PlacedObject]
         trees.append(tree)
         positions = np.vstack([positions, xy])
     if target_count is None and grid.fraction < target_cover:
-        raise UserError(f"forest: canopy cover reached only {grid.fraction:.3f} of {target_cover:g}")
+        raise _Refusal("forest.canopy_cover", f"reached only {grid.fraction:.3f} of {target_cover:g} "
+                       f"with {len(trees)} trees; lower it or forest.min_spacing")
     return trees, grid.fraction
 
 
@@ -146,6 +207,18 @@ def _place_understory(scene: dict, size, trees, terrain, rng):
     return objects, models
 
 
+def _check_understory_fits(scene) -> None:
+    """Refuse at once understory counts whose clearance discs cannot fit in the plot (random placement
+    fills at most a share RSA_JAMMING of the plane); the placement loop stays the exact test."""
+    counts = scene.understory
+    (w, h), used = scene.area.size, 0.0
+    for kind, key in (("bush", "bushes"), ("rock", "rocks"), ("deadwood", "deadwood"), ("stump", "stumps")):
+        used += getattr(counts, key) * np.pi * CLEARANCE[kind] ** 2
+        if used > RSA_JAMMING * w * h:
+            raise _Refusal(f"understory.{key}", f"{getattr(counts, key)} {key} do not fit in a {w:g} x {h:g} m plot "
+                           "beside the other understory (each keeps a clear disc); lower the counts")
+
+
 class _Footprint:
     """A segment of ``length`` through ``centre`` at ``yaw`` (degrees), widened by ``clearance``."""
 
@@ -166,7 +239,8 @@ def _free_spot(size, taken, length, clearance, rng, kind) -> _Footprint:
         spot = _Footprint(rng.uniform([0, 0], size), rng.uniform(0, 360), length, clearance)
         if all(spot.clear_of(other) for other in taken):
             return spot
-    raise UserError(f"understory: no free place left for another {kind}; lower the understory counts")
+    key = {"bush": "bushes", "rock": "rocks", "deadwood": "deadwood", "stump": "stumps"}[kind]
+    raise _Refusal(f"understory.{key}", f"no free place left for another {kind}; lower the understory counts")
 
 
 def _with_ids(objects: list[PlacedObject], models: dict[str, ModelSpec]) -> list[PlacedObject]:

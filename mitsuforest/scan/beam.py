@@ -43,8 +43,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-PATTERNS = ("fixed", "stratified")
-
 
 def ring_counts(samples: int) -> list[int]:
     """Sub-rays per ring: 1, 6, 12, 18, ... with the remainder in the last ring.
