@@ -1,12 +1,16 @@
 """The ``mitsuforest`` command line: render, plan, trees, export, info.
 
-User errors (bad files, bad values, refused overwrites) print one line ``mitsuforest: ...`` and exit
-with code 2, without a traceback; Ctrl-C exits with 130 and leaves no finished-looking output.
+User errors (bad files, bad values, refused overwrites, a busy or unwritable output folder) print
+one line ``mitsuforest: ...`` and exit with code 2, without a traceback. A write that fails mid-run
+(a full disk, say) prints ``mitsuforest: PATH: reason`` and exits with 1. Ctrl-C exits with 130 and
+SIGTERM with 143; neither leaves finished-looking output.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
+import signal
 import sys
 from pathlib import Path
 
@@ -51,17 +55,44 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (what schedulers send), handled like Ctrl-C: clean up, then exit 143."""
+
+
+def _terminate(signum, frame):
+    raise Terminated()
+
+
 def main(argv=None) -> int:
     args = _parser().parse_args(argv)
+    previous = signal.signal(signal.SIGTERM, _terminate) if _main_thread() else None
     try:
-        return _COMMANDS[args.command](args) or 0
+        code = _COMMANDS[args.command](args) or 0
+        sys.stdout.flush()                    # a closed pipe shows here, not in a traceback at exit
+        return code
     except UserError as e:
         print(f"mitsuforest: {e}", file=sys.stderr)
         return e.exit_code
-    except KeyboardInterrupt:
-        print("mitsuforest: interrupted; no finished output was written (partial files removed). "
+    except KeyboardInterrupt as e:
+        how = "stopped (SIGTERM)" if isinstance(e, Terminated) else "interrupted"
+        print(f"mitsuforest: {how}; no finished output was written (partial files removed). "
               "Run the same command again to redo it.", file=sys.stderr)
-        return 130
+        return 143 if isinstance(e, Terminated) else 130
+    except BrokenPipeError:                   # `mitsuforest info FILE | head`: the reader has gone
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
+    except OSError as e:                      # a write failing mid-run: disk full, folder removed ...
+        print(f"mitsuforest: {e.filename or ''}: {e.strerror or e}; nothing was finished (partial files "
+              "removed)", file=sys.stderr)
+        return 1
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+
+
+def _main_thread() -> bool:
+    import threading
+    return threading.current_thread() is threading.main_thread()
 
 
 def _render(args) -> int:

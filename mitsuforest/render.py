@@ -22,7 +22,8 @@ from .plan import Plan, make_plan
 from .scan import scan
 from .scene import build_scene
 from .trees import build_models
-from .write import PointWriter, Staging, existing_outputs, write_manifest, write_render_outputs
+from .write import (PointWriter, Staging, check_output_folder, existing_outputs, output_lock, write_manifest,
+                    write_render_outputs)
 from .write.background import Background
 
 DEPENDENCIES = ("mitsuba", "drjit", "numpy", "trimesh", "manifold3d", "laspy", "scipy", "pyyaml", "pyproj")
@@ -43,35 +44,64 @@ def render(scene, *, output_dir=None, seed=None, variant=None, overwrite=False, 
     the scene file's form (validated like the file).
 
     :param seed, variant, output_dir: overrides, as on the command line.
-    :param write: write the output files (see README, Outputs) into ``output.dir``.
+    :param write: write the output files (see README, Outputs) into ``output.dir``. The folder is
+        checked before any work and locked while the files are written: a second render of the same
+        scene into it is refused, and earlier results are replaced only with ``overwrite``.
     :param keep_points: also return every point in memory; by default only when not writing.
     """
     scene = _as_scene(scene, seed=seed, variant=variant, output_dir=output_dir)
     keep_points = (not write) if keep_points is None else keep_points
     name, out = scene.name, Path(scene.output.dir)
-    if write and not overwrite and existing_outputs(out, name):
-        raise UserError(f"{out} already holds results of '{name}' ({', '.join(existing_outputs(out, name)[:3])}, ...);"
-                        " pass --overwrite to replace them")
-    timings = {}
-    clock = time.perf_counter()
-
-    def lap(stage):
-        nonlocal clock
-        now = time.perf_counter()
-        timings[stage] = round(now - clock, 3)
-        clock = now
-
+    if write:
+        check_output_folder(out)
+        _refuse_existing(out, name, overwrite)
+    timings = Timings()
     plan = make_plan(scene)
-    lap("plan")
+    timings.lap("plan")
     log(f"plan: {len(plan.trees)} trees, canopy cover {plan.canopy_cover:.1%}, {len(plan.objects)} objects, "
         f"{len(plan.legs)} legs")
     models = build_models(plan)
-    lap("trees")
+    timings.lap("trees")
     scan_scene = build_scene(plan, models, scene.sensor, scene.simulation.variant)
-    lap("scene")
+    timings.lap("scene")
     log(f"scene: {scan_scene.objects} objects ({scan_scene.culled} out of reach), "
         f"{scan_scene.triangles:,} distinct triangles, variant {scan_scene.variant}")
-    staging = Staging(out, name) if write else None
+    if write:
+        with output_lock(out, name):
+            result, manifest, writer, files = _scan_and_write(scene, plan, models, scan_scene, timings, progress,
+                                                              keep_points, Staging(out, name), overwrite)
+    else:
+        result, manifest, writer, files = _scan_and_write(scene, plan, models, scan_scene, timings, progress,
+                                                          keep_points, None, overwrite)
+    log(f"scan: {result.pulses_cast:,} pulses cast in {result.seconds:.1f} s "
+        f"({result.pulses_cast / max(result.seconds, 1e-9):,.0f} pulses/s), {manifest['points']:,} points, "
+        f"{manifest['density_per_m2']:.0f} points/m2")
+    return RenderResult(scene, plan, manifest, writer.points, files)
+
+
+class Timings(dict):
+    """Seconds per stage, each from the end of the previous one."""
+
+    def __init__(self):
+        super().__init__()
+        self._clock = time.perf_counter()
+
+    def lap(self, stage: str) -> None:
+        now = time.perf_counter()
+        self[stage] = round(now - self._clock, 3)
+        self._clock = now
+
+
+def _refuse_existing(out: Path, name: str, overwrite: bool) -> None:
+    found = existing_outputs(out, name)
+    if found and not overwrite:
+        raise UserError(f"{out} already holds results of '{name}' ({', '.join(found[:3])}, ...);"
+                        " pass --overwrite to replace them")
+
+
+def _scan_and_write(scene, plan, models, scan_scene, timings, progress, keep_points, staging, overwrite):
+    """Scan, streaming points to the writer, then write every file into ``staging`` and move them into
+    place; on any failure or interrupt the staging folder is removed."""
     writer = None
     try:
         writer = PointWriter(staging, scene, keep=keep_points)
@@ -81,15 +111,15 @@ def render(scene, *, output_dir=None, seed=None, variant=None, overwrite=False, 
         finally:
             sink.close()
         writer.close()
-        lap("scan")
-        stats = writer.statistics()
-        manifest = _manifest(scene, plan, scan_scene, result, stats, timings)
+        timings.lap("scan")
+        manifest = _manifest(scene, plan, scan_scene, result, writer.statistics(), timings)
         files = []
-        if write:
+        if staging:
             write_render_outputs(staging, scene=scene, plan=plan, models=models, writer=writer)
-            lap("write")
+            timings.lap("write")
             manifest["timings_s"] = dict(timings)
             write_manifest(staging, manifest)
+            _refuse_existing(staging.folder, scene.name, overwrite)   # results that appeared meanwhile
             files = staging.commit()
     except BaseException:
         if writer:
@@ -97,10 +127,7 @@ def render(scene, *, output_dir=None, seed=None, variant=None, overwrite=False, 
         if staging:
             staging.discard()
         raise
-    log(f"scan: {result.pulses_cast:,} pulses cast in {result.seconds:.1f} s "
-        f"({result.pulses_cast / max(result.seconds, 1e-9):,.0f} pulses/s), {stats['points']:,} points, "
-        f"{stats['density_per_m2']:.0f} points/m2")
-    return RenderResult(scene, plan, manifest, writer.points, files)
+    return result, manifest, writer, files
 
 
 def _as_scene(scene, seed, variant, output_dir) -> Scene:

@@ -44,3 +44,78 @@ def test_hostile_value_is_refused_at_once(case, tmp_path, monkeypatch, capsys):
     assert err.count("\n") == 0 and err.startswith("mitsuforest: scene.yaml: ") and message in err, err
     assert not (tmp_path / "out").exists()
     assert seconds < 1.0
+
+
+# Faults while writing, and two renders into one folder ------------------------------------------------
+
+def test_write_failure_reports_the_cause_and_leaves_nothing(tmp_path, monkeypatch, capsys):
+    """A disk that fills up in the write stage: the cause in one line, exit 1, no staging folder."""
+    import errno
+    import importlib
+
+    from test_outputs import _small_scene
+    render_module = importlib.import_module("mitsuforest.render")
+    path = _small_scene(tmp_path)
+    out = tmp_path / "out"
+
+    def full_disk(staging, **_):
+        raise OSError(errno.ENOSPC, "No space left on device", str(staging.file("_volumes.csv")))
+    monkeypatch.setattr(render_module, "write_render_outputs", full_disk)
+    code = main(["render", str(path), "-o", str(out), "--quiet"])
+    err = capsys.readouterr().err.strip()
+    assert code == 1 and err.count("\n") == 0, err
+    assert err.startswith("mitsuforest: ") and "_volumes.csv: No space left on device" in err
+    assert list(out.iterdir()) == []
+
+
+@pytest.mark.parametrize("where", ["a file", "under a file"])
+def test_output_folder_that_cannot_be_made_is_refused_before_work(tmp_path, monkeypatch, capsys, where):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "scene.yaml").write_text(GOOD)
+    (tmp_path / "taken").write_text("x")
+    target = "taken" if where == "a file" else "taken/out"
+    start = time.perf_counter()
+    assert main(["render", "scene.yaml", "-o", target]) == 2
+    err = capsys.readouterr().err.strip()
+    assert time.perf_counter() - start < 1.0
+    assert err.count("\n") == 0 and "the output folder" in err and "is a file" in err, err
+    assert (tmp_path / "taken").read_text() == "x"
+
+
+def test_second_render_into_a_busy_folder_is_refused(tmp_path, capsys):
+    """Render A is scanning; render B of the same scene into the same folder refuses in one line, and A
+    is untouched."""
+    import signal
+
+    from test_outputs import _small_scene, _start, _wait_for_points
+    path = _small_scene(tmp_path, pulse_frequency=300000, speed=0.2, lines=None, line_spacing=1)
+    out = tmp_path / "out"
+    first = _start(path, out)
+    try:
+        _wait_for_points(first, out)
+        code = main(["render", str(path), "-o", str(out), "--seed", "3", "--quiet"])
+        err = capsys.readouterr().err.strip()
+        assert code == 2 and err.count("\n") == 0, err
+        assert "another render of 'test' is writing here" in err
+        assert first.poll() is None                          # A goes on
+    finally:
+        first.send_signal(signal.SIGINT)
+        first.communicate(timeout=120)
+    assert first.returncode == 130 and list(out.iterdir()) == []
+
+
+def test_info_into_a_closed_pipe_is_quiet(tmp_path):
+    """``mitsuforest info FILE | true``: no BrokenPipeError traceback, exit 0."""
+    import subprocess
+    import sys
+
+    import numpy as np
+
+    from mitsuforest.scan import POINT_DTYPE
+    from mitsuforest.write.pcd import pcd_header
+    path = tmp_path / "p.pcd"
+    points = np.zeros(50_000, POINT_DTYPE)
+    path.write_bytes(pcd_header(POINT_DTYPE, len(points)).encode("ascii") + points.tobytes())
+    proc = subprocess.run(["bash", "-c", f"{sys.executable} -m mitsuforest info {path} | true; "
+                           "echo ${PIPESTATUS[0]} >&2"], capture_output=True, text=True, timeout=120)
+    assert proc.stderr.strip() == "0", proc.stderr

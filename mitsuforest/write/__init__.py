@@ -8,11 +8,15 @@ when all of them are complete, the manifest last: a render is finished exactly w
 
 from __future__ import annotations
 
+import fcntl
 import json
 import os
 import shutil
 import tempfile
+from contextlib import contextmanager
 from pathlib import Path
+
+from ..errors import UserError
 
 from .atomic import owner_is_gone, owner_tag, write_text
 from .las import write_las
@@ -21,7 +25,7 @@ from .quicklook import write_png
 from .stream import PointWriter, georeference
 from .tables import write_ids, write_trajectory, write_volumes
 
-__all__ = ["Staging", "PointWriter", "georeference", "output_files", "existing_outputs", "read_pcd",
+__all__ = ["Staging", "check_output_folder", "output_lock", "PointWriter", "georeference", "output_files", "existing_outputs", "read_pcd",
            "write_las", "write_render_outputs", "write_manifest"]
 
 SUFFIXES = (".pcd", ".las", ".laz", "_volumes.csv", "_ids.csv", "_plan.json", "_trajectory.csv",
@@ -35,6 +39,40 @@ def output_files(name: str) -> list[str]:
 def existing_outputs(folder, name: str) -> list[str]:
     folder = Path(folder)
     return [f for f in output_files(name) if (folder / f).exists()]
+
+
+def check_output_folder(folder) -> None:
+    """Refuse, before any work, an output folder that cannot be made or written: a file, a path under a
+    file, or a folder this user cannot write (the nearest existing folder on the way is checked)."""
+    folder = Path(folder).absolute()
+    existing = next(p for p in (folder, *folder.parents) if p.exists())
+    if not existing.is_dir():
+        what = "is a file" if existing == folder else f"cannot be made: {existing} is a file"
+        raise UserError(f"{folder}: the output folder {what}")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise UserError(f"{folder}: the output folder cannot be written ({existing}: permission denied)")
+
+
+@contextmanager
+def output_lock(folder, name: str):
+    """Hold ``.NAME.lock`` in ``folder`` while a render writes there (an advisory ``flock``); a second
+    render of ``name`` into the same folder is refused with a :class:`UserError`."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / f".{name}.lock"
+    handle = open(path, "a+")  # noqa: SIM115 (held for the whole block)
+    try:
+        fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        handle.close()
+        raise UserError(f"{folder}: another render of '{name}' is writing here; wait for it to finish or "
+                        "choose another output folder") from None
+    try:
+        yield
+    finally:
+        path.unlink(missing_ok=True)
+        fcntl.flock(handle, fcntl.LOCK_UN)
+        handle.close()
 
 
 class Staging:

@@ -110,7 +110,12 @@ class LasStream:
     def close(self) -> None:
         self._writer.close()
 
-    abort = close
+    def abort(self) -> None:
+        """Close, unless closed already (laspy cannot close twice); errors of a broken file are moot."""
+        try:
+            self._writer.close()
+        except (ValueError, OSError):
+            pass
 
 
 def write_las(path, points: np.ndarray, offset, crs: str | None = None) -> None:

@@ -75,9 +75,10 @@ class PointWriter:
             self._pcd_file.close()
 
     def abort(self) -> None:
+        """Close whatever is still open (after a failure, possibly inside :meth:`close`)."""
         for las in self._las:
             las.abort()
-        if self._pcd_file:
+        if self._pcd_file and not self._pcd_file.closed:
             self._pcd_file.close()
 
     @property
