@@ -4,7 +4,7 @@ Each scene is rendered by the CLI in a child process (so its peak memory is meas
 figures come from its manifest, next to the Synthetic Forest paper's Table 3.
 
     python benchmarks/full_scenes.py                       # woodland, open, closed (long: see RESULTS.md)
-    python benchmarks/full_scenes.py open --beam-samples 7
+    python benchmarks/full_scenes.py open --beam-samples 1 --beam-pattern fixed   # thin beam
     python benchmarks/full_scenes.py --quick               # 20 m x 20 m versions, one leg (CI)
 """
 
@@ -29,7 +29,7 @@ CHILD = ("import resource, sys\nfrom mitsuforest.cli import main\ncode = main(sy
          "print('PEAK_RSS_KB', resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, file=sys.stderr)\nsys.exit(code)")
 
 
-def scene_copy(name: str, folder: Path, beam_samples: int | None, quick: bool) -> Path:
+def scene_copy(name: str, folder: Path, beam_samples: int | None, quick: bool, beam_pattern: str | None = None) -> Path:
     """The scene file with absolute paths, optionally changed (sub-rays; a 20 m quick version)."""
     src = ROOT / "scenes" / f"{name}.yaml"
     data = yaml.safe_load(src.read_text())
@@ -37,6 +37,8 @@ def scene_copy(name: str, folder: Path, beam_samples: int | None, quick: bool) -
     data.setdefault("simulation", {})
     if beam_samples:
         data["simulation"]["beam_samples"] = beam_samples
+    if beam_pattern:
+        data["simulation"]["beam_pattern"] = beam_pattern
     if quick:
         data["area"] = {"size": [20, 20]}
         data["forest"]["trees"] = max(PAPER[name][0] // 25, 1)
@@ -49,8 +51,9 @@ def scene_copy(name: str, folder: Path, beam_samples: int | None, quick: bool) -
     return path
 
 
-def run(name: str, folder: Path, beam_samples, quick: bool, keep_manifest: Path | None = None) -> dict:
-    path = scene_copy(name, folder, beam_samples, quick)
+def run(name: str, folder: Path, beam_samples, quick: bool, keep_manifest: Path | None = None,
+        beam_pattern: str | None = None) -> dict:
+    path = scene_copy(name, folder, beam_samples, quick, beam_pattern)
     start = time.perf_counter()
     proc = subprocess.run([sys.executable, "-c", CHILD, "render", str(path), "--overwrite", "--quiet"],
                           capture_output=True, text=True)
@@ -78,6 +81,7 @@ def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("scenes", nargs="*", default=list(PAPER), help="woodland, open, closed (default: all three)")
     p.add_argument("--beam-samples", type=int, help="override the scenes' simulation.beam_samples")
+    p.add_argument("--beam-pattern", choices=["fixed", "stratified"], help="override simulation.beam_pattern")
     p.add_argument("--quick", action="store_true", help="20 m x 20 m versions, one leg")
     p.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "out")
     args = p.parse_args(argv)
@@ -87,7 +91,7 @@ def main(argv=None):
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for name in args.scenes:
-            row = run(name, Path(tmp), args.beam_samples, args.quick, args.out)
+            row = run(name, Path(tmp), args.beam_samples, args.quick, args.out, args.beam_pattern)
             rows.append(row)
             t = row["timings_s"]
             print(f"{name}: {row['wall_s']:.0f} s end to end (plan {t['plan']:.1f}, trees {t['trees']:.1f}, "
