@@ -119,3 +119,89 @@ def test_info_into_a_closed_pipe_is_quiet(tmp_path):
     proc = subprocess.run(["bash", "-c", f"{sys.executable} -m mitsuforest info {path} | true; "
                            "echo ${PIPESTATUS[0]} >&2"], capture_output=True, text=True, timeout=120)
     assert proc.stderr.strip() == "0", proc.stderr
+
+
+# Damaged and foreign files in `mitsuforest info` ------------------------------------------------------
+
+def _pcd(tmp_path, n=1000, count=None, digits=0):
+    import numpy as np
+
+    from mitsuforest.scan import POINT_DTYPE
+    from mitsuforest.write.pcd import pcd_header
+    points = np.zeros(n, POINT_DTYPE)
+    points["x"] = np.arange(n)
+    path = tmp_path / "p.pcd"
+    path.write_bytes(pcd_header(POINT_DTYPE, n if count is None else count, digits).encode("ascii") + points.tobytes())
+    return path
+
+
+def _las(tmp_path, label=True, n=1000):
+    import laspy
+    import numpy as np
+
+    from mitsuforest.write.las import las_header
+    header = las_header([0, 0, 0]) if label else laspy.LasHeader(point_format=6, version="1.4")
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = np.arange(n) * 0.01, np.zeros(n), np.zeros(n)
+    las.classification = np.where(np.arange(n) % 2, 2, 5).astype(np.uint8)
+    if label:
+        las.label = np.where(np.arange(n) % 2, 1, 3).astype(np.uint8)
+    path = tmp_path / "p.las"
+    las.write(str(path))
+    return path
+
+
+def _random(tmp_path, name):
+    path = tmp_path / name
+    path.write_bytes(bytes(range(256)) * 40)
+    return path
+
+
+def _cut(path, size):
+    path.write_bytes(path.read_bytes()[:size])
+    return path
+
+
+def _patched(path, offset, data):
+    raw = bytearray(path.read_bytes())
+    raw[offset:offset + len(data)] = data
+    path.write_bytes(bytes(raw))
+    return path
+
+
+def _header_text(path, old, new):
+    path.write_bytes(path.read_bytes().replace(old.encode(), new.encode(), 1))
+    return path
+
+
+DAMAGED = {
+    "pcd cut inside its header": (lambda t: _cut(_pcd(t), 60), "the header ends before its DATA line"),
+    "pcd of random bytes": (lambda t: _random(t, "r.pcd"), "not a PCD file"),
+    "pcd cut in its points": (lambda t: _cut(_pcd(t), 20_000), "truncated: the header promises 1,000 points"),
+    "pcd with absurd count": (lambda t: _header_text(_pcd(t), "POINTS 1000", "POINTS 999999999999999"),
+                              "truncated: the header promises 999,999,999,999,999 points"),
+    "pcd with mismatched SIZE": (lambda t: _header_text(_pcd(t), "SIZE 2 8", "SIZE 8"), "FIELDS but"),
+    "pcd without x": (lambda t: _header_text(_pcd(t), " x y z ", " a y z "), "no x, y, z fields"),
+    "pcd of a killed render": (lambda t: _pcd(t, count=0, digits=20), "the header counts 0 points but 1,000 follow"),
+    "las cut inside its header": (lambda t: _cut(_las(t), 100), "cannot read"),
+    "las of random bytes": (lambda t: _random(t, "r.las"), "cannot read"),
+    "las cut after its VLRs": (lambda t: _cut(_las(t), 1200), "truncated: the header promises 1,000 points"),
+    "las of an unknown point format": (lambda t: _patched(_las(t), 104, bytes([42])), "cannot read"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(DAMAGED))
+def test_damaged_file_gets_one_line(case, tmp_path, capsys):
+    make, message = DAMAGED[case]
+    path = make(tmp_path)
+    assert main(["info", str(path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and err.startswith(f"mitsuforest: {path}: ") and message in err, err
+
+
+def test_foreign_las_shows_asprs_class_names(tmp_path, capsys):
+    assert main(["info", str(_las(tmp_path, label=False))]) == 0
+    out = capsys.readouterr().out
+    assert "ground (ASPRS 2) 500 (50.0%)" in out and "high vegetation (ASPRS 5) 500" in out
+    assert main(["info", str(_las(tmp_path, label=True))]) == 0
+    assert "ground 500 (50.0%), tree_leaves 500" in capsys.readouterr().out

@@ -8,11 +8,18 @@ import numpy as np
 
 from ..classes import CLASS_NAMES
 from ..errors import UserError
-from .pcd import read_pcd
+from .pcd import PointFileError, read_pcd
+
+# ASPRS LAS 1.4 classes, for files of other tools (ours carry our own classes in ``label``).
+ASPRS_NAMES = {0: "never classified", 1: "unclassified", 2: "ground", 3: "low vegetation", 4: "medium vegetation",
+               5: "high vegetation", 6: "building", 7: "low point (noise)", 9: "water", 10: "rail",
+               11: "road surface", 13: "wire guard", 14: "wire conductor", 15: "transmission tower",
+               17: "bridge deck", 18: "high noise"}
 
 
-def load_points(path) -> tuple[dict, list[str]]:
-    """The file's columns by name (our class codes under ``classification``) and its field names."""
+def load_points(path) -> tuple[dict, list[str], dict]:
+    """The file's columns by name, its field names, and the names of its class codes (ours where the
+    file carries our ``label``, else ASPRS's)."""
     path = Path(path)
     if not path.is_file():
         raise UserError(f"{path}: file not found")
@@ -20,23 +27,39 @@ def load_points(path) -> tuple[dict, list[str]]:
     try:
         if suffix == ".pcd":
             pts = read_pcd(path)
-            return {n: pts[n] for n in pts.dtype.names}, list(pts.dtype.names)
+            return {n: pts[n] for n in pts.dtype.names}, list(pts.dtype.names), CLASS_NAMES
         if suffix in (".las", ".laz"):
-            import laspy
-            las = laspy.read(str(path))
-            names = list(las.point_format.dimension_names)
-            cols = {n: np.asarray(las[n]) for n in names}
-            cols["x"], cols["y"], cols["z"] = np.asarray(las.x), np.asarray(las.y), np.asarray(las.z)
-            if "label" in cols:
-                cols["classification"] = cols["label"]
-            return cols, names
-    except (ValueError, KeyError, OSError) as e:
+            return _load_las(path)
+    except PointFileError as e:
+        raise UserError(f"{path}: {e}") from None
+    except (ValueError, KeyError, OSError, MemoryError, EOFError) as e:
         raise UserError(f"{path}: cannot read: {e}") from None
+    except Exception as e:  # laspy and lazrs raise their own kinds for damaged files
+        raise UserError(f"{path}: cannot read: {type(e).__name__}: {e}") from None
     raise UserError(f"{path}: unknown point file type {suffix!r} (expected .pcd, .las or .laz)")
 
 
+def _load_las(path: Path) -> tuple[dict, list[str], dict]:
+    import laspy
+    with laspy.open(str(path)) as reader:
+        header = reader.header
+        need = header.offset_to_point_data + header.point_count * header.point_format.size
+        if not header.are_points_compressed and path.stat().st_size < need:
+            held = max(path.stat().st_size - header.offset_to_point_data, 0) // header.point_format.size
+            raise PointFileError(f"truncated: the header promises {header.point_count:,} points, the file "
+                                 f"holds {held:,}")
+        las = reader.read()
+    names = list(las.point_format.dimension_names)
+    cols = {n: np.asarray(las[n]) for n in names}
+    cols["x"], cols["y"], cols["z"] = np.asarray(las.x), np.asarray(las.y), np.asarray(las.z)
+    if "label" in cols:
+        cols["classification"] = cols["label"]
+        return cols, names, CLASS_NAMES
+    return cols, names, {k: f"{v} (ASPRS {k})" for k, v in ASPRS_NAMES.items()}
+
+
 def summary(path) -> str:
-    pts, names = load_points(path)
+    pts, names, class_names = load_points(path)
     n = len(pts["x"])
     lines = [f"{path}: {n:,} points", "fields: " + ", ".join(names)]
     if n == 0:
@@ -49,7 +72,7 @@ def summary(path) -> str:
         lines.append(f"density: {n / area:.1f} points/m2 over the x-y bounding box ({area:.1f} m2)")
     if "classification" in pts:
         counts = np.bincount(np.asarray(pts["classification"]).astype(int))
-        lines.append("classes: " + ", ".join(f"{CLASS_NAMES.get(k, k)} {v:,} ({v / n:.1%})"
+        lines.append("classes: " + ", ".join(f"{class_names.get(k, f'class {k}')} {v:,} ({v / n:.1%})"
                                               for k, v in enumerate(counts) if v))
     if "number_of_returns" in names and "return_number" in names:
         first = np.asarray(pts["return_number"]) == 1

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 
 
@@ -32,24 +34,78 @@ def pcd_header(dtype: np.dtype, count: int, digits: int = 0) -> str:
     ]) + "\n"
 
 
+class PointFileError(ValueError):
+    """A point file that cannot be read as it claims to be; the message says why."""
+
+
+_SIZES = {"U": (1, 2, 4, 8), "I": (1, 2, 4, 8), "F": (4, 8)}
+MAX_HEADER_LINES = 64
+
+
 def read_pcd(path) -> np.ndarray:
-    """Read a binary PCD (``DATA binary``), such as a render writes."""
+    """Read a binary PCD (``DATA binary``), such as a render writes.
+
+    :raises PointFileError: a damaged or foreign header, or fewer points than the header promises
+        (a truncated file, or one a render left when it was killed).
+    """
     with open(path, "rb") as f:
-        header = {}
-        while True:
-            line = f.readline()
-            if not line:
-                raise ValueError(f"{path}: no DATA line in the PCD header")
+        header = _pcd_header(f)
+        dtype = _pcd_dtype(header)
+        count = _pcd_count(header)
+        held = (os.fstat(f.fileno()).st_size - f.tell()) // dtype.itemsize
+        if held < count:
+            raise PointFileError(f"truncated: the header promises {count:,} points, the file holds {held:,}")
+        if count == 0 and held:
+            raise PointFileError(f"the header counts 0 points but {held:,} follow: an unfinished file "
+                                 "(a render stopped before it wrote its counts)")
+        data = f.read(count * dtype.itemsize)
+    return np.frombuffer(data, dtype, count)
+
+
+def _pcd_header(f) -> dict:
+    header = {}
+    for _ in range(MAX_HEADER_LINES):
+        line = f.readline()
+        if not line:
+            raise PointFileError("not a PCD file: the header ends before its DATA line")
+        try:
             text = line.decode("ascii").strip()
-            if not text or text.startswith("#"):
-                continue
-            key, *values = text.split()
-            header[key] = values
-            if key == "DATA":
-                break
-        if header["DATA"][0] != "binary":
-            raise ValueError(f"{path}: only DATA binary is supported, got {header['DATA'][0]}")
-        kinds = {"U": "u", "I": "i", "F": "f"}
-        dtype = np.dtype([(n, f"<{kinds[t]}{s}") for n, s, t in zip(header["FIELDS"], header["SIZE"], header["TYPE"])])
-        count = int(header["POINTS"][0])
-        return np.frombuffer(f.read(count * dtype.itemsize), dtype, count)
+        except UnicodeDecodeError:
+            raise PointFileError("not a PCD file: its header is not text") from None
+        if not text or text.startswith("#"):
+            continue
+        key, *values = text.split()
+        header[key] = values
+        if key == "DATA":
+            if values != ["binary"]:
+                raise PointFileError(f"only DATA binary is supported, got DATA {' '.join(values)}")
+            return header
+    raise PointFileError("not a PCD file: no DATA line in its header")
+
+
+def _pcd_dtype(header: dict) -> np.dtype:
+    missing = [k for k in ("FIELDS", "SIZE", "TYPE", "POINTS") if k not in header]
+    if missing:
+        raise PointFileError(f"the PCD header lacks {', '.join(missing)}")
+    names, sizes, types = header["FIELDS"], header["SIZE"], header["TYPE"]
+    if not len(names) == len(sizes) == len(types):
+        raise PointFileError(f"the PCD header names {len(names)} FIELDS but {len(sizes)} SIZE and "
+                             f"{len(types)} TYPE entries")
+    if any(c != "1" for c in header.get("COUNT", ["1"] * len(names))):
+        raise PointFileError("only fields of COUNT 1 are supported")
+    for name, size, kind in zip(names, sizes, types):
+        if kind not in _SIZES or not size.isdigit() or int(size) not in _SIZES[kind]:
+            raise PointFileError(f"field {name!r}: unsupported TYPE {kind} SIZE {size}")
+    if not {"x", "y", "z"} <= set(names):
+        raise PointFileError("no x, y, z fields: not a point cloud this tool can read")
+    if len(set(names)) != len(names):
+        raise PointFileError("a field name appears twice in FIELDS")
+    kinds = {"U": "u", "I": "i", "F": "f"}
+    return np.dtype([(n, f"<{kinds[t]}{s}") for n, s, t in zip(names, sizes, types)])
+
+
+def _pcd_count(header: dict) -> int:
+    value = header["POINTS"][0] if header["POINTS"] else ""
+    if not value.isdigit():
+        raise PointFileError(f"POINTS must be a count, got {value!r}")
+    return int(value)
