@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from mitsuforest.classes import ROCK, TREE_WOOD
-from mitsuforest.render import render
+from mitsuforest.pipeline import render
 from mitsuforest.scan import PulseTracer
 from mitsuforest.scan.reference.echoes import pulse_echoes, waveform_maxima
 from mitsuforest.scene.analytic import analytic_scene, bare_scene_file, plane_model, pulses

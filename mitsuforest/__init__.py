@@ -4,18 +4,27 @@ The pipeline, one sub-package a stage: ``plan`` → ``trees`` → ``scene`` → 
 
 >>> import mitsuforest as mf                                   # doctest: +SKIP
 >>> scene = mf.load_scene("scenes/demo.yaml")                   # doctest: +SKIP
->>> scene["survey"]["altitude"] = 40                           # doctest: +SKIP
+>>> scene = scene.with_({"survey.altitude": 40})                # doctest: +SKIP
 >>> result = mf.render(scene, write=False)                     # doctest: +SKIP
 >>> result.points["x"], result.points["classification"]        # doctest: +SKIP
+
+The names below are imported on first use, so that ``python -m mitsuforest`` can hold interrupts
+while the heavy libraries load (cli.py, ``deferred_signals``).
 """
+
+import importlib
 
 __version__ = "0.1.0"
 
-from .config import load_scene, load_sensor  # noqa: E402
-from .errors import ConfigError, UserError  # noqa: E402
-from .plan import make_plan  # noqa: E402
-from .render import render  # noqa: E402
-from .write import read_pcd  # noqa: E402
+_API = {"load_scene": "config", "load_sensor": "config", "ConfigError": "errors", "UserError": "errors",
+        "make_plan": "plan", "render": "pipeline", "read_pcd": "write"}
 
-__all__ = ["load_scene", "load_sensor", "make_plan", "render", "read_pcd", "ConfigError", "UserError",
-           "__version__"]
+__all__ = [*_API, "__version__"]
+
+
+def __getattr__(name):
+    if name in _API:
+        value = getattr(importlib.import_module(f".{_API[name]}", __name__), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -12,6 +12,7 @@ import argparse
 import os
 import signal
 import sys
+from contextlib import contextmanager
 from pathlib import Path
 
 from . import __version__
@@ -67,6 +68,8 @@ def main(argv=None) -> int:
     args = _parser().parse_args(argv)
     previous = signal.signal(signal.SIGTERM, _terminate) if _main_thread() else None
     try:
+        if args.command != "info":
+            _preload()
         code = _COMMANDS[args.command](args) or 0
         sys.stdout.flush()                    # a closed pipe shows here, not in a traceback at exit
         return code
@@ -95,8 +98,41 @@ def _main_thread() -> bool:
     return threading.current_thread() is threading.main_thread()
 
 
+@contextmanager
+def deferred_signals():
+    """Hold SIGINT and SIGTERM while a block runs, then act on them: a C extension's import that an
+    interrupt cuts half-way can crash the process (seen with Mitsuba and Dr.Jit), and trimesh's import
+    swallows KeyboardInterrupt. The signals are only noted during the block (Python runs handlers
+    in the main thread, whichever thread the OS delivers them to)."""
+    if not _main_thread():
+        yield
+        return
+    pending = []
+    previous = {sig: signal.signal(sig, lambda signum, frame: pending.append(signum))
+                for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    if pending:
+        raise Terminated() if signal.SIGTERM in pending else KeyboardInterrupt()
+
+
+def _preload() -> None:
+    """Import the heavy libraries up front, with signals held (see :func:`deferred_signals`)."""
+    with deferred_signals():
+        import drjit  # noqa: F401
+        import laspy  # noqa: F401
+        import manifold3d  # noqa: F401
+        import mitsuba  # noqa: F401
+        import trimesh  # noqa: F401
+
+        from . import pipeline  # noqa: F401
+
+
 def _render(args) -> int:
-    from .render import render
+    from .pipeline import render
     log = (lambda *a: None) if args.quiet else (lambda msg: print(msg, file=sys.stderr))
     result = render(args.scene, output_dir=args.output, seed=args.seed, variant=args.variant,
                     overwrite=args.overwrite, progress=not args.quiet, log=log)

@@ -35,7 +35,7 @@ def _demo_scene(tmp_path_factory, variant, **understory):
 @pytest.fixture(scope="session")
 def demo_result(tmp_path_factory, variant):
     """The demo forest scanned along one leg (100 kHz, 7 sub-rays): a quick real forest scan."""
-    from mitsuforest.render import render
+    from mitsuforest.pipeline import render
     return render(_demo_scene(tmp_path_factory, variant), write=False, progress=False, log=lambda *_: None)
 
 

@@ -32,7 +32,7 @@ HOSTILE = {
 
 @pytest.mark.parametrize("case", sorted(HOSTILE))
 def test_hostile_value_is_refused_at_once(case, tmp_path, monkeypatch, capsys):
-    import mitsuforest.render  # noqa: F401  (imports are not what is timed)
+    import mitsuforest.pipeline  # noqa: F401  (imports are not what is timed)
     text, args, message = HOSTILE[case]
     monkeypatch.chdir(tmp_path)
     (tmp_path / "scene.yaml").write_text(text)
@@ -54,7 +54,7 @@ def test_write_failure_reports_the_cause_and_leaves_nothing(tmp_path, monkeypatc
     import importlib
 
     from test_outputs import _small_scene
-    render_module = importlib.import_module("mitsuforest.render")
+    render_module = importlib.import_module("mitsuforest.pipeline")
     path = _small_scene(tmp_path)
     out = tmp_path / "out"
 
@@ -205,3 +205,37 @@ def test_foreign_las_shows_asprs_class_names(tmp_path, capsys):
     assert "ground (ASPRS 2) 500 (50.0%)" in out and "high vegetation (ASPRS 5) 500" in out
     assert main(["info", str(_las(tmp_path, label=True))]) == 0
     assert "ground 500 (50.0%), tree_leaves 500" in capsys.readouterr().out
+
+
+def test_interrupts_wait_for_the_heavy_imports():
+    """Ctrl-C or SIGTERM during the imports of Mitsuba, Dr.Jit or trimesh is held until they are done,
+    then handled as usual (an import cut half-way crashed the process; trimesh's swallowed it)."""
+    import os
+    import signal
+
+    from mitsuforest.cli import deferred_signals
+    reached = []
+    with pytest.raises(KeyboardInterrupt):
+        with deferred_signals():
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.1)
+            reached.append("the end of the block")
+    assert reached == ["the end of the block"]
+
+
+def test_interrupt_at_start_exits_130_without_traceback(tmp_path):
+    """SIGINT sent as soon as the process starts: exit 130 (or the shell's 130 for a signal before
+    Python's handler exists), never a traceback or a crash."""
+    import signal
+    import subprocess
+    import sys
+    (tmp_path / "scene.yaml").write_text(GOOD)
+    for delay in (0.3, 0.6, 0.9, 1.2):
+        proc = subprocess.Popen([sys.executable, "-m", "mitsuforest", "render", "scene.yaml", "-o", "out"],
+                                cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        time.sleep(delay)
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=300)
+        assert proc.returncode in (130, -signal.SIGINT), (delay, proc.returncode, err)
+        assert "Traceback" not in err and "Fatal" not in err, (delay, err)
+        assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())

@@ -7,7 +7,7 @@ import pytest
 from helpers import analytic_scene, plane_model, pulses, scene_file
 
 from mitsuforest.classes import GROUND, ROCK
-from mitsuforest.render import render
+from mitsuforest.pipeline import render
 from mitsuforest.scan import PulseTracer, scan
 from mitsuforest.scan.radiometry import reflectance_table
 from mitsuforest.scan.reference import reaching_pulses, trace_reference

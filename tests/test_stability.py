@@ -10,7 +10,7 @@ import pytest
 from helpers import analytic_scene, plane_model, pulses, scene_file
 
 from mitsuforest.classes import GROUND, ROCK, TREE_WOOD
-from mitsuforest.render import render
+from mitsuforest.pipeline import render
 from mitsuforest.scan import PulseTracer
 from mitsuforest.scan.beam import beam_pattern
 from mitsuforest.trees.models import Component, Model, Part
