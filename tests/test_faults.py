@@ -239,3 +239,27 @@ def test_interrupt_at_start_exits_130_without_traceback(tmp_path):
         assert proc.returncode in (130, -signal.SIGINT), (delay, proc.returncode, err)
         assert "Traceback" not in err and "Fatal" not in err, (delay, err)
         assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
+
+
+def test_pcd_coordinates_are_float32_without_an_offset(tmp_path):
+    """Open3D's legacy reader takes only F 4 positions: a render without origin.offset writes x, y, z
+    as F 4 (equal to the LAS at its 0.1 mm), one with an offset keeps F 8 (tested in test_outputs)."""
+    import laspy
+    import numpy as np
+    from helpers import scene_file
+    from pypcd4 import PointCloud
+
+    from mitsuforest.write import read_pcd
+    path = scene_file(tmp_path, sensor="riegl_vux-1uav22.yaml", area={"size": [12, 12]},
+                      understory={"rocks": 2}, survey={"pulse_frequency": 100000, "lines": [[[6, -2], [6, 14]]]},
+                      simulation={"beam_samples": 7})
+    assert main(["render", str(path), "--quiet"]) == 0
+    out = tmp_path / "out"
+    head = (out / "test.pcd").read_bytes()[:400].decode("ascii", "replace")
+    assert "SIZE 2 4 4 4 1 " in head and "TYPE U F F F U " in head
+    pcd, las = read_pcd(out / "test.pcd"), laspy.read(str(out / "test.las"))
+    assert pcd["x"].dtype == np.float32 and len(pcd) > 1000
+    for axis in "xyz":
+        assert np.abs(pcd[axis] - np.asarray(getattr(las, axis))).max() < 1.5e-4
+    theirs = PointCloud.from_path(out / "test.pcd").numpy(("x", "y", "z"))
+    assert np.array_equal(theirs[:, 0], pcd["x"].astype(np.float64))

@@ -40,7 +40,7 @@ class PointWriter:
     def add(self, points: np.ndarray) -> None:
         """Add a batch of local-frame points (POINT_DTYPE)."""
         if self.dtype is None and self._pcd_file:
-            self._pcd_file.write(pcd_header(points.dtype, 0, COUNT_DIGITS).encode("ascii"))
+            self._pcd_file.write(pcd_header(self._pcd_dtype(points.dtype), 0, COUNT_DIGITS).encode("ascii"))
         self.dtype = points.dtype
         if len(points) == 0:
             return
@@ -56,11 +56,20 @@ class PointWriter:
             bucket.append(np.column_stack([points["x"][sel], points["y"][sel], points["z"][sel]]))
         geo = georeference(points, self.offset)
         if self._pcd_file:
-            self._pcd_file.write(np.ascontiguousarray(geo).data)
+            pcd = self._pcd_dtype(geo.dtype)
+            self._pcd_file.write(np.ascontiguousarray(geo if pcd == geo.dtype else geo.astype(pcd)).data)
         for las in self._las:
             las.write(geo)
         if self._kept is not None:
             self._kept.append(geo)
+
+    def _pcd_dtype(self, dtype: np.dtype) -> np.dtype:
+        """The PCD's point record: x, y, z as float32 (``F 4``, which every PCD reader, Open3D's legacy
+        one included, takes as positions) in the local frame; float64 (``F 8``) only with an
+        ``origin.offset``, whose georeferenced coordinates float32 cannot hold to the millimetre."""
+        if np.any(self.offset):
+            return dtype
+        return np.dtype([(n, "<f4" if n in ("x", "y", "z") else dtype[n]) for n in dtype.names])
 
     def close(self) -> None:
         """Finish the files: the PCD header is written once the point count is known."""
@@ -71,7 +80,7 @@ class PointWriter:
                 from ..scan import POINT_DTYPE
                 self.add(np.zeros(0, POINT_DTYPE))
             self._pcd_file.seek(0)                 # the counts, now known, in the header's padded fields
-            self._pcd_file.write(pcd_header(self.dtype, self.count, COUNT_DIGITS).encode("ascii"))
+            self._pcd_file.write(pcd_header(self._pcd_dtype(self.dtype), self.count, COUNT_DIGITS).encode("ascii"))
             self._pcd_file.close()
 
     def abort(self) -> None:
