@@ -30,7 +30,7 @@ CHILD = ("import resource, sys\nfrom mitsuforest.cli import main\ncode = main(sy
 
 
 def scene_copy(name: str, folder: Path, beam_samples: int | None, quick: bool, beam_pattern: str | None = None,
-               formats=("pcd", "las")) -> Path:
+               formats=("pcd", "laz")) -> Path:
     """The scene file with absolute paths, optionally changed (sub-rays; a 20 m quick version)."""
     src = ROOT / "scenes" / f"{name}.yaml"
     data = yaml.safe_load(src.read_text())
@@ -53,7 +53,7 @@ def scene_copy(name: str, folder: Path, beam_samples: int | None, quick: bool, b
 
 
 def run(name: str, folder: Path, beam_samples, quick: bool, keep_manifest: Path | None = None,
-        beam_pattern: str | None = None, formats=("pcd", "las")) -> dict:
+        beam_pattern: str | None = None, formats=("pcd", "laz")) -> dict:
     path = scene_copy(name, folder, beam_samples, quick, beam_pattern, formats)
     start = time.perf_counter()
     proc = subprocess.run([sys.executable, "-c", CHILD, "render", str(path), "--overwrite", "--quiet"],
@@ -84,7 +84,7 @@ def main(argv=None):
     p.add_argument("scenes", nargs="*", default=list(PAPER), help="woodland, open, closed (default: all three)")
     p.add_argument("--beam-samples", type=int, help="override the scenes' simulation.beam_samples")
     p.add_argument("--beam-pattern", choices=["fixed", "stratified"], help="override simulation.beam_pattern")
-    p.add_argument("--formats", nargs="+", default=["pcd", "las"], choices=["pcd", "las", "laz"])
+    p.add_argument("--formats", nargs="+", default=["pcd", "laz"], choices=["pcd", "las", "laz"])
     p.add_argument("--quick", action="store_true", help="20 m x 20 m versions, one leg")
     p.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "out")
     args = p.parse_args(argv)

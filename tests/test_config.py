@@ -73,6 +73,7 @@ def test_defaults_and_relative_paths(tmp_path):
     (tmp_path / "scene.yaml").write_text(GOOD)
     scene = load_scene(tmp_path / "scene.yaml")
     assert scene.simulation.beam_samples == 19 and scene.simulation.beam_pattern == "stratified"
+    assert scene.output.formats == ("pcd", "laz")
     assert scene.survey.scan_frequency is None and scene.scan_frequency == 50
     assert scene.sensor.beam_divergence == (0.5e-3, 0.5e-3)
     assert scene.forest.archetypes[0].height > 0 and len(scene.forest.archetypes) == 10

@@ -252,7 +252,7 @@ def test_pcd_coordinates_are_float32_without_an_offset(tmp_path):
     from mitsuforest.write import read_pcd
     path = scene_file(tmp_path, sensor="riegl_vux-1uav22.yaml", area={"size": [12, 12]},
                       understory={"rocks": 2}, survey={"pulse_frequency": 100000, "lines": [[[6, -2], [6, 14]]]},
-                      simulation={"beam_samples": 7})
+                      simulation={"beam_samples": 7}, output={"formats": ["pcd", "las"]})
     assert main(["render", str(path), "--quiet"]) == 0
     out = tmp_path / "out"
     head = (out / "test.pcd").read_bytes()[:400].decode("ascii", "replace")

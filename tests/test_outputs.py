@@ -25,7 +25,7 @@ def _small_scene(tmp_path, **survey):
                       forest={"trees": 2, "min_spacing": 5.0}, origin={"offset": OFFSET, "crs": "EPSG:28355"},
                       understory={"bushes": 2, "rocks": 2, "deadwood": 2, "stumps": 1},
                       survey={"pulse_frequency": 100000, "lines": [[[6, -3], [6, 15]]], **survey},
-                      simulation={"beam_samples": 7})
+                      simulation={"beam_samples": 7}, output={"formats": ["pcd", "las"]})
 
 
 @pytest.fixture(scope="module")

@@ -253,6 +253,6 @@ def test_same_bytes_for_any_batch_size(tmp_path, variant, pattern):
                           simulation={"beam_samples": 7, "pulses_per_batch": batch, "beam_pattern": pattern})
         render(path, progress=False, log=lambda *_: None)
         files.append(tmp_path / str(batch) / "out")
-    for suffix in (".pcd", ".las"):
+    for suffix in (".pcd", ".laz"):
         a, b = ((f / f"test{suffix}").read_bytes() for f in files)
         assert len(a) > 100_000 and a == b, suffix

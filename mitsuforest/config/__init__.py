@@ -165,7 +165,7 @@ SCENE_SPEC = {
     },
     "output": {
         "dir": FilePath(None, nullable=True, must_exist=False),
-        "formats": ListOf(Text(choices=("pcd", "las", "laz")), ["pcd", "las"], min_length=1),
+        "formats": ListOf(Text(choices=("pcd", "las", "laz")), ["pcd", "laz"], min_length=1),
     },
 }
 
