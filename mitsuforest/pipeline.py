@@ -10,6 +10,7 @@ import importlib.metadata
 import platform
 import time
 from collections.abc import Mapping
+from contextlib import nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -66,13 +67,10 @@ def render(scene, *, output_dir=None, seed=None, variant=None, overwrite=False, 
     timings.lap("scene")
     log(f"scene: {scan_scene.objects} objects ({scan_scene.culled} out of reach), "
         f"{scan_scene.triangles:,} distinct triangles, variant {scan_scene.variant}")
-    if write:
-        with output_lock(out, name):
-            result, manifest, writer, files = _scan_and_write(scene, plan, models, scan_scene, timings, progress,
-                                                              keep_points, Staging(out, name), overwrite)
-    else:
+    with output_lock(out, name) if write else nullcontext():
+        staging = Staging(out, name) if write else None
         result, manifest, writer, files = _scan_and_write(scene, plan, models, scan_scene, timings, progress,
-                                                          keep_points, None, overwrite)
+                                                          keep_points, staging, overwrite)
     log(f"scan: {result.pulses_cast:,} pulses cast in {result.seconds:.1f} s "
         f"({result.pulses_cast / max(result.seconds, 1e-9):,.0f} pulses/s), {manifest['points']:,} points, "
         f"{manifest['density_per_m2']:.0f} points/m2")

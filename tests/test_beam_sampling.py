@@ -6,7 +6,7 @@ import pytest
 from scipy.special import erfc
 
 from mitsuforest.scan.beam import beam_cells, beam_pattern, stratified_offsets
-from mitsuforest.scan.sampling import RING_STREAM, key_word, uniform_pair
+from mitsuforest.scan.sampling import RING_STREAM, device_cells, key_word, uniform_pair
 from mitsuforest.scan.sampling import stratified_offsets as device_offsets
 from mitsuforest.scene.variant import variant_scope
 
@@ -17,10 +17,7 @@ def _device_offsets(samples, pulses=PULSES, seed=3):
     """(P, S, 2) offsets drawn by the production sampler, and the uniforms it used."""
     import drjit as dr
     import mitsuba as mi
-    cells = beam_cells(samples)
-    table = {k: mi.UInt32(np.asarray(getattr(cells, k), np.uint32)) for k in ("ring", "index", "size")}
-    table["u_lo"] = mi.Float(cells.u_lo.astype(np.float32))
-    table["span"] = mi.Float((-np.expm1(-(cells.u_hi - cells.u_lo))).astype(np.float32))
+    table = device_cells(mi, beam_cells(samples))
     lane = dr.arange(mi.UInt32, pulses * samples)
     pulse_id = mi.UInt64(lane // samples) + (1 << 33)          # ids past 32 bits use the high word
     sample = lane % samples

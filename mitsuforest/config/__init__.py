@@ -240,19 +240,23 @@ def scene_from_mapping(data, file=None) -> Scene:
     :param file: the file the mapping came from: errors name it and relative paths start from its
         folder (without a file: ``<scene>`` and the working folder).
     """
-    ctx = Context(display_path(file) if file else Path("<scene>"))
-    parsed = _parsed_scene(data, ctx)
+    parsed = _parsed_scene(data, _scene_context(file))
     return from_mapping(Scene, parsed, file=str(Path(file).resolve()) if file else None)
 
 
 def scene_error(scene: Scene, key: str, reason: str) -> ConfigError:
     """A problem found after loading (planning, say), reported like the file's own errors."""
-    return ConfigError(display_path(scene.file) if scene.file else Path("<scene>"), key, reason)
+    return ConfigError(_scene_context(scene.file).file, key, reason)
 
 
 def validate_scene(scene: Scene) -> None:
     """Check a scene by the rules of its file (``Scene`` calls this whenever one is made)."""
-    _parsed_scene(to_mapping(scene), Context(display_path(scene.file) if scene.file else Path("<scene>")))
+    _parsed_scene(to_mapping(scene), _scene_context(scene.file))
+
+
+def _scene_context(file) -> Context:
+    """Where a scene's values come from: its file, or ``<scene>`` (relative paths from the working folder)."""
+    return Context(display_path(file) if file else Path("<scene>"))
 
 
 def _parsed_scene(data, ctx: Context) -> dict:

@@ -25,7 +25,6 @@ import typing
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..errors import ConfigError
 from ..trees.archetypes import Archetype
 
 # Australia's National Forest Inventory crown cover classes.
@@ -84,6 +83,14 @@ class Sensor:
     def half_fov(self) -> float:
         """Half the field of view (rad)."""
         return math.radians(self.field_of_view) / 2
+
+    def reach(self, depth: float) -> float:
+        """How far from the track (m) pulses reach at ``depth`` below the sensor: the field of view's
+        edge there, never beyond ``range_max``; all of ``range_max`` for a field of view of 180° or
+        more, or at or above the sensor."""
+        if self.half_fov >= math.pi / 2 or depth <= 0:
+            return self.range_max
+        return min(self.range_max, depth * math.tan(self.half_fov))
 
 
 @dataclass(frozen=True)
@@ -214,8 +221,8 @@ class Scene:
                     node[p] = to_mapping(node[p])
                 node = node.setdefault(p, {})           # an unknown section is reported by the parser
                 if not isinstance(node, dict):
-                    raise ConfigError(display_path(self.file) if self.file else "<scene>", path,
-                                      f"{p} is not a section")
+                    from . import scene_error
+                    raise scene_error(self, path, f"{p} is not a section")
             node[last] = _as_value(value)
         return scene_from_mapping(data, file=self.file)
 

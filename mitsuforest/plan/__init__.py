@@ -29,7 +29,8 @@ __all__ = ["make_plan", "plan_json", "Plan", "PlacedObject", "ModelSpec", "Leg",
 
 BUSH_MODELS = 8          # bushes are instances of this many distinct shrubs
 MAX_TREES = 5000
-UNDERSTORY_MODELS = ("bush", "rock", "deadwood", "stump")
+UNDERSTORY_KEYS = {"bush": "bushes", "rock": "rocks", "deadwood": "deadwood", "stump": "stumps"}  # understory.KEY
+UNDERSTORY_MODELS = tuple(UNDERSTORY_KEYS)
 
 
 class _Refusal(Exception):
@@ -103,13 +104,8 @@ def _leg_gap(leg: Leg, size) -> float:
 
 
 def _reach(scene) -> float:
-    """How far from the track (m) a pulse can reach the ground: the field of view's edge at the flying
-    height (less the terrain's relief), and never beyond ``range_max``."""
-    sensor = scene.sensor
-    if sensor.half_fov >= np.pi / 2:
-        return sensor.range_max
-    height = scene.survey.altitude + scene.terrain.amplitude
-    return min(sensor.range_max, height * float(np.tan(sensor.half_fov)))
+    """How far from the track (m) a pulse can reach the ground, down to the terrain's lowest point."""
+    return scene.sensor.reach(scene.survey.altitude + scene.terrain.amplitude)
 
 
 def plan_json(plan: Plan) -> str:
@@ -187,7 +183,7 @@ def _place_understory(scene: dict, size, trees, terrain, rng):
     objects, models = [], {}
     for i in range(BUSH_MODELS if counts.bushes else 0):
         models[f"bush{i + 1:02d}"] = ModelSpec("bush", UNDERSTORY_COMPONENTS, seed=int(scene.seed) * 1000 + i)
-    for kind, key in (("bush", "bushes"), ("rock", "rocks"), ("deadwood", "deadwood"), ("stump", "stumps")):
+    for kind, key in UNDERSTORY_KEYS.items():
         for i in range(getattr(counts, key)):
             spec = ModelSpec(kind, UNDERSTORY_COMPONENTS, seed=int(rng.integers(0, 2**31 - 1)))
             if kind == "deadwood":
@@ -212,7 +208,7 @@ def _check_understory_fits(scene) -> None:
     fills at most a share RSA_JAMMING of the plane); the placement loop stays the exact test."""
     counts = scene.understory
     (w, h), used = scene.area.size, 0.0
-    for kind, key in (("bush", "bushes"), ("rock", "rocks"), ("deadwood", "deadwood"), ("stump", "stumps")):
+    for kind, key in UNDERSTORY_KEYS.items():
         used += getattr(counts, key) * np.pi * CLEARANCE[kind] ** 2
         if used > RSA_JAMMING * w * h:
             raise _Refusal(f"understory.{key}", f"{getattr(counts, key)} {key} do not fit in a {w:g} x {h:g} m plot "
@@ -239,8 +235,7 @@ def _free_spot(size, taken, length, clearance, rng, kind) -> _Footprint:
         spot = _Footprint(rng.uniform([0, 0], size), rng.uniform(0, 360), length, clearance)
         if all(spot.clear_of(other) for other in taken):
             return spot
-    key = {"bush": "bushes", "rock": "rocks", "deadwood": "deadwood", "stump": "stumps"}[kind]
-    raise _Refusal(f"understory.{key}", f"no free place left for another {kind}; lower the understory counts")
+    raise _Refusal(f"understory.{UNDERSTORY_KEYS[kind]}", f"no free place left for another {kind}; lower the understory counts")
 
 
 def _with_ids(objects: list[PlacedObject], models: dict[str, ModelSpec]) -> list[PlacedObject]:

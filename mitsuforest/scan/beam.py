@@ -98,6 +98,11 @@ class BeamCells:
     u_hi: np.ndarray      # (S,) float, inf for the outermost ring
     weight: np.ndarray    # (S,) float, summing to 1
 
+    @property
+    def span(self) -> np.ndarray:
+        """(S,) the share of ``u ~ Exp(1)`` beyond ``u_lo`` that lies below ``u_hi``: ``1 - exp(-(u_hi - u_lo))``."""
+        return -np.expm1(-(self.u_hi - self.u_lo))
+
 
 def beam_cells(samples: int) -> BeamCells:
     """The cells of :func:`beam_pattern`'s rings (see :func:`stratified_offsets`)."""
@@ -122,8 +127,7 @@ def stratified_offsets(cells: BeamCells, radius_uniform: np.ndarray, rotation_un
     :param rotation_uniform: (P, S) uniforms in [0, 1) of each sub-ray's ring (equal within a ring).
     :returns: offsets (P, S, 2) in units of the 1/e² radius.
     """
-    span = -np.expm1(-(cells.u_hi - cells.u_lo))                  # 1 - exp(-(u_hi - u_lo)), 1 for the last ring
-    u = cells.u_lo - np.log1p(-radius_uniform * span)
+    u = cells.u_lo - np.log1p(-radius_uniform * cells.span)
     radius = np.sqrt(0.5 * u)
     angle = 2 * np.pi * (cells.index + rotation_uniform) / cells.size
     return np.stack([radius * np.cos(angle), radius * np.sin(angle)], axis=-1)

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .sampling import stratified_offsets
+from .sampling import device_cells, stratified_offsets
 
 
 def aligned(a: np.ndarray) -> np.ndarray:
@@ -41,9 +41,7 @@ class RayCaster:
         self.cells = None
         if cells is not None:
             self.samples = len(cells.weight)
-            self.cells = {k: mi.UInt32(aligned(np.asarray(getattr(cells, k), np.uint32))) for k in ("ring", "index", "size")}
-            self.cells["u_lo"] = mi.Float(aligned(cells.u_lo.astype(np.float32)))
-            self.cells["span"] = mi.Float(aligned(-np.expm1(-(cells.u_hi - cells.u_lo)).astype(np.float32)))
+            self.cells = device_cells(mi, cells)
             self.half_divergence = tuple(float(h) for h in half_divergence)
             self.key = int(key)
         else:

@@ -12,6 +12,8 @@ from __future__ import annotations
 import hashlib
 import math
 
+import numpy as np
+
 TEA_ROUNDS = 8
 TWO_PI = 2 * math.pi
 RING_STREAM = 1 << 16          # streams of ring rotations start here (sub-ray streams are 0 .. S-1)
@@ -31,11 +33,20 @@ def uniform_pair(mi, key: int, pulse_id, stream):
     return mi.Float(a >> 8) * (1.0 / 16777216.0), mi.Float(b >> 8) * (1.0 / 16777216.0)
 
 
+def device_cells(mi, cells) -> dict:
+    """The columns of :class:`~mitsuforest.scan.beam.BeamCells` that :func:`stratified_offsets` reads,
+    as Dr.Jit arrays (call under the scene's variant)."""
+    from .kernel import aligned
+    table = {k: mi.UInt32(aligned(np.asarray(getattr(cells, k), np.uint32))) for k in ("ring", "index", "size")}
+    table["u_lo"] = mi.Float(aligned(cells.u_lo.astype(np.float32)))
+    table["span"] = mi.Float(aligned(cells.span.astype(np.float32)))
+    return table
+
+
 def stratified_offsets(dr, mi, cells: dict, key: int, pulse_id, sample):
     """Offsets (two Float arrays, units of the 1/e² radius) of the stratified beam, one per lane.
 
-    :param cells: :class:`~mitsuforest.scan.beam.BeamCells` columns as Dr.Jit arrays (``index``,
-        ``size``, ``ring`` UInt32; ``u_lo``, ``span`` = 1 - exp(-(u_hi - u_lo)) Float).
+    :param cells: the beam's cells as :func:`device_cells` uploads them.
     :param pulse_id: UInt64 per lane; ``sample``: UInt32 per lane, the sub-ray.
     """
     ring = dr.gather(mi.UInt32, cells["ring"], sample)

@@ -68,15 +68,12 @@ def reachable(obj_bounds: np.ndarray, legs, sensor) -> bool:
     """
     centre = obj_bounds.mean(axis=0)[:2]
     radius = np.linalg.norm(obj_bounds[1, :2] - obj_bounds[0, :2]) / 2
-    half = sensor.half_fov
     for leg in legs:
         a, b = np.array(leg.start), np.array(leg.end)
         ab = b[:2] - a[:2]
         f = np.clip(np.dot(centre - a[:2], ab) / max(np.dot(ab, ab), 1e-12), 0, 1)
         distance = np.linalg.norm(a[:2] + f * ab - centre) - radius
-        depth = a[2] - obj_bounds[0, 2]
-        reach = sensor.range_max if half >= np.pi / 2 or depth <= 0 else min(sensor.range_max, depth * np.tan(half))
-        if distance <= reach:
+        if distance <= sensor.reach(a[2] - obj_bounds[0, 2]):
             return True
     return False
 

@@ -40,7 +40,8 @@ class PointWriter:
     def add(self, points: np.ndarray) -> None:
         """Add a batch of local-frame points (POINT_DTYPE)."""
         if self.dtype is None and self._pcd_file:
-            self._pcd_file.write(pcd_header(self._pcd_dtype(points.dtype), 0, COUNT_DIGITS).encode("ascii"))
+            self._pcd_record = self._pcd_dtype(points.dtype)
+            self._pcd_file.write(pcd_header(self._pcd_record, 0, COUNT_DIGITS).encode("ascii"))
         self.dtype = points.dtype
         if len(points) == 0:
             return
@@ -56,8 +57,8 @@ class PointWriter:
             bucket.append(np.column_stack([points["x"][sel], points["y"][sel], points["z"][sel]]))
         geo = georeference(points, self.offset)
         if self._pcd_file:
-            pcd = self._pcd_dtype(geo.dtype)
-            self._pcd_file.write(np.ascontiguousarray(geo if pcd == geo.dtype else geo.astype(pcd)).data)
+            record = self._pcd_record
+            self._pcd_file.write(np.ascontiguousarray(geo if record == geo.dtype else geo.astype(record)).data)
         for las in self._las:
             las.write(geo)
         if self._kept is not None:
@@ -80,7 +81,7 @@ class PointWriter:
                 from ..scan import POINT_DTYPE
                 self.add(np.zeros(0, POINT_DTYPE))
             self._pcd_file.seek(0)                 # the counts, now known, in the header's padded fields
-            self._pcd_file.write(pcd_header(self._pcd_dtype(self.dtype), self.count, COUNT_DIGITS).encode("ascii"))
+            self._pcd_file.write(pcd_header(self._pcd_record, self.count, COUNT_DIGITS).encode("ascii"))
             self._pcd_file.close()
 
     def abort(self) -> None:
