@@ -124,3 +124,24 @@ def test_component_counts_agree_between_plan_and_models():
     for name, spec in plan.models.items():
         assert spec.components == len(models[name].components), name
     assert any(spec.components > 10 for spec in plan.models.values())     # trees: stem, branches, leaves
+
+
+def test_understory_lies_wholly_inside_the_plot():
+    """The ground ends at the plot's edge: an object over it would show its buried base from outside
+    (stump and rock points below the ground were seen). Every vertex of every placed understory model
+    lies within the plot, and the crowded plot still takes every object."""
+    from mitsuforest.plan.transforms import apply
+    from mitsuforest.trees import build_model
+    scene = load_scene(ROOT / "scenes" / "demo.yaml").with_(
+        forest={"trees": 2}, understory={"bushes": 6, "rocks": 12, "deadwood": 6, "stumps": 12})
+    plan = make_plan(scene)
+    (w, h), kinds = scene.area.size, {}
+    models = {name: build_model(name, spec) for name, spec in plan.models.items() if spec.kind != "tree"}
+    for obj in plan.objects:
+        if obj.kind == "tree":
+            continue
+        xyz = apply(obj.matrix, models[obj.model].vertices())
+        assert xyz[:, 0].min() >= 0 and xyz[:, 1].min() >= 0, (obj.model, xyz[:, :2].min(0))
+        assert xyz[:, 0].max() <= w and xyz[:, 1].max() <= h, (obj.model, xyz[:, :2].max(0))
+        kinds[obj.kind] = kinds.get(obj.kind, 0) + 1
+    assert kinds == {"bush": 6, "rock": 12, "deadwood": 6, "stump": 12}

@@ -173,10 +173,11 @@ CLEARANCE = {"bush": 1.35, "rock": 1.0, "stump": 0.5, "deadwood": 1.35}  # logs:
 
 
 def _place_understory(scene: dict, size, trees, terrain, rng):
-    """Bushes, rocks, deadwood and stumps at random, clear of stems and of each other.
+    """Bushes, rocks, deadwood and stumps at random, clear of stems and of each other, each wholly
+    inside the plot (the ground ends at the plot's edge: a part beyond it would show its buried base).
 
     Each object occupies a corridor of half-width CLEARANCE around its axis (a point, or a log's
-    length); a new object is placed only where its corridor meets no other.
+    length); a new object is placed only where its corridor meets no other and stays in the plot.
     """
     counts = scene.understory
     taken = [_Footprint(np.array(t.position[:2]), 0.0, 0.0, STEM_CLEARANCE) for t in trees]
@@ -209,6 +210,9 @@ def _check_understory_fits(scene) -> None:
     counts = scene.understory
     (w, h), used = scene.area.size, 0.0
     for kind, key in UNDERSTORY_KEYS.items():
+        if getattr(counts, key) and min(w, h) <= 2 * CLEARANCE[kind]:
+            raise _Refusal(f"understory.{key}", f"a {w:g} x {h:g} m plot is too small for {key} (each needs "
+                           f"{2 * CLEARANCE[kind]:g} m across inside the plot); set it to 0")
         used += getattr(counts, key) * np.pi * CLEARANCE[kind] ** 2
         if used > RSA_JAMMING * w * h:
             raise _Refusal(f"understory.{key}", f"{getattr(counts, key)} {key} do not fit in a {w:g} x {h:g} m plot "
@@ -224,6 +228,10 @@ class _Footprint:
         steps = np.linspace(-0.5, 0.5, max(int(np.ceil(length / 0.2)), 0) + 1) if length else np.zeros(1)
         self.samples = centre + steps[:, None] * length * direction  # axis points 0.2 m apart at most
 
+    def inside(self, low, high) -> bool:
+        """Whether the axis lies within the box ``low``-``high``, shape (2,) each."""
+        return bool(np.all((self.samples >= low) & (self.samples <= high)))
+
     def clear_of(self, other: "_Footprint") -> bool:
         gap = self.clearance + other.clearance
         d = self.samples[:, None, :] - other.samples[None, :, :]
@@ -231,9 +239,10 @@ class _Footprint:
 
 
 def _free_spot(size, taken, length, clearance, rng, kind) -> _Footprint:
+    low, high = np.full(2, clearance), np.asarray(size, float) - clearance
     for _ in range(10_000):
-        spot = _Footprint(rng.uniform([0, 0], size), rng.uniform(0, 360), length, clearance)
-        if all(spot.clear_of(other) for other in taken):
+        spot = _Footprint(rng.uniform(low, high), rng.uniform(0, 360), length, clearance)
+        if spot.inside(low, high) and all(spot.clear_of(other) for other in taken):
             return spot
     raise _Refusal(f"understory.{UNDERSTORY_KEYS[kind]}", f"no free place left for another {kind}; lower the understory counts")
 
