@@ -9,7 +9,7 @@ The pipeline, one sub-package a stage: ``plan`` → ``trees`` → ``scene`` → 
 >>> result.points["x"], result.points["classification"]        # doctest: +SKIP
 
 The names below are imported on first use, so that ``python -m mitsuforest`` can hold interrupts
-while the heavy libraries load (cli.py, ``deferred_signals``).
+while the heavy libraries load (``interrupts.deferred_signals``).
 """
 
 import importlib

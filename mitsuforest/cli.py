@@ -12,11 +12,11 @@ import argparse
 import os
 import signal
 import sys
-from contextlib import contextmanager
 from pathlib import Path
 
 from . import __version__
 from .errors import UserError
+from .interrupts import InterruptedAfterCommit, Terminated, deferred_signals, in_main_thread, raise_terminated
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -56,17 +56,9 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
-class Terminated(KeyboardInterrupt):
-    """SIGTERM (what schedulers send), handled like Ctrl-C: clean up, then exit 143."""
-
-
-def _terminate(signum, frame):
-    raise Terminated()
-
-
 def main(argv=None) -> int:
     args = _parser().parse_args(argv)
-    previous = signal.signal(signal.SIGTERM, _terminate) if _main_thread() else None
+    previous = signal.signal(signal.SIGTERM, raise_terminated) if in_main_thread() else None
     try:
         if args.command != "info":
             _preload()
@@ -76,10 +68,13 @@ def main(argv=None) -> int:
     except UserError as e:
         print(f"mitsuforest: {e}", file=sys.stderr)
         return e.exit_code
+    except InterruptedAfterCommit as e:
+        print(f"mitsuforest: {_stopped(e.signum == signal.SIGTERM)} as the finished files were being moved "
+              "into place; they are all there and complete.", file=sys.stderr)
+        return 143 if e.signum == signal.SIGTERM else 130
     except KeyboardInterrupt as e:
-        how = "stopped (SIGTERM)" if isinstance(e, Terminated) else "interrupted"
-        print(f"mitsuforest: {how}; no finished output was written (partial files removed). "
-              "Run the same command again to redo it.", file=sys.stderr)
+        print(f"mitsuforest: {_stopped(isinstance(e, Terminated))}; no finished output was written (partial "
+              "files removed). Run the same command again to redo it.", file=sys.stderr)
         return 143 if isinstance(e, Terminated) else 130
     except BrokenPipeError:                   # `mitsuforest info FILE | head`: the reader has gone
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
@@ -93,30 +88,8 @@ def main(argv=None) -> int:
             signal.signal(signal.SIGTERM, previous)
 
 
-def _main_thread() -> bool:
-    import threading
-    return threading.current_thread() is threading.main_thread()
-
-
-@contextmanager
-def deferred_signals():
-    """Hold SIGINT and SIGTERM while a block runs, then act on them: a C extension's import that an
-    interrupt cuts half-way can crash the process (seen with Mitsuba and Dr.Jit), and trimesh's import
-    swallows KeyboardInterrupt. The signals are only noted during the block (Python runs handlers
-    in the main thread, whichever thread the OS delivers them to)."""
-    if not _main_thread():
-        yield
-        return
-    pending = []
-    previous = {sig: signal.signal(sig, lambda signum, frame: pending.append(signum))
-                for sig in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        yield
-    finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
-    if pending:
-        raise Terminated() if signal.SIGTERM in pending else KeyboardInterrupt()
+def _stopped(by_sigterm: bool) -> str:
+    return "stopped (SIGTERM)" if by_sigterm else "interrupted"
 
 
 def _preload() -> None:

@@ -19,6 +19,7 @@ import numpy as np
 from . import __version__
 from .config import Scene, load_scene, scene_from_mapping
 from .errors import UserError
+from .interrupts import InterruptedAfterCommit, deferred_signals
 from .plan import Plan, make_plan
 from .scan import scan
 from .scene import build_scene
@@ -118,7 +119,8 @@ def _scan_and_write(scene, plan, models, scan_scene, timings, progress, keep_poi
             manifest["timings_s"] = dict(timings)
             write_manifest(staging, manifest)
             _refuse_existing(staging.folder, scene.name, overwrite)   # results that appeared meanwhile
-            files = staging.commit()
+            with deferred_signals(after=_raise_after_commit):   # never half the files in place
+                files = staging.commit()
     except BaseException:
         if writer:
             writer.abort()
@@ -126,6 +128,10 @@ def _scan_and_write(scene, plan, models, scan_scene, timings, progress, keep_poi
             staging.discard()
         raise
     return result, manifest, writer, files
+
+
+def _raise_after_commit(signum: int):
+    raise InterruptedAfterCommit(signum)
 
 
 def _as_scene(scene, seed, variant, output_dir) -> Scene:

@@ -213,7 +213,7 @@ def test_interrupts_wait_for_the_heavy_imports():
     import os
     import signal
 
-    from mitsuforest.cli import deferred_signals
+    from mitsuforest.interrupts import deferred_signals
     reached = []
     with pytest.raises(KeyboardInterrupt):
         with deferred_signals():
@@ -263,3 +263,67 @@ def test_pcd_coordinates_are_float32_without_an_offset(tmp_path):
         assert np.abs(pcd[axis] - np.asarray(getattr(las, axis))).max() < 1.5e-4
     theirs = PointCloud.from_path(out / "test.pcd").numpy(("x", "y", "z"))
     assert np.array_equal(theirs[:, 0], pcd["x"].astype(np.float64))
+
+
+STAGES = ("plan", "trees", "scene", "scan", "write", "commit")
+
+
+@pytest.mark.parametrize("sig", ["SIGINT", "SIGTERM"])
+def test_signal_at_every_stage_leaves_nothing(sig, tmp_path, monkeypatch, capsys):
+    """The signal is sent by the stage itself, so each run is cut exactly where it is meant to be:
+    exit 130 (SIGINT) or 143 (SIGTERM), one line, and no file of the render left in the output folder;
+    cut during the commit (after the first file was moved), the commit ends and every file is there."""
+    import os
+    import signal
+
+    import mitsuforest.pipeline as pipeline
+    from helpers import scene_file
+
+    from mitsuforest.write import Staging, existing_outputs
+    signum = getattr(signal, sig)
+    path = scene_file(tmp_path, sensor="riegl_vux-1uav22.yaml", area={"size": [12, 12]},
+                      understory={"rocks": 2}, survey={"pulse_frequency": 100000, "lines": [[[6, -2], [6, 14]]]},
+                      simulation={"beam_samples": 3, "pulses_per_batch": 20000}, output={"formats": ["pcd", "laz"]})
+
+    def signalling(stage, func):
+        def wrapper(*args, **kwargs):
+            if stage == at:
+                os.kill(os.getpid(), signum)
+            return func(*args, **kwargs)
+        return wrapper
+
+    def scan_signalling_on_first_points(*args, on_points, **kwargs):
+        return real_scan(*args, on_points=signalling("scan", on_points), **kwargs)
+
+    def commit_signalling_after_first_move(self):
+        def replace(*args):
+            real_replace(*args)
+            if at == "commit" and not moved:
+                moved.append(args[1])
+                os.kill(os.getpid(), signum)
+        monkeypatch.setattr(os, "replace", replace)
+        try:
+            return real_commit(self)
+        finally:
+            monkeypatch.setattr(os, "replace", real_replace)
+
+    real_scan, real_commit, real_replace = pipeline.scan, Staging.commit, os.replace
+    for name in ("make_plan", "build_models", "build_scene", "write_render_outputs"):
+        stage = {"make_plan": "plan", "build_models": "trees", "build_scene": "scene"}.get(name, "write")
+        monkeypatch.setattr(pipeline, name, signalling(stage, getattr(pipeline, name)))
+    monkeypatch.setattr(pipeline, "scan", scan_signalling_on_first_points)
+    monkeypatch.setattr(Staging, "commit", commit_signalling_after_first_move)
+    out = tmp_path / "out"
+    for at in STAGES:
+        moved = []
+        code = main(["render", str(path), "--quiet", "--overwrite"])
+        err = capsys.readouterr().err
+        assert code == (143 if sig == "SIGTERM" else 130), (at, code, err)
+        assert len(err.strip().splitlines()) == 1 and "Traceback" not in err, (at, err)
+        left = sorted(p.name for p in out.iterdir()) if out.exists() else []
+        if at == "commit":
+            assert moved and "they are all there and complete" in err
+            assert set(existing_outputs(out, "test")) == set(left) and "test_manifest.json" in left, left
+        else:
+            assert "no finished output was written" in err
+            assert left == [], (at, left)

@@ -63,6 +63,8 @@ def output_lock(folder, name: str):
     handle = open(path, "a+")  # noqa: SIM115 (held for the whole block)
     try:
         fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        if not _still_named(handle, path):   # a render that just finished unlinked it under us
+            raise BlockingIOError
     except BlockingIOError:
         handle.close()
         raise UserError(f"{folder}: another render of '{name}' is writing here; wait for it to finish or "
@@ -73,6 +75,13 @@ def output_lock(folder, name: str):
         path.unlink(missing_ok=True)
         fcntl.flock(handle, fcntl.LOCK_UN)
         handle.close()
+
+
+def _still_named(handle, path: Path) -> bool:
+    try:
+        return os.stat(path).st_ino == os.fstat(handle.fileno()).st_ino
+    except FileNotFoundError:
+        return False
 
 
 class Staging:

@@ -1,0 +1,61 @@
+"""Interrupts: Ctrl-C (SIGINT) and SIGTERM, which schedulers send, both stop a render cleanly.
+
+Some moments must not be cut: a C extension's import (Mitsuba and Dr.Jit crash when an interrupt
+lands half-way; trimesh's import swallows it) and the final move of finished files into place. Those
+run inside :func:`deferred_signals`, which notes a signal and acts on it when the block ends.
+"""
+
+from __future__ import annotations
+
+import signal
+import threading
+from contextlib import contextmanager
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, handled like Ctrl-C: clean up, then exit 143."""
+
+
+class InterruptedAfterCommit(KeyboardInterrupt):
+    """A signal that arrived while finished files were moved into place: they are all there."""
+
+    def __init__(self, signum: int):
+        super().__init__()
+        self.signum = signum
+
+
+def raise_terminated(signum, frame):
+    """A SIGTERM handler."""
+    raise Terminated()
+
+
+def in_main_thread() -> bool:
+    return threading.current_thread() is threading.main_thread()
+
+
+@contextmanager
+def deferred_signals(after=None):
+    """Hold SIGINT and SIGTERM while a block runs, then act on them.
+
+    :param after: called with the signal number instead of raising :class:`KeyboardInterrupt` or
+        :class:`Terminated`, when the block has to say more (it may raise).
+
+    The signals are only noted during the block (Python runs handlers in the main thread, whichever
+    thread the OS delivers them to); off the main thread the block runs as it is.
+    """
+    if not in_main_thread():
+        yield
+        return
+    pending = []
+    previous = {sig: signal.signal(sig, lambda signum, frame: pending.append(signum))
+                for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    if pending:
+        signum = signal.SIGTERM if signal.SIGTERM in pending else signal.SIGINT
+        if after is not None:
+            after(signum)
+        raise Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
