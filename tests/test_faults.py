@@ -242,8 +242,9 @@ def test_interrupt_at_start_exits_130_without_traceback(tmp_path):
 
 
 def test_pcd_coordinates_are_float32_without_an_offset(tmp_path):
-    """Open3D's legacy reader takes only F 4 positions: a render without origin.offset writes x, y, z
-    as F 4 (equal to the LAS at its 0.1 mm), one with an offset keeps F 8 (tested in test_outputs)."""
+    """Open3D's legacy reader takes only F 4 positions (it read F 8 as zeros): a render without
+    origin.offset writes x, y, z as F 4 (equal to the LAS at its 0.1 mm) and the legacy reader gets
+    them exactly; one with an offset keeps F 8 (tested in test_outputs)."""
     import laspy
     import numpy as np
     from helpers import scene_file
@@ -263,6 +264,10 @@ def test_pcd_coordinates_are_float32_without_an_offset(tmp_path):
         assert np.abs(pcd[axis] - np.asarray(getattr(las, axis))).max() < 1.5e-4
     theirs = PointCloud.from_path(out / "test.pcd").numpy(("x", "y", "z"))
     assert np.array_equal(theirs[:, 0], pcd["x"].astype(np.float64))
+    from test_outputs import open3d
+    legacy = open3d().io.read_point_cloud(str(out / "test.pcd"))   # every tutorial's reader
+    xyz = np.column_stack([pcd["x"], pcd["y"], pcd["z"]]).astype(np.float64)
+    assert np.array_equal(np.asarray(legacy.points), xyz)
 
 
 STAGES = ("plan", "trees", "scene", "scan", "write", "commit")

@@ -170,6 +170,7 @@ def _place_trees(forest, size, crowns, terrain, rng) -> tuple[list[PlacedObject]
 # plus a margin. Stems keep 0.6 m (flared base, and 5° tilt over the first 3 m).
 STEM_CLEARANCE = 0.6
 CLEARANCE = {"bush": 1.35, "rock": 1.0, "stump": 0.5, "deadwood": 1.35}  # logs: side branches reach 1.3 m
+MIN_LOG = 1.5  # m, the shortest log drawn
 
 
 def _place_understory(scene: dict, size, trees, terrain, rng):
@@ -188,9 +189,11 @@ def _place_understory(scene: dict, size, trees, terrain, rng):
         for i in range(getattr(counts, key)):
             spec = ModelSpec(kind, UNDERSTORY_COMPONENTS, seed=int(rng.integers(0, 2**31 - 1)))
             if kind == "deadwood":
-                spec = dataclasses.replace(spec, length=float(rng.uniform(1.5, 7.0)),
+                spec = dataclasses.replace(spec, length=float(rng.uniform(MIN_LOG, 7.0)),
                                            radius=float(rng.uniform(0.04, 0.2)))
             spot = _free_spot(size, taken, spec.length or 0.0, CLEARANCE[kind], rng, kind)
+            if spec.length:
+                spec = dataclasses.replace(spec, length=spot.length)
             if kind == "bush":
                 model = f"bush{int(rng.integers(0, BUSH_MODELS)) + 1:02d}"
             else:
@@ -223,7 +226,7 @@ class _Footprint:
     """A segment of ``length`` through ``centre`` at ``yaw`` (degrees), widened by ``clearance``."""
 
     def __init__(self, centre, yaw: float, length: float, clearance: float):
-        self.centre, self.yaw, self.clearance = centre, float(yaw), clearance
+        self.centre, self.yaw, self.length, self.clearance = centre, float(yaw), float(length), clearance
         direction = np.array([np.cos(np.deg2rad(yaw)), np.sin(np.deg2rad(yaw))])
         steps = np.linspace(-0.5, 0.5, max(int(np.ceil(length / 0.2)), 0) + 1) if length else np.zeros(1)
         self.samples = centre + steps[:, None] * length * direction  # axis points 0.2 m apart at most
@@ -239,8 +242,13 @@ class _Footprint:
 
 
 def _free_spot(size, taken, length, clearance, rng, kind) -> _Footprint:
+    """A random place for an object clear of ``taken``; a log that finds none is shortened by steps
+    (down to MIN_LOG, as a crowded or small plot needs) rather than refused."""
     low, high = np.full(2, clearance), np.asarray(size, float) - clearance
-    for _ in range(10_000):
+    tries, drawn = 10_000, length
+    for i in range(tries):
+        if drawn > MIN_LOG:
+            length = MIN_LOG + (1 - i / tries) * (drawn - MIN_LOG)
         spot = _Footprint(rng.uniform(low, high), rng.uniform(0, 360), length, clearance)
         if spot.inside(low, high) and all(spot.clear_of(other) for other in taken):
             return spot
