@@ -1,91 +1,137 @@
-"""``mitsuforest export``: the planned scene as meshes, so other tools can open or scan the same scene.
+"""``mitsuforest export``: the planned scene as meshes and as a HELIOS++ survey that runs as it is.
 
-Writes, in the local frame (the georeference offset is listed in the transforms table header):
+Writes, in the local frame (the georeference offset is listed in the tables' first line):
 
-- ``models/<model>_<part>.obj``: each model's parts once (tree wood, tree leaves, a rock, ...);
-- ``ground.obj``;
+- ``models/<model>_c<k>_<kind>.obj``: each model's components once, one OBJ each (a tree's stem, each
+  first-order branch, its leaves; a rock ...), with ``models/materials.mtl`` (one material per class);
+- ``models/ground.obj``;
 - ``<name>_transforms.csv``: one row per placed object: ids and its 3×4 model-to-local matrix;
-- ``<name>_helios_scene.xml``: a HELIOS++ scene with one part per object, ``id`` = our ``instance``
-  (so HELIOS's ``hitObjectId`` is our instance id), loading that object's model files and applying
-  our rotation (about z, then y, then x) and translation as HELIOS filters, in that order.
+- ``<name>_helios_parts.csv``: one row per HELIOS++ part: its id (= our ``object_id``), instance,
+  treeid, class, kind, model and OBJ file;
+- ``<name>_helios_scene.xml``, ``<name>_helios_survey.xml``, ``<name>_helios_platform.xml``,
+  ``<name>_helios_scanner.xml``: ``helios++ <name>_helios_survey.xml`` flies our survey over the scene.
+
+A HELIOS++ part is one component of one placed object, its id our object_id, so HELIOS++'s
+``hitObjectId`` is our object_id and its classification ours (from the materials). Paths in the
+documents are absolute (HELIOS++ then finds each file once, from any working folder, with or
+without ``--assets``): export again after moving the folder.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
-from xml.sax.saxutils import quoteattr
 
+import numpy as np
 import trimesh
 
+from ..classes import CLASS_NAMES, GROUND, TREE_LEAVES, TREE_WOOD
+from ..helios.documents import PartFile, materials_mtl, platform_xml, scanner_xml, scene_xml, survey_xml
 from .atomic import atomic_path, write_text
 from .tables import csv_text
 
-
-def _write_obj(path: Path, vertices, faces) -> None:
-    with atomic_path(path) as tmp:
-        trimesh.Trimesh(vertices, faces, process=False).export(tmp, file_type="obj", include_normals=False)
+MATERIALS = "materials.mtl"
 
 
 def export_scene(scene, plan, models: dict, folder, log=print) -> list[Path]:
-    """Write the meshes, transforms table and HELIOS++ scene XML of a planned scene into ``folder``."""
-    folder = Path(folder)
+    """Write the meshes, tables and HELIOS++ documents of a planned scene into ``folder``."""
+    folder = Path(folder).absolute()
+    scanner = scanner_xml(scene.sensor, scene.pulse_frequency)   # refuses a sensor HELIOS++ cannot take, first
     (folder / "models").mkdir(parents=True, exist_ok=True)
-    written = []
+    write_text(folder / "models" / MATERIALS, materials_mtl(scene.sensor.wavelength))
+    written = [folder / "models" / MATERIALS]
+    files = {}   # (model, component) -> OBJ path
     for name in sorted({o.model for o in plan.objects}):
-        for part in models[name].parts:
-            path = folder / "models" / f"{name}_{part.name}.obj"
-            _write_obj(path, part.vertices, part.faces)
-            written.append(path)
-    ground_v, ground_f = plan.terrain.mesh()
-    _write_obj(folder / "ground.obj", ground_v, ground_f)
-    written.append(folder / "ground.obj")
-    written.append(_write_transforms(folder / f"{scene.name}_transforms.csv", plan, scene.origin.offset))
-    written.append(_write_helios(folder / f"{scene.name}_helios_scene.xml", scene, plan, models))
-    log(f"exported {len(plan.objects)} objects of {len({o.model for o in plan.objects})} models to {folder}")
+        model = models[name]
+        for k, (vertices, faces) in component_meshes(model).items():
+            comp = model.components[k]
+            files[name, k] = folder / "models" / f"{name}_c{k:03d}_{comp.kind}.obj"
+            write_obj(files[name, k], vertices, faces, CLASS_NAMES[comp.classification])
+            written.append(files[name, k])
+    ground = folder / "models" / "ground.obj"
+    write_obj(ground, *plan.terrain.mesh(), CLASS_NAMES[GROUND])
+    written.append(ground)
+    parts, rows = _parts(plan, models, files, ground)
+    names = {k: folder / f"{scene.name}_helios_{k}.xml" for k in ("scene", "survey", "platform", "scanner")}
+    texts = {
+        "scene": scene_xml(scene.name, parts),
+        "survey": survey_xml(scene, plan, names["scene"], names["platform"], names["scanner"]),
+        "platform": platform_xml(),
+        "scanner": scanner,
+    }
+    offset = scene.origin.offset
+    written.append(_write_table(folder / f"{scene.name}_transforms.csv", *_transform_rows(plan), offset))
+    written.append(_write_table(folder / f"{scene.name}_helios_parts.csv", PART_HEADER, rows, offset))
+    for key, text in texts.items():
+        write_text(names[key], text)
+        written.append(names[key])
+    log(f"exported {len(plan.objects)} objects of {len({m for m, _ in files})} models as "
+        f"{len(parts)} HELIOS++ parts to {folder}; fly them with: helios++ {names['survey']}")
     return written
 
 
-def _write_transforms(path: Path, plan, offset) -> Path:
+def component_meshes(model) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """``{component: (vertices (n, 3), faces (m, 3))}`` of a model, gathered over its parts, each with
+    only the vertices its faces use (components without triangles are left out)."""
+    out = {}
+    for k in range(len(model.components)):
+        pieces = [(p.vertices, p.faces[p.component == k]) for p in model.parts]
+        pieces = [(v, f) for v, f in pieces if len(f)]
+        if not pieces:
+            continue
+        vertices, faces, base = [], [], 0
+        for v, f in pieces:
+            used, inverse = np.unique(f, return_inverse=True)
+            vertices.append(v[used])
+            faces.append(inverse.reshape(f.shape) + base)
+            base += len(used)
+        out[k] = (np.vstack(vertices), np.vstack(faces).astype(np.uint32))
+    return out
+
+
+def write_obj(path: Path, vertices, faces, material: str) -> None:
+    """An OBJ whose faces use ``material`` from the ``materials.mtl`` beside it."""
+    text = trimesh.exchange.obj.export_obj(trimesh.Trimesh(vertices, faces, process=False), include_normals=False,
+                                           include_texture=False, include_color=False, digits=9)
+    body = "\n".join(line for line in text.splitlines() if not line.startswith("#"))
+    with atomic_path(path) as tmp:
+        tmp.write_text(f"mtllib {MATERIALS}\nusemtl {material}\n{body}\n")
+
+
+PART_HEADER = ["part_id", "object_id", "instance", "treeid", "classification", "class", "kind", "model", "file"]
+
+
+def _parts(plan, models, files, ground) -> tuple[list[PartFile], list[list]]:
+    """The HELIOS++ parts (ground first) and their table rows."""
+    parts = [PartFile(plan.ground_object_id, ground)]
+    rows = [[plan.ground_object_id, plan.ground_object_id, 0, 0, GROUND, "ground", "ground", "", _rel(ground)]]
+    for obj in plan.objects:
+        tilt_x, tilt_y = obj.tilt
+        rotations = tuple((a, d) for a, d in (("z", obj.rotation), ("y", tilt_y), ("x", tilt_x)) if d)
+        for k, comp in enumerate(models[obj.model].components):
+            path = files.get((obj.model, k))
+            if path is None:
+                continue
+            object_id = obj.object_id + k
+            treeid = obj.treeid if comp.classification in (TREE_WOOD, TREE_LEAVES) or obj.kind == "deadwood" else 0
+            parts.append(PartFile(object_id, path, rotations, tuple(obj.position)))
+            rows.append([object_id, object_id, obj.instance, treeid, comp.classification,
+                         CLASS_NAMES[comp.classification], comp.kind, obj.model, _rel(path)])
+    return parts, rows
+
+
+def _rel(path: Path) -> str:
+    return f"{path.parent.name}/{path.name}"
+
+
+def _transform_rows(plan) -> tuple[list[str], list[list]]:
     header = ["instance", "object_id", "components", "kind", "model", "treeid"] + \
         [f"m{r}{c}" for r in range(3) for c in range(4)]
     rows = [[obj.instance, obj.object_id, obj.components, obj.kind, obj.model, obj.treeid]
             + [f"{v:.12g}" for v in obj.matrix[:3].ravel()] for obj in plan.objects]
+    return header, rows
+
+
+def _write_table(path: Path, header, rows, offset) -> Path:
     comment = f"# local frame; add origin offset {offset[0]:.3f},{offset[1]:.3f},{offset[2]:.3f} for the georeference\n"
     write_text(path, comment + csv_text(header, rows))
     return path
-
-
-def _write_helios(path: Path, scene, plan, models: dict) -> Path:
-    parts = ['    <part id="0">\n'
-             '      <filter type="objloader">\n'
-             '        <param type="string" key="filepath" value="ground.obj"/>\n'
-             '        <param type="string" key="up" value="z"/>\n'
-             '      </filter>\n'
-             '    </part>']
-    for obj in plan.objects:
-        names = [p.name for p in models[obj.model].parts]
-        pattern = f"models/{obj.model}_({'|'.join(names)})\\.obj"
-        x, y, z = obj.position
-        tilt_x, tilt_y = obj.tilt
-        rotations = "".join(
-            f'      <filter type="rotate"><param type="rotation" key="rotation">'
-            f'<rot axis="{axis}" angle_deg="{angle:.9g}"/></param></filter>\n'
-            for axis, angle in (("z", obj.rotation), ("y", tilt_y), ("x", tilt_x)) if angle)
-        parts.append(
-            f'    <part id="{obj.instance}">\n'
-            f'      <filter type="objloader">\n'
-            f'        <param type="string" key="efilepath" value={quoteattr(pattern)}/>\n'
-            f'        <param type="string" key="up" value="z"/>\n'
-            f'      </filter>\n'
-            f'{rotations}'
-            f'      <filter type="translate"><param type="vec3" key="offset" value="{x:.9g};{y:.9g};{z:.9g}"/></filter>\n'
-            f'    </part>')
-    text = ('<?xml version="1.0" encoding="UTF-8"?>\n'
-            f'<!-- mitsuforest export of {quoteattr(scene.name)}: part id = mitsuforest instance (0 = ground);'
-            ' see the _ids.csv of a render for object ids, classes and tree ids -->\n'
-            '<document>\n'
-            f'  <scene id={quoteattr(scene.name)} name={quoteattr(scene.name)}>\n'
-            + "\n".join(parts) + "\n  </scene>\n</document>\n")
-    write_text(path, text)
-    return path
-

@@ -1,0 +1,19 @@
+"""HELIOS++ both ways: the XML documents that let HELIOS++ fly our survey over an exported scene
+(:mod:`.documents`), and the reading of an existing HELIOS++ survey so that we fly it ourselves
+(:mod:`.survey`, :mod:`.parts`, :mod:`.render`).
+
+HELIOS++ facts these modules rely on (HELIOS++ 2.x source, ``src/assetloading``):
+
+- the survey's ``platform``, ``scanner`` and ``scene`` attributes are ``PATH#id``; a relative PATH is
+  looked up in each ``--assets`` folder, then ``assets/``, then the working folder (first match);
+- an ``objloader`` ``filepath`` that is absolute is loaded as it is; a relative one only from the first
+  ``--assets`` folder (or ``assets/``) holding it, never from the working folder; an ``efilepath``
+  regular expression is matched in the working folder *and* every assets folder, adding every match;
+- an OBJ's ``mtllib`` is read from the OBJ's own folder; ``helios_reflectance``,
+  ``helios_classification`` and ``helios_isGround`` are HELIOS++'s material keys;
+- a part's rotate filters compose in order, its last scale and last translate win, and a vertex
+  becomes ``R · (s · v) + t``; ``<rot axis angle_deg>`` is a right-handed rotation;
+- ``scanAngle_deg`` and ``scanAngleMax_deg`` are half the field of view; ``beamSampleQuality`` q casts
+  ``1 + Σ_{i<q} floor(2π i)`` sub-rays (1, 7, 19, 37, 62 ...);
+- legs are waypoints: the platform flies from leg i to leg i+1 with leg i's scanner settings.
+"""
