@@ -92,6 +92,23 @@ def test_two_half_planes_resolved_by_pulse_length(tmp_path, variant):
     assert counts[1.5 * delta] == (2, sorted([GROUND, ROCK]))
 
 
+@pytest.mark.parametrize("separation", [None, 0.26])
+def test_echo_separation_is_a_sensor_property(tmp_path, variant, separation):
+    """Two planes d apart under a narrow beam straddling the upper one's edge: one echo just below the
+    sensor's separation (its echo_separation, else c·τ/2 = 0.60 m), two just above."""
+    sensor = {"pulse_length": 4e-9, "echo_separation": separation}
+    expected = separation or 299_792_458.0 * 4e-9 / 2
+    assert dataclasses.replace(analytic_scene(scene_file(tmp_path / "s", variant=variant))[0].sensor,
+                               **sensor).resolving_distance == pytest.approx(expected)
+    for factor, echoes in ((0.9, 1), (1.1, 2)):
+        d = factor * expected
+        setup = analytic_scene(scene_file(tmp_path / f"d{factor}", variant=variant),
+                               [(plane_model("half", 20.0, ROCK), (10.0, 20.0, d), 0.0, (0, 0), 0)])
+        pts = _trace(setup, pulses([[20.0, 20.0, 30.0]], [0, 0, -1]), samples=19, beam_divergence=(0.02, 0.02),
+                     **sensor)
+        assert len(pts) == echoes, (d, pts["range"])
+
+
 def test_points_lie_on_the_surface_not_on_the_central_ray(tmp_path, variant):
     """A wide beam on a 45° slope: each point is on the plane, off the beam axis."""
     model = plane_model("slope", 30.0, ROCK)

@@ -45,6 +45,7 @@ SENSOR_SPEC = {
     "range_accuracy": Number(0.0, ge=0),
     "max_returns": Number(0, integer=True, ge=0),
     "detection_threshold": Number(None, ge=0, nullable=True),
+    "echo_separation": Number(None, gt=0, nullable=True),
     "risley": {
         "prism_rates": Vector(2, Number(), [121.6, -77.7]),
         "prism_deflection": Vector(2, Number(ge=0), [17.6, 17.6]),

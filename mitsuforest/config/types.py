@@ -65,6 +65,7 @@ class Sensor:
     detection_threshold_setting: float | None = field(metadata=_yaml("detection_threshold"))
     risley: Risley
     file: str | None = field(default=None, metadata=_yaml(None))   # the sensor file, if any
+    echo_separation: float | None = None      # m: nearest two returns are told apart; None: c·τ/2
 
     @property
     def detection_threshold(self) -> float:
@@ -76,7 +77,10 @@ class Sensor:
 
     @property
     def resolving_distance(self) -> float:
-        """Range separation below which two returns merge into one echo: ``c·τ/2`` (m)."""
+        """Range separation below which two returns merge into one echo (m): the sensor's
+        ``echo_separation`` where its data sheet gives one, else the pulse-shape value ``c·τ/2``."""
+        if self.echo_separation is not None:
+            return self.echo_separation
         return SPEED_OF_LIGHT * self.pulse_length / 2
 
     @property
