@@ -25,8 +25,12 @@ def _parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     r = sub.add_parser("render", help="plan, build, scan and write a scene",
-                       description="Render a scene file: plan, trees, Mitsuba scene, scan, labelled outputs.")
-    r.add_argument("scene", type=Path, help="scene file (scenes/*.yaml)")
+                       description="Render a scene file: plan, trees, Mitsuba scene, scan, labelled outputs. "
+                                   "A HELIOS++ survey (.xml) is flown over its scene parts, each part's id "
+                                   "becoming its points' object_id.")
+    r.add_argument("scene", type=Path, help="scene file (scenes/*.yaml) or HELIOS++ survey (.xml)")
+    r.add_argument("--assets", type=Path, action="append", default=[],
+                   help="HELIOS++ survey: a folder searched for relative paths, as helios++ --assets (repeatable)")
     r.add_argument("-o", "--output", type=Path, help="output folder (default: the scene's output.dir)")
     r.add_argument("--variant", help="Mitsuba variant, e.g. llvm_ad_mono or cuda_ad_mono (default: scene's, auto)")
     r.add_argument("--seed", type=int, help="override the scene's seed")
@@ -44,9 +48,11 @@ def _parser() -> argparse.ArgumentParser:
     t.add_argument("-o", "--output", type=Path, default=Path("out/trees"), help="output folder (default: out/trees)")
     t.add_argument("--scene", type=Path, help="take the archetypes from this scene file (default: the built-in ten)")
 
-    e = sub.add_parser("export", help="write the planned scene as meshes, a transforms table and a HELIOS++ scene",
-                       description="Write each model's parts (OBJ), the ground, <name>_transforms.csv and "
-                                   "<name>_helios_scene.xml (one part per object, id = instance).")
+    e = sub.add_parser("export", help="write the planned scene as meshes and a HELIOS++ survey that runs as it is",
+                       description="Write each model's components (OBJ, with materials), the ground, "
+                                   "<name>_transforms.csv, <name>_helios_parts.csv and the HELIOS++ scene, survey, "
+                                   "platform and scanner (one part per component, id = object_id): "
+                                   "helios++ OUTPUT/<name>_helios_survey.xml flies our survey.")
     e.add_argument("scene", type=Path, help="scene file")
     e.add_argument("-o", "--output", type=Path, required=True, help="output folder")
     e.add_argument("--seed", type=int, help="override the scene's seed")
@@ -107,8 +113,15 @@ def _preload() -> None:
 def _render(args) -> int:
     from .pipeline import render
     log = (lambda *a: None) if args.quiet else (lambda msg: print(msg, file=sys.stderr))
-    result = render(args.scene, output_dir=args.output, seed=args.seed, variant=args.variant,
-                    overwrite=args.overwrite, progress=not args.quiet, log=log)
+    options = dict(output_dir=args.output, seed=args.seed, variant=args.variant, overwrite=args.overwrite,
+                   progress=not args.quiet, log=log)
+    if args.scene.suffix.lower() == ".xml":
+        from .helios.render import render_survey
+        result = render_survey(args.scene, assets=args.assets, **options)
+    elif args.assets:
+        raise UserError("--assets is for HELIOS++ surveys (.xml), not scene files")
+    else:
+        result = render(args.scene, **options)
     if not args.quiet:
         print(f"wrote {len(result.files)} files to {Path(result.scene.output.dir)}")
     return 0

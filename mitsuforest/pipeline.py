@@ -41,7 +41,7 @@ class RenderResult:
 
 
 def render(scene, *, output_dir=None, seed=None, variant=None, overwrite=False, progress=True,
-           write=True, keep_points=None, log=print) -> RenderResult:
+           write=True, keep_points=None, log=print, plan=None, models=None, reflectance=None) -> RenderResult:
     """Render a scene: a file (path), a loaded :class:`~mitsuforest.config.types.Scene`, or a mapping of
     the scene file's form (validated like the file).
 
@@ -50,6 +50,8 @@ def render(scene, *, output_dir=None, seed=None, variant=None, overwrite=False, 
         checked before any work and locked while the files are written: a second render of the same
         scene into it is refused, and earlier results are replaced only with ``overwrite``.
     :param keep_points: also return every point in memory; by default only when not writing.
+    :param plan, models, reflectance: a plan and its models made elsewhere (a HELIOS++ survey's, see
+        :mod:`mitsuforest.helios.render`) instead of the scene's, and their (256,) reflectance by class.
     """
     scene = _as_scene(scene, seed=seed, variant=variant, output_dir=output_dir)
     keep_points = (not write) if keep_points is None else keep_points
@@ -58,13 +60,14 @@ def render(scene, *, output_dir=None, seed=None, variant=None, overwrite=False, 
         check_output_folder(out)
         _refuse_existing(out, name, overwrite)
     timings = Timings()
-    plan = make_plan(scene)
+    plan = plan or make_plan(scene)
     timings.lap("plan")
     log(f"plan: {len(plan.trees)} trees, canopy cover {plan.canopy_cover:.1%}, {len(plan.objects)} objects, "
         f"{len(plan.legs)} legs")
-    models = build_models(plan)
+    models = models or build_models(plan)
     timings.lap("trees")
     scan_scene = build_scene(plan, models, scene.sensor, scene.simulation.variant)
+    scan_scene.reflectance = reflectance
     timings.lap("scene")
     log(f"scene: {scan_scene.objects} objects ({scan_scene.culled} out of reach), "
         f"{scan_scene.triangles:,} distinct triangles, variant {scan_scene.variant}")

@@ -48,7 +48,8 @@ class PulseTracer:
         else:
             offsets, self.weights = beam_pattern(beam_samples)
             beam = {"sample_tangents": np.tan(offsets * half)}
-        self.reflectance = reflectance_table(sensor.wavelength)
+        own = getattr(scan_scene, "reflectance", None)
+        self.reflectance = reflectance_table(sensor.wavelength) if own is None else own
         # Pulses are dropped when even their widest sub-ray misses the scene's box: a fixed pattern's
         # offsets stay under 1.5 w, a stratified draw under r = sqrt(u/2) = 2.9 w (24-bit uniforms: u < 16.7).
         reach = 1.5 if pattern == "fixed" else 3.0

@@ -58,6 +58,7 @@ class ScanScene:
     objects: int             # placed objects modelled
     culled: int              # placed objects left out as unreachable
     triangles: int           # distinct triangles loaded (instanced copies counted once)
+    reflectance: np.ndarray | None = None   # (256,) by class; None: ours at the sensor's wavelength
 
 
 def reachable(obj_bounds: np.ndarray, legs, sensor) -> bool:

@@ -1,0 +1,141 @@
+"""``mitsuforest render SURVEY.xml``: HELIOS++ surveys flown here.
+
+A round trip (export the demo, fly the exported survey, compare with the demo's own render) and a
+small survey written the way HELIOS++'s ULS/ALS demos are (relative paths through --assets, an
+efilepath, templates, a y-up OBJ with scale, rotation and translation, materials without our classes),
+checked against the box's analytic surfaces; anything unsupported is one line naming the element.
+"""
+
+import textwrap
+
+import numpy as np
+import pytest
+
+from mitsuforest.cli import main
+from mitsuforest.errors import ConfigError
+from mitsuforest.helios.render import render_survey
+from mitsuforest.trees import build_models
+from mitsuforest.write.export import export_scene
+
+QUIET = {"write": False, "progress": False, "log": lambda *_: None}
+
+
+def test_exported_survey_flown_here_gives_the_demo_points(tmp_path, demo_result, variant):
+    scene, plan = demo_result.scene, demo_result.plan
+    export_scene(scene, plan, build_models(plan), tmp_path / "export", log=lambda *_: None)
+    native = demo_result.points
+    flown = render_survey(tmp_path / "export" / "demo_helios_survey.xml", seed=scene.seed, variant=variant,
+                          **QUIET).points
+    assert abs(len(flown) - len(native)) <= 1e-3 * len(native)
+    for field in ("classification", "return_number"):
+        a, b = (np.bincount(p[field], minlength=16) for p in (native, flown))
+        assert np.abs(a - b).max() <= max(3, 1e-3 * len(native)), field
+    key = lambda p: p["pulse_id"].astype(np.int64) * 64 + p["return_number"]   # noqa: E731
+    common, i, j = np.intersect1d(key(native), key(flown), return_indices=True)
+    assert len(common) >= 0.999 * len(native)
+    a, b = native[i], flown[j]
+    gap = np.sqrt(sum((a[c] - b[c]) ** 2 for c in "xyz"))
+    assert np.mean(gap < 1e-3) >= 0.999
+    assert np.mean(a["object_id"] == b["object_id"]) >= 0.999      # each part's id is our object_id
+    assert np.mean(a["classification"] == b["classification"]) >= 0.999
+
+
+CUBE = "".join(f"v {x} {y} {z}\n" for x in (0, 1) for y in (0, 1) for z in (0, 1)) + textwrap.dedent("""\
+    f 1 3 7
+    f 1 7 5
+    f 2 6 8
+    f 2 8 4
+    f 1 5 6
+    f 1 6 2
+    f 3 4 8
+    f 3 8 7
+    f 1 2 4
+    f 1 4 3
+    f 5 7 8
+    f 5 8 6
+    """)
+
+
+def _demo_like_survey(tmp_path, scene_extra="", scanner_optics="rotating") -> None:
+    """A survey laid out like HELIOS++'s data/: a copter over a ground plane and a box."""
+    assets = tmp_path / "assets"
+    (assets / "parts").mkdir(parents=True)
+    (assets / "parts" / "ground.mtl").write_text("newmtl soil\nKd 0.2 0.5 0.2\nhelios_isGround true\n")
+    (assets / "parts" / "ground.obj").write_text(
+        "mtllib ground.mtl\nusemtl soil\nv -20 -20 0\nv 40 -20 0\nv 40 40 0\nv -20 40 0\nf 1 2 3\nf 1 3 4\n")
+    (assets / "parts" / "box.mtl").write_text("newmtl brick\nKd 0.6 0.6 0.6\nhelios_reflectance 0.5\n")
+    (assets / "parts" / "box.obj").write_text("mtllib box.mtl\nusemtl brick\n" + CUBE)
+    (tmp_path / "data").mkdir()
+    (tmp_path / "data" / "platforms.xml").write_text("""<document>
+      <platform id="copter_linearpath" name="Quadrocopter UAV" type="linearpath">
+        <scannerMount x="0" y="0" z="0.2"><rot axis="x" angle_deg="180"/></scannerMount>
+      </platform></document>""")
+    (tmp_path / "data" / "scanners.xml").write_text(f"""<document>
+      <scanner id="vux" name="VUX-like" optics="{scanner_optics}" accuracy_m="0" beamDivergence_rad="0.0005"
+               pulseFreqs_Hz="100000,200000" pulseLength_ns="4" rangeMin_m="3" scanAngleMax_deg="180"
+               scanAngleEffectiveMax_deg="180" scanFreqMin_Hz="10" scanFreqMax_Hz="200" wavelength_nm="1550">
+        <beamOrigin x="0" y="0.085" z="0.06"><rot axis="x" angle_deg="90"/><rot axis="z" angle_deg="90"/></beamOrigin>
+        <headRotateAxis x="0" y="0" z="1"/>
+      </scanner></document>""")
+    (tmp_path / "data" / "scene.xml").write_text(f"""<document><scene id="toy" name="Toy">
+      <part id="1"><filter type="objloader"><param type="string" key="filepath" value="parts/ground.obj"/></filter></part>
+      <part id="7">
+        <filter type="objloader"><param type="string" key="efilepath" value="parts/box\\.obj"/>
+          <param type="string" key="up" value="y"/></filter>
+        <filter type="rotate"><param key="rotation" type="rotation"><rot axis="z" angle_deg="90"/></param></filter>
+        <filter type="scale"><param type="double" key="scale" value="2"/></filter>
+        <filter type="translate"><param type="vec3" key="offset" value="10;10;0"/></filter>
+      </part>{scene_extra}
+    </scene></document>""")
+    (tmp_path / "data" / "survey.xml").write_text("""<?xml version="1.0"?><document>
+      <platformSettings id="p1" movePerSec_m="5" z="30"/>
+      <scannerSettings id="s1" active="true" pulseFreq_hz="100000" scanFreq_hz="50" scanAngle_deg="60"/>
+      <survey name="toy" platform="data/platforms.xml#copter_linearpath" scanner="data/scanners.xml#vux"
+              scene="data/scene.xml#toy">
+        <FWFSettings beamSampleQuality="2"/>
+        <leg><platformSettings x="11" y="2" template="p1"/><scannerSettings template="s1"/></leg>
+        <leg><platformSettings x="11" y="20" template="p1"/><scannerSettings template="s1" active="false"/></leg>
+      </survey></document>""")
+
+
+def test_a_demo_style_survey_lands_on_its_parts(tmp_path, monkeypatch, variant):
+    _demo_like_survey(tmp_path)
+    monkeypatch.chdir(tmp_path)   # HELIOS++ demos are run from HELIOS++'s folder
+    result = render_survey("data/survey.xml", assets=["assets"], variant=variant, **QUIET)
+    pts = result.points
+    assert [leg.start for leg in result.plan.legs] == [(11.0, 2.0, 30.0)]
+    assert result.plan.legs[0].t1 == pytest.approx(18 / 5)          # 18 m at 5 m/s
+    assert result.scene.sensor.field_of_view == 120                 # scanAngle_deg is half of it
+    assert result.scene.simulation.beam_samples == 7                # beamSampleQuality 2
+    box, ground = pts[pts["object_id"] == 7], pts[pts["object_id"] == 1]
+    assert len(box) > 300 and len(ground) > 1000 and len(box) + len(ground) == len(pts)
+    assert np.abs(ground["z"]).max() < 1e-3
+    assert set(ground["classification"]) == {1} and set(box["classification"]) == {0}
+    # The y-up unit cube, scaled by 2, turned 90° about z and moved to (10, 10, 0): [10, 12]² x [0, 2].
+    xyz = np.column_stack([box["x"], box["y"], box["z"]])
+    assert (xyz.min(0) > [10 - 1e-3, 10 - 1e-3, -1e-3]).all() and (xyz.max(0) < [12 + 1e-3, 12 + 1e-3, 2 + 1e-3]).all()
+    outside = np.minimum.reduce([np.abs(xyz[:, 0] - 10), np.abs(xyz[:, 0] - 12), np.abs(xyz[:, 1] - 10),
+                                 np.abs(xyz[:, 1] - 12), np.abs(xyz[:, 2] - 2)])
+    assert outside.max() < 1e-3                                      # every box point on a face
+    assert np.mean(np.abs(xyz[:, 2] - 2) < 1e-3) > 0.5               # seen from above: mostly the top
+
+
+@pytest.mark.parametrize("extra, optics, element", [
+    ('<part id="9"><filter type="geotiffloader"><param type="string" key="filepath" value="x.tif"/></filter></part>',
+     "rotating", "scene.part[2].filter[0]: filter type 'geotiffloader' is not supported"),
+    ('<part id="9"><filter type="objloader"><param type="string" key="filepath" value="parts/box.obj"/></filter>'
+     '<filter type="translate"><param type="integer" key="onGround" value="-1"/></filter></part>',
+     "rotating", "scene.part[2].filter[1].onGround"),
+    ("", "conic", "scanner[vux].optics: 'conic' is not supported"),
+    ('<part id="9"><filter type="objloader"><param type="string" key="filepath" value="nowhere/box.obj"/></filter></part>',
+     "rotating", "scene.part[2].filter[0]: nowhere/box.obj is in no assets folder"),
+])
+def test_unsupported_elements_are_named_in_one_line(tmp_path, monkeypatch, capsys, extra, optics, element):
+    _demo_like_survey(tmp_path, extra, optics)
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(ConfigError, match=element.replace("[", r"\[").replace("]", r"\]").replace("(", r"\(")):
+        render_survey("data/survey.xml", assets=["assets"], **QUIET)
+    assert main(["render", "data/survey.xml", "--assets", "assets", "-o", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("mitsuforest: data/survey.xml: ") and element in err
+    assert not (tmp_path / "out").exists()
