@@ -4,11 +4,14 @@
 
 HELIOS++ facts these modules rely on (HELIOS++ 2.x source, ``src/assetloading``):
 
+- the assets folders are the ``--assets`` given, then ``assets/``; the ``helios++`` command that
+  HELIOS++ 2.x installs (pyhelios) passes the working folder and its data folders as ``--assets`` too;
 - the survey's ``platform``, ``scanner`` and ``scene`` attributes are ``PATH#id``; a relative PATH is
-  looked up in each ``--assets`` folder, then ``assets/``, then the working folder (first match);
+  looked up in each assets folder, then the working folder (first match);
 - an ``objloader`` ``filepath`` that is absolute is loaded as it is; a relative one only from the first
-  ``--assets`` folder (or ``assets/``) holding it, never from the working folder; an ``efilepath``
-  regular expression is matched in the working folder *and* every assets folder, adding every match;
+  assets folder holding it; an ``efilepath`` regular expression is matched from the working folder
+  *and* from every assets folder, adding every match (the same file twice when the working folder is
+  an assets folder);
 - an OBJ's ``mtllib`` is read from the OBJ's own folder; ``helios_reflectance``,
   ``helios_classification`` and ``helios_isGround`` are HELIOS++'s material keys;
 - a part's rotate filters compose in order, its last scale and last translate win, and a vertex

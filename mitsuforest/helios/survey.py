@@ -77,7 +77,9 @@ class _Reader:
 
     def __init__(self, survey_file: Path, assets):
         self.survey_file = Path(survey_file)
-        self.assets = [Path(a) for a in assets] + [Path("assets")]
+        # As the helios++ command of HELIOS++ 2.x (pyhelios) passes them: the user's --assets, then the
+        # working folder; the binary adds assets/ (its data folders hold no files of ours).
+        self.assets = [Path(a) for a in assets] + [Path("."), Path("assets")]
         self.docs = {}
 
     def fail(self, element: str, reason: str):
@@ -116,7 +118,7 @@ class _Reader:
         if "efilepath" in params:
             pattern = params["efilepath"]
             found = []
-            for base in [Path(".")] + self.assets:
+            for base in self.assets:   # the working folder is one of them
                 full = base / pattern if not Path(pattern).is_absolute() else Path(pattern)
                 folder = full.parent
                 if folder.is_dir():
@@ -137,7 +139,7 @@ class _Reader:
             if (a / path).is_file():
                 return ((a / path).resolve(),)
         self.fail(where, f"{path} is in no assets folder ({', '.join(map(str, self.assets))}); HELIOS++ "
-                         "reads a relative filepath only from --assets folders and assets/")
+                         "reads a relative filepath only from its assets folders")
 
 
 def read_survey(path, assets=()) -> HeliosSurvey:
