@@ -60,3 +60,41 @@ def test_profile_leg_benchmark():
     stdout = _run([str(ROOT / "benchmarks" / "profile_leg.py"), "--scene", str(ROOT / "scenes" / "demo.yaml"),
                    "--leg", "1"], ROOT)
     assert "rays and labels" in stdout and "points/s" in stdout
+
+
+def test_helios_compare_without_helios_says_so(tmp_path):
+    stdout = _run([str(ROOT / "benchmarks" / "helios_compare.py"), "--helios", str(tmp_path / "none")], ROOT)
+    assert "helios++ not found" in stdout
+
+
+FAKE_HELIOS = '''
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from mitsuforest.helios.render import render_survey
+
+survey, out = sys.argv[1], Path(sys.argv[sys.argv.index("--output") + 1])
+pts = render_survey(survey, seed=int(sys.argv[sys.argv.index("--seed") + 1]) if "--seed" in sys.argv else 0,
+                    write=False, progress=False, log=lambda *_: None).points
+folder = out / "survey" / "2026-01-01_00-00-00"
+folder.mkdir(parents=True)
+columns = [pts["x"], pts["y"], pts["z"], pts["intensity"], np.zeros(len(pts)), pts["return_number"],
+           pts["number_of_returns"], np.zeros(len(pts)), pts["object_id"], pts["classification"], pts["gps_time"]]
+np.savetxt(folder / "leg000_points.xyz", np.column_stack(columns), fmt="%.4f")
+'''
+
+
+def test_helios_compare_runs_against_a_stand_in(tmp_path):
+    """A stand-in for helios++ that flies the exported survey with ``render SURVEY.xml`` and writes
+    HELIOS++'s .xyz columns: the comparison's plumbing, and trees in place on both sides."""
+    fake = tmp_path / "helios++"
+    fake.write_text(f"#!{sys.executable}\n" + FAKE_HELIOS)
+    fake.chmod(0o755)
+    stdout = _run([str(ROOT / "benchmarks" / "helios_compare.py"), "--helios", str(fake), "--quick",
+                   "--work", str(tmp_path / "work")], ROOT)
+    assert "peak memory (GB)" in stdout and "share tree_leaves" in stdout
+    offsets = [float(line.split()[1]) for line in stdout.splitlines()[1:]
+               if line.split() and line.split()[0].isdigit() and line.split()[1] != "-"]
+    assert offsets and max(offsets) < 0.05, stdout
