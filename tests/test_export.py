@@ -153,3 +153,11 @@ def test_a_risley_sensor_is_refused_before_anything_is_written(tmp_path, capsys)
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "sensor.deflector: risley" in err
     assert not (tmp_path / "out").exists()
+
+
+def test_a_folder_helios_cannot_name_is_refused_before_anything_is_written(tmp_path, capsys):
+    out = tmp_path / "a#b"
+    assert main(["export", str(ROOT / "scenes" / "demo.yaml"), "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "HELIOS++ cannot name a file whose path holds '#'" in err
+    assert not out.exists()

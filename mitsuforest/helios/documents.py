@@ -63,7 +63,7 @@ def scene_xml(scene_id: str, parts: list[PartFile]) -> str:
     for part in parts:
         p = ET.SubElement(node, "part", id=str(part.part_id))
         loader = ET.SubElement(p, "filter", type="objloader")
-        _param(loader, "string", "filepath", _checked_path(part.path))
+        _param(loader, "string", "filepath", helios_path(part.path))
         _param(loader, "string", "up", "z")
         if part.rotations:
             rotate = ET.SubElement(ET.SubElement(p, "filter", type="rotate"), "param", type="rotation", key="rotation")
@@ -75,7 +75,8 @@ def scene_xml(scene_id: str, parts: list[PartFile]) -> str:
     return _document(node)
 
 
-def _checked_path(path: Path) -> str:
+def helios_path(path: Path) -> str:
+    """An absolute path as HELIOS++ documents name it; a path holding '#' is refused."""
     text = str(Path(path).absolute())
     if "#" in text:   # HELIOS++ splits asset locations at '#'
         raise UserError(f"{text}: HELIOS++ cannot name a file whose path holds '#'; export to another folder")
@@ -87,9 +88,9 @@ def survey_xml(scene, plan, scene_file: Path, platform_file: Path, scanner_file:
     (scanner off while turning to the next start), at the legs' altitude and the survey's speed,
     pulse and scan frequency and field of view."""
     survey = ET.Element("survey", name=scene.name,
-                        platform=f"{_checked_path(platform_file)}#{PLATFORM_ID}",
-                        scanner=f"{_checked_path(scanner_file)}#{SCANNER_ID}",
-                        scene=f"{_checked_path(scene_file)}#{scene.name}")
+                        platform=f"{helios_path(platform_file)}#{PLATFORM_ID}",
+                        scanner=f"{helios_path(scanner_file)}#{SCANNER_ID}",
+                        scene=f"{helios_path(scene_file)}#{scene.name}")
     ET.SubElement(survey, "FWFSettings", beamSampleQuality=str(beam_sample_quality(scene.simulation.beam_samples)))
     for leg in plan.legs:
         speed = math.dist(leg.start, leg.end) / (leg.t1 - leg.t0)

@@ -25,7 +25,8 @@ import numpy as np
 import trimesh
 
 from ..classes import CLASS_NAMES, GROUND, TREE_LEAVES, TREE_WOOD
-from ..helios.documents import PartFile, materials_mtl, platform_xml, scanner_xml, scene_xml, survey_xml
+from ..helios.documents import (PartFile, helios_path, materials_mtl, platform_xml, scanner_xml, scene_xml,
+                                survey_xml)
 from .atomic import atomic_path, write_text
 from .tables import csv_text
 
@@ -35,7 +36,8 @@ MATERIALS = "materials.mtl"
 def export_scene(scene, plan, models: dict, folder, log=print) -> list[Path]:
     """Write the meshes, tables and HELIOS++ documents of a planned scene into ``folder``."""
     folder = Path(folder).absolute()
-    scanner = scanner_xml(scene.sensor, scene.pulse_frequency)   # refuses a sensor HELIOS++ cannot take, first
+    helios_path(folder / f"{scene.name}_helios_scene.xml")       # refusals first: nothing half-written
+    scanner = scanner_xml(scene.sensor, scene.pulse_frequency)
     (folder / "models").mkdir(parents=True, exist_ok=True)
     write_text(folder / "models" / MATERIALS, materials_mtl(scene.sensor.wavelength))
     written = [folder / "models" / MATERIALS]
