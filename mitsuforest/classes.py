@@ -7,3 +7,8 @@ CLASS_NAMES = {GROUND: "ground", TREE_WOOD: "tree_wood", TREE_LEAVES: "tree_leav
 
 DEADWOOD_TREEID = 11   # treeid of deadwood points; trees carry their archetype number 1-10; others 0
 GROUND_OBJECT_ID = 1   # object ids start at 1 with the ground; 0 never labels a point
+
+# Per-point ``species`` codes (PCD field and LAS extra dimension): the tree's procedural family;
+# 0 on the ground, understory and deadwood.
+SPECIES_CODES = {"none": 0, "eucalyptus": 1, "acacia": 2, "pinus_radiata": 3}
+TREE_SPECIES = tuple(name for name in SPECIES_CODES if name != "none")

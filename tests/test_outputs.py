@@ -22,7 +22,9 @@ OFFSET = [320000.0, 5812000.0, 100.0]
 
 def _small_scene(tmp_path, **survey):
     return scene_file(tmp_path, sensor="riegl_vux-1uav22.yaml", area={"size": [12, 12]},
-                      forest={"trees": 2, "min_spacing": 5.0}, origin={"offset": OFFSET, "crs": "EPSG:28355"},
+                      forest={"trees": 2, "min_spacing": 5.0,   # one Eucalyptus and one Pinus radiata
+                              "archetypes": [{"base": 4}, {"species": "pinus_radiata", "base": 3}]},
+                      origin={"offset": OFFSET, "crs": "EPSG:28355"},
                       understory={"bushes": 2, "rocks": 2, "deadwood": 2, "stumps": 1},
                       survey={"pulse_frequency": 100000, "lines": [[[6, -3], [6, 15]]], **survey},
                       simulation={"beam_samples": 7}, output={"formats": ["pcd", "las"]})
@@ -54,6 +56,27 @@ def test_pcd_header_and_independent_reader(rendered):
     for i, name in enumerate(pc.fields):
         assert np.array_equal(theirs[:, i], ours[name].astype(np.float64)), name
     assert ours["x"].dtype == np.float64 and ours["x"].min() > OFFSET[0] - 5
+
+
+def test_species_round_trip_through_pcd_las_and_tables(rendered):
+    """Every point's species (after the paper's ten fields in the PCD; an extra dimension in the LAS)
+    is the species its instance has in _ids.csv, and _volumes.csv names the same species per tree."""
+    import csv
+    from mitsuforest.classes import SPECIES_CODES
+    folder = rendered / "a"
+    pcd, las = read_pcd(folder / "test.pcd"), laspy.read(folder / "test.las")
+    assert pcd.dtype.names[:10] == tuple(FIELDS) and pcd.dtype.names[-1] == "species"
+    assert np.array_equal(np.asarray(las.species), pcd["species"])
+    ids = list(csv.DictReader((folder / "test_ids.csv").open()))
+    by_instance = {int(r["instance"]): SPECIES_CODES[r["species"]] for r in ids}
+    expected = np.array([by_instance[i] for i in pcd["instance"]], np.uint8)
+    assert np.array_equal(pcd["species"], expected)
+    trees = np.isin(pcd["classification"], (2, 3))   # tree wood and leaves
+    assert set(np.unique(pcd["species"][trees]).tolist()) == {1, 3}   # both families, nothing else
+    assert not pcd["species"][~trees].any()                            # ground, understory, deadwood: 0
+    volumes = [r for r in csv.DictReader((folder / "test_volumes.csv").open()) if r["row"] == "tree"]
+    assert {(int(r["instance"]), SPECIES_CODES[r["species"]]) for r in volumes} == \
+        {(i, c) for i, c in by_instance.items() if c}
 
 
 def test_las_round_trip(rendered):

@@ -6,7 +6,10 @@ import pytest
 from mitsuforest.cli import main
 from mitsuforest.plan import ModelSpec
 from mitsuforest.trees import DEFAULT_ARCHETYPES, build_model
+from mitsuforest.trees.archetypes import FAMILY_ARCHETYPES
 from mitsuforest.trees.models import tree_model
+from mitsuforest.trees.skeleton import crown_radius, grow
+from mitsuforest.trees.understory import SHRUB_FORMS, bush_model, deadwood_model, rock_model, stump_model
 from mitsuforest.trees.tubes import area_correction, signed_volume, tube
 from mitsuforest.trees.volume import InvalidPartError, union_volume, wood_volume
 
@@ -111,3 +114,123 @@ def test_trees_command_writes_meshes_volumes_and_picture(tmp_path, monkeypatch):
                      "trees.png", "volumes.csv"]
     rows = (tmp_path / "volumes.csv").read_text().splitlines()
     assert rows[0].startswith("model,height_m,dbh_m,volume_union_m3") and len(rows) == 3
+
+
+def _leaf_dispersion(centres: np.ndarray, voxel: float) -> float:
+    """Variance-to-mean ratio of leaf counts over the voxels inside the leaves' convex hull: about 1
+    for leaves spread uniformly through a volume (a dome), far above 1 for clumped foliage."""
+    from scipy.spatial import ConvexHull
+    lo = centres.min(0)
+    grid = np.stack(np.meshgrid(*[np.arange(a + voxel / 2, b, voxel) for a, b in zip(lo, centres.max(0))],
+                                indexing="ij"), -1).reshape(-1, 3)
+    planes = ConvexHull(centres).equations
+    in_hull = np.all(grid @ planes[:, :3].T + planes[:, 3] <= 1e-9, axis=1)
+    inside = np.floor((grid[in_hull] - lo) / voxel).astype(int)
+    keys, counts = np.unique(np.floor((centres - lo) / voxel).astype(int), axis=0, return_counts=True)
+    held = {tuple(k): n for k, n in zip(keys, counts)}
+    x = np.array([held.get(tuple(k), 0) for k in inside], float)
+    return float(x.var() / x.mean())
+
+
+@pytest.mark.parametrize("form", range(len(SHRUB_FORMS)))
+def test_shrub_has_several_stems_branches_and_clumped_leaves_not_a_dome(form):
+    """Every shrub form: two or more separate stems from the ground, side shoots, leaves; and the
+    leaves are clumped (dispersion index > 4), where the same number of leaves filling the shrub's
+    ellipsoid (the old dome) gives about 1."""
+    import trimesh
+    for seed in (1, 2):
+        model = bush_model(seed, "bush", form)
+        wood, leaves = model.parts
+        assert [p.name for p in model.parts] == ["wood", "leaves"] and model.components[0].kind == "bush"
+        mesh = trimesh.Trimesh(wood.vertices, wood.faces, process=False)
+        pieces = trimesh.graph.connected_components(mesh.face_adjacency, nodes=np.arange(len(mesh.faces)))
+        rooted = [p for p in pieces if wood.vertices[wood.faces[p].ravel(), 2].min() < 1e-9]
+        assert len(rooted) == model.meta["stems"] >= 2
+        assert len(pieces) == model.meta["stems"] + model.meta["shoots"] > len(rooted)   # branching
+        centres = leaves.vertices.reshape(-1, 4, 3).mean(axis=1)
+        assert len(centres) == model.meta["leaves"] > 300
+        h, w = model.meta["height"], model.meta["width"]
+        rng = np.random.default_rng(0)
+        u = rng.normal(size=(len(centres), 3))
+        u *= rng.random((len(centres), 1)) ** (1 / 3) / np.linalg.norm(u, axis=1, keepdims=True)
+        dome = u * [w / 2, w / 2, h / 2] + [0, 0, h / 2]
+        voxel = max(w, h) / 8
+        assert _leaf_dispersion(dome, voxel) < 4 < _leaf_dispersion(centres, voxel), (form, seed)
+        assert np.hypot(*model.vertices()[:, :2].T).max() < 1.35   # plan.CLEARANCE["bush"]
+
+
+def test_shrub_forms_differ_in_size_and_leaf_density():
+    """The heath form is the lowest and densest (leaf area per envelope volume), the tall open form
+    the tallest and sparsest."""
+    def area(m):
+        return leaf_count_area(m) / (np.pi / 6 * m.meta["width"] ** 2 * m.meta["height"])
+    def leaf_count_area(m):
+        v = m.parts[1].vertices.reshape(-1, 4, 3)
+        return 0.5 * np.linalg.norm(np.cross(v[:, 2] - v[:, 0], v[:, 3] - v[:, 1]), axis=1).sum()
+    heath, tall = [bush_model(1, "b", f) for f in (0, len(SHRUB_FORMS) - 1)]
+    assert heath.meta["height"] < 0.8 < 1.8 < tall.meta["height"]
+    assert area(heath) > 3 * area(tall)
+
+
+def test_stump_and_log_volumes_are_unions_of_irregular_parts():
+    """A stump's roots overlap its trunk: its union lies between its largest piece and the naive sum
+    of its pieces. A knotty, bowed log of one piece has exactly its frustums' analytic volume."""
+    one_piece_logs = 0
+    for seed in range(4):
+        stump = stump_model(seed, "s")
+        v = stump.volume
+        pieces = _parts(stump)
+        assert len(pieces) == v.parts == stump.meta["roots"] + 1 >= 4
+        sizes = [signed_volume(*p) for p in pieces]
+        assert v.naive == pytest.approx(sum(sizes), rel=1e-9)
+        assert max(sizes) < v.union < v.naive
+    for seed in range(30):
+        log = deadwood_model(seed, "d", 5.0, 0.15)
+        if log.volume.parts == 1:
+            one_piece_logs += 1
+            assert log.volume.union == pytest.approx(log.volume.analytic, rel=1e-9)
+            assert log.volume.union != pytest.approx(np.pi * 5.0 / 3 * 0.15 ** 2 * (1 + 0.5 + 0.25), rel=0.01)
+    assert one_piece_logs >= 1
+
+
+def _parts(model):
+    """Closed pieces of a one-part understory model, as (vertices, faces) each."""
+    import trimesh
+    p = model.parts[0]
+    mesh = trimesh.Trimesh(p.vertices, p.faces, process=False)
+    return [(m.vertices, m.faces) for m in mesh.split(only_watertight=False)]
+
+
+def test_rocks_are_irregular_closed_and_not_convex():
+    """Rocks are closed unions of several lumps: their volume is below their convex hull's."""
+    import trimesh
+    concave = 0
+    for seed in range(6):
+        rock = rock_model(seed, "r")
+        mesh = trimesh.Trimesh(rock.parts[0].vertices, rock.parts[0].faces, process=False)
+        assert mesh.is_watertight and mesh.volume > 0
+        concave += mesh.volume < 0.97 * mesh.convex_hull.volume
+    assert concave >= 4
+
+
+@pytest.mark.parametrize("family", ["acacia", "pinus_radiata"])
+def test_species_families_have_their_own_form(family):
+    """Acacia forks low into several leaders under a broad crown; Pinus radiata keeps one leader with
+    branches in whorls (first-order branch bases in groups of four at one height)."""
+    for a in FAMILY_ARCHETYPES[family]:
+        branches = grow(a)
+        firsts = [b for b in branches if b.order == 1]
+        bases = np.array([b.points[0, 2] for b in firsts])
+        if family == "pinus_radiata":
+            assert bases.min() > a.height * (1 - a.crown_ratio) - 0.5
+            whorls = np.sort(bases)[:len(bases) // 4 * 4].reshape(-1, 4)
+            assert np.ptp(whorls, axis=1).max() < 0.5 < np.diff(whorls.mean(axis=1)).min()
+            base = a.height * (1 - a.crown_ratio)   # a cone: widest at the crown base, 0 at the top
+            assert crown_radius(a, base) == a.crown_diameter / 2 and crown_radius(a, a.height) == 0
+            assert crown_radius(a, (base + a.height) / 2) == pytest.approx(a.crown_diameter / 2 * 0.5 ** 0.9)
+        else:
+            leaders = [b for b in firsts if abs(b.points[0, 2] - a.fork_height * a.height) < 0.3 and b.length > 3]
+            assert len(leaders) >= a.forks - 1 >= 2
+        m = tree_model(a, "t")
+        assert m.meta["species"] == family and 0.1 < m.volume.union < m.volume.naive
+        assert 30_000 < m.triangles < 150_000

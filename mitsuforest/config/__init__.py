@@ -18,7 +18,7 @@ from pathlib import Path
 import yaml
 
 from ..errors import ConfigError, UserError
-from ..trees.archetypes import DEFAULT_ARCHETYPES, FIELDS as ARCHETYPE_FIELDS, Archetype
+from ..trees.archetypes import DEFAULT_ARCHETYPES, FAMILY_ARCHETYPES, FIELDS as ARCHETYPE_FIELDS, Archetype
 from .schema import REQUIRED, Context, Custom, FilePath, ListOf, Number, Text, Vector, parse_mapping
 from .types import BEAM_PATTERNS, FOREST_BANDS, Scene, Sensor, display_path, from_mapping, to_mapping
 
@@ -58,16 +58,19 @@ def _archetypes(value, ctx: Context, key: str):
         return list(DEFAULT_ARCHETYPES)
     if not isinstance(value, (list, tuple)) or not value:
         ctx.fail(key, "must be 'default' or a non-empty list of archetype mappings")
-    spec = {name: Number(f.default, integer=f.metadata["integer"], ge=f.metadata["lo"], le=f.metadata["hi"])
+    spec = {name: Text(f.default, choices=f.metadata["choices"]) if f.metadata["choices"] else
+            Number(f.default, integer=f.metadata["integer"], ge=f.metadata["lo"], le=f.metadata["hi"])
             for name, f in ARCHETYPE_FIELDS.items()}
-    spec["base"] = Number(None, integer=True, ge=1, le=len(DEFAULT_ARCHETYPES), nullable=True)
+    spec["base"] = Number(None, integer=True, ge=1, nullable=True)
     out = []
     for i, item in enumerate(value):
         item = dataclasses.asdict(item) if isinstance(item, Archetype) else item
         where = f"{key}[{i}]"
         given = parse_mapping(spec, item, ctx, where)
-        base = given.pop("base")
-        merged = dataclasses.asdict(DEFAULT_ARCHETYPES[base - 1]) if base else {}
+        base, family = given.pop("base"), FAMILY_ARCHETYPES[given["species"]]
+        if base and base > len(family):   # `base: N` counts the archetypes of the entry's species
+            ctx.fail(f"{where}.base", f"must be <= {len(family)} (the {given['species']} archetypes), got {base}")
+        merged = dataclasses.asdict(family[base - 1]) if base else {}
         explicit = {k: given[k] for k in item if k != "base"}
         out.append(Archetype(**{**{k: given[k] for k in ARCHETYPE_FIELDS}, **merged, **explicit}))
     return out

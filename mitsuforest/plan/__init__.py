@@ -18,7 +18,7 @@ from ..config import RSA_JAMMING, scene_error
 from ..errors import UserError
 from ..trees.models import tree_components
 from ..trees.skeleton import grow
-from ..trees.understory import UNDERSTORY_COMPONENTS
+from ..trees.understory import SHRUB_FORMS, UNDERSTORY_COMPONENTS
 from .cover import CoverGrid, crown_outline
 from .flight import flight_legs
 from .terrain import Terrain, make_terrain
@@ -169,7 +169,7 @@ def _place_trees(forest, size, crowns, terrain, rng) -> tuple[list[PlacedObject]
 # Half-widths (m) kept clear around each kind's axis: the largest model of the kind (understory.py)
 # plus a margin. Stems keep 0.6 m (flared base, and 5° tilt over the first 3 m).
 STEM_CLEARANCE = 0.6
-CLEARANCE = {"bush": 1.35, "rock": 1.0, "stump": 0.5, "deadwood": 1.35}  # logs: side branches reach 1.3 m
+CLEARANCE = {"bush": 1.35, "rock": 1.0, "stump": 1.0, "deadwood": 1.5}  # logs: side branches reach 1.3 m, bow 0.1 m; stump roots 0.9 m
 MIN_LOG = 1.5  # m, the shortest log drawn
 
 
@@ -183,8 +183,9 @@ def _place_understory(scene: dict, size, trees, terrain, rng):
     counts = scene.understory
     taken = [_Footprint(np.array(t.position[:2]), 0.0, 0.0, STEM_CLEARANCE) for t in trees]
     objects, models = [], {}
-    for i in range(BUSH_MODELS if counts.bushes else 0):
-        models[f"bush{i + 1:02d}"] = ModelSpec("bush", UNDERSTORY_COMPONENTS, seed=int(scene.seed) * 1000 + i)
+    for i in range(BUSH_MODELS if counts.bushes else 0):   # every shrub form, in turn
+        models[f"bush{i + 1:02d}"] = ModelSpec("bush", UNDERSTORY_COMPONENTS, seed=int(scene.seed) * 1000 + i,
+                                               form=i % len(SHRUB_FORMS))
     for kind, key in UNDERSTORY_KEYS.items():
         for i in range(getattr(counts, key)):
             spec = ModelSpec(kind, UNDERSTORY_COMPONENTS, seed=int(rng.integers(0, 2**31 - 1)))

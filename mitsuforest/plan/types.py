@@ -57,10 +57,11 @@ class ModelSpec:
     seed: int | None = None              # understory
     length: float | None = None          # deadwood
     radius: float | None = None
+    form: int | None = None              # bush: index into understory.SHRUB_FORMS
 
     def parameters(self) -> dict:
-        """The understory builder's keyword arguments (seed, and a log's length and radius)."""
-        return {k: getattr(self, k) for k in ("seed", "length", "radius") if getattr(self, k) is not None}
+        """The understory builder's keyword arguments (seed, a log's length and radius, a shrub's form)."""
+        return {k: getattr(self, k) for k in ("seed", "length", "radius", "form") if getattr(self, k) is not None}
 
 
 @dataclass(frozen=True)

@@ -15,6 +15,7 @@ POINT_DTYPE = np.dtype([
     ("treeid", "<u2"), ("x", "<f8"), ("y", "<f8"), ("z", "<f8"), ("classification", "u1"),
     ("instance", "<u4"), ("object_id", "<u4"), ("number_of_returns", "u1"), ("return_number", "u1"),
     ("intensity", "<f4"), ("gps_time", "<f8"), ("scan_angle", "<f4"), ("pulse_id", "<u8"), ("range", "<f4"),
+    ("species", "u1"),   # after the paper's fields: the tree's family code (classes.SPECIES_CODES), 0 elsewhere
 ])
 
 
@@ -77,12 +78,12 @@ class PulseTracer:
         with variant_scope(self.variant):
             pulses, fired = reaching_pulses(leg, self.sensor, pulse_frequency, scan_frequency, first, count,
                                             self.box, first_id)
-            return self._points(self.caster.echoes(pulses)), fired, pulses.count
+            return self._points(self.caster.echoes(pulses), self.table), fired, pulses.count
 
     def trace_pulses(self, pulses, first_id: int = 0) -> np.ndarray:
         """Points of hand-made pulses (:class:`~mitsuforest.scan.reference.pulses.Pulses`, numpy)."""
         with variant_scope(self.variant):
-            return self._points(self.caster.echoes(upload_pulses(pulses, first_id)))
+            return self._points(self.caster.echoes(upload_pulses(pulses, first_id)), self.table)
 
     def cast(self, pulses, first_id: int = 0) -> dict:
         """The first hits of every sub-ray of hand-made pulses (see :meth:`RayCaster.cast`)."""
@@ -90,11 +91,12 @@ class PulseTracer:
             return self.caster.cast(upload_pulses(pulses, first_id))
 
     @staticmethod
-    def _points(echoes: dict) -> np.ndarray:
+    def _points(echoes: dict, table) -> np.ndarray:
         out = np.zeros(len(echoes["pulse_id"]), POINT_DTYPE)
         for key in ("treeid", "x", "y", "z", "classification", "instance", "object_id", "number_of_returns",
                     "return_number", "gps_time", "pulse_id", "range"):
             out[key] = echoes[key]
         out["intensity"] = echoes["amplitude"]
         out["scan_angle"] = np.rad2deg(echoes["scan_angle"])
+        out["species"] = table.species(out["instance"])
         return out

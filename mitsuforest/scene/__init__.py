@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..classes import SPECIES_CODES
 from ..plan.transforms import apply
 from .meshes import face_normals, mitsuba_mesh
 from .variant import select_variant, variant_scope
@@ -47,6 +48,13 @@ class HitTable:
     component_class: np.ndarray      # (C,) uint8
     ground_normal: np.ndarray        # (G, 3) float32
     ground_object_id: int
+    instance_species: np.ndarray | None = None   # (I,) uint8: species code by instance id (0 the ground)
+
+    def species(self, instance: np.ndarray) -> np.ndarray:
+        """(n,) uint8 species codes (classes.SPECIES_CODES) of the points of instances ``instance``."""
+        if self.instance_species is None:
+            return np.zeros(len(instance), np.uint8)
+        return self.instance_species[np.asarray(instance, np.int64)]
 
 
 @dataclass
@@ -177,4 +185,15 @@ def _hit_table(mi_scene, dr, mi, plan, models, used, keep, ground_v, ground_f, p
         component_class=np.array(classes, np.uint8),
         ground_normal=face_normals(ground_v, ground_f),
         ground_object_id=plan.ground_object_id,
+        instance_species=instance_species(plan),
     )
+
+
+def instance_species(plan) -> np.ndarray:
+    """(max instance + 1,) uint8: each instance's species code; trees carry their archetype's family,
+    everything else (the ground at 0, understory, deadwood) ``none``."""
+    codes = np.zeros(max((o.instance for o in plan.objects), default=0) + 1, np.uint8)
+    for o in plan.objects:
+        if o.kind == "tree" and plan.models[o.model].archetype is not None:
+            codes[o.instance] = SPECIES_CODES[plan.models[o.model].archetype.species]
+    return codes

@@ -1,4 +1,5 @@
-"""Parameters of the procedural Eucalyptus trees and the ten default archetypes.
+"""Parameters of the procedural trees, the ten default Eucalyptus archetypes and the archetypes of
+the other species families (Acacia, Pinus radiata).
 
 Lengths are metres, angles degrees, areas square metres. The generator (:mod:`.skeleton`) reads
 nothing but these fields, so an archetype is fully described by them; its hash keys the disk cache.
@@ -9,14 +10,22 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass, field
 
+from ..classes import TREE_SPECIES
 
-def _p(default, meaning, lo=None, hi=None, integer=False):
-    return field(default=default, metadata={"meaning": meaning, "lo": lo, "hi": hi, "integer": integer})
+
+def _p(default, meaning, lo=None, hi=None, integer=False, choices=None):
+    return field(default=default, metadata={"meaning": meaning, "lo": lo, "hi": hi, "integer": integer,
+                                            "choices": choices})
 
 
 @dataclass(frozen=True)
 class Archetype:
-    """One procedural Eucalyptus tree (Weber & Penn-style recursive branching)."""
+    """One procedural tree (Weber & Penn-style recursive branching) of a species family.
+
+    ``species`` picks the family's crown shape and branching (:mod:`.skeleton`): ``eucalyptus``
+    (forking leaders, a half-ellipse crown), ``acacia`` (a low fork into several leaders, a broad
+    rounded crown) or ``pinus_radiata`` (one straight leader, branches in whorls, a conical crown).
+    """
 
     height: float = _p(20.0, "total tree height (m)", 2.0, 80.0)
     dbh: float = _p(0.30, "stem diameter at breast height, 1.3 m (m)", 0.02, 3.0)
@@ -34,17 +43,18 @@ class Archetype:
     leaf_area: float = _p(35.0, "one-sided leaf area of the tree (m2)", 0.0, 2000.0)
     leaf_length: float = _p(0.13, "leaf blade length (m); Eucalyptus lanceolate 0.10-0.15", 0.01, 0.5)
     leaf_width: float = _p(0.025, "leaf blade width (m)", 0.002, 0.2)
-    leaf_inclination: float = _p(65.0, "mean leaf blade angle from horizontal (deg); 90 = hanging", 0.0, 90.0)
-    leaf_clumping: float = _p(0.5, "fraction of each terminal twig, from its tip, that carries leaves", 0.05, 1.0)
+    leaf_inclination: float = _p(75.0, "mean leaf blade angle from horizontal (deg); 90 = hanging", 0.0, 90.0)
+    leaf_clumping: float = _p(0.35, "fraction of each terminal twig, from its tip, that carries leaves", 0.05, 1.0)
     min_radius: float = _p(0.003, "smallest twig radius (m)", 0.0002, 0.05)
     lean: float = _p(3.0, "random stem lean and sweep (deg)", 0.0, 30.0)
     seed: int = _p(0, "seed of this archetype's own random choices", 0, 2**31 - 1, True)
     weight: float = _p(1.0, "relative frequency with which the archetype is drawn", 0.0, 1e6)
+    species: str = _p("eucalyptus", "procedural family: " + ", ".join(TREE_SPECIES), choices=TREE_SPECIES)
 
 
 FIELDS = {f.name: f for f in dataclasses.fields(Archetype)}
 
-# Ten archetypes spanning the sizes of the Synthetic Forest paper's models (wood 0.3-1.4 m3,
+# Ten Eucalyptus archetypes spanning the sizes of the Synthetic Forest paper's models (wood 0.3-1.4 m3,
 # heights 14-29 m). Spotted gum / manna gum / stringybark-like forms: tall straight stems, a crown in
 # the upper third to half, forking leaders and clumped pendulous foliage.
 DEFAULT_ARCHETYPES: tuple[Archetype, ...] = (
@@ -59,6 +69,32 @@ DEFAULT_ARCHETYPES: tuple[Archetype, ...] = (
     Archetype(height=17.0, dbh=0.25, crown_diameter=8.0, crown_ratio=0.50, branches=12, fork_height=0.5, leaf_area=26, seed=9),
     Archetype(height=23.0, dbh=0.32, crown_diameter=9.5, crown_ratio=0.44, branches=15, curvature=30, leaf_area=38, seed=10),
 )
+
+
+# Blackwood-like wattles (Acacia melanoxylon / A. implexa): 8-16 m, a low fork into several leaders, a
+# broad dense crown of phyllodes (lanceolate, 6-10 cm), held at middling angles.
+ACACIA_ARCHETYPES: tuple[Archetype, ...] = tuple(Archetype(**{**dict(species="acacia", taper=0.8, fork_height=0.3, forks=3,
+                                                           branch_angle=55, curvature=10, children=5, twigs=4,
+                                                           leaf_length=0.10, leaf_width=0.018, leaf_inclination=40,
+                                                           leaf_clumping=0.5, lean=6), **k}) for k in (
+    dict(height=12.0, dbh=0.26, crown_diameter=8.0, crown_ratio=0.65, branches=14, leaf_area=26, seed=101),
+    dict(height=9.0, dbh=0.20, crown_diameter=6.5, crown_ratio=0.70, branches=12, forks=4, leaf_area=18, seed=102),
+    dict(height=15.0, dbh=0.32, crown_diameter=9.0, crown_ratio=0.60, branches=16, leaf_area=34, seed=103),
+))
+
+# Plantation Pinus radiata: one straight leader, whorls of near-horizontal branches that droop and turn
+# up at their tips, a conical crown; needle fascicles are modelled as narrow shoots 15 cm long.
+PINUS_ARCHETYPES: tuple[Archetype, ...] = tuple(Archetype(**{**dict(species="pinus_radiata", taper=1.0, fork_height=0.0,
+                                                          forks=1, branch_angle=75, branch_radius_ratio=0.3,
+                                                          curvature=-20, children=4, twigs=2, leaf_length=0.15,
+                                                          leaf_width=0.015, leaf_inclination=30, leaf_clumping=0.6,
+                                                          lean=1.5), **k}) for k in (
+    dict(height=22.0, dbh=0.30, crown_diameter=7.0, crown_ratio=0.50, branches=40, leaf_area=30, seed=201),
+    dict(height=28.0, dbh=0.38, crown_diameter=8.0, crown_ratio=0.45, branches=48, leaf_area=40, seed=202),
+    dict(height=16.0, dbh=0.22, crown_diameter=6.0, crown_ratio=0.60, branches=36, leaf_area=22, seed=203),
+))
+
+FAMILY_ARCHETYPES = {"eucalyptus": DEFAULT_ARCHETYPES, "acacia": ACACIA_ARCHETYPES, "pinus_radiata": PINUS_ARCHETYPES}
 
 
 def describe() -> str:

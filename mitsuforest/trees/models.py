@@ -86,7 +86,8 @@ def tree_model(archetype: Archetype, name: str) -> Model:
     if leaves is not None:
         v, f = leaves
         parts.append(Part("leaves", v, f.astype(np.uint32), np.full(len(f), len(components) - 1, np.uint16)))
-    return Model(name, parts, components, volume, meta={"height": archetype.height, "dbh": archetype.dbh})
+    return Model(name, parts, components, volume,
+                 meta={"height": archetype.height, "dbh": archetype.dbh, "species": archetype.species})
 
 
 def _leaves(a: Archetype, branches, rng):
@@ -95,7 +96,7 @@ def _leaves(a: Archetype, branches, rng):
     count = leaf_count(a.leaf_area, a.leaf_length, a.leaf_width)
     twigs = terminal_branches(branches)
     which = rng.integers(0, len(twigs), count)
-    s = 1 - a.leaf_clumping * rng.random(count) ** 1.5  # denser toward the tips
+    s = 1 - a.leaf_clumping * rng.random(count) ** 2  # most leaves in a clump at the twig's tip
     anchors = np.empty((count, 3))
     for k, twig in enumerate(twigs):
         sel = which == k
@@ -103,5 +104,5 @@ def _leaves(a: Archetype, branches, rng):
         cum = np.concatenate([[0.0], np.cumsum(seg)]) / seg.sum()
         for axis in range(3):
             anchors[sel, axis] = np.interp(s[sel], cum, twig.points[:, axis])
-    anchors += rng.normal(0, 0.03, anchors.shape)
+    anchors += rng.normal(0, 0.25 * a.leaf_length, anchors.shape)  # a clump of petioles, not a line
     return leaf_blades(anchors, a.leaf_length, a.leaf_width, a.leaf_inclination, rng)

@@ -1,9 +1,11 @@
-"""The branching skeleton of a procedural Eucalyptus: polylines with radii.
+"""The branching skeleton of a procedural tree: polylines with radii.
 
-Weber & Penn-style recursion, specialised to Eucalyptus form: a straight tapering stem that forks into
-co-dominant leaders at ``fork_height``; first-order branches only in the live crown (the lower stem
-self-prunes), ascending and bending upward; second-order branches and third-order twigs along them;
-leaves hang from the outer part of the terminal twigs. Radii follow the parent where a branch starts
+Weber & Penn-style recursion. Eucalyptus form: a straight tapering stem that forks into co-dominant
+leaders at ``fork_height``; first-order branches only in the live crown (the lower stem self-prunes),
+ascending and bending upward; second-order branches and third-order twigs along them; leaves hang from
+the outer part of the terminal twigs. The other families change the crown envelope and the branch
+arrangement (:func:`crown_radius`): Acacia a broad rounded crown over a low fork, Pinus radiata whorls of
+branches on one leader under a cone. Radii follow the parent where a branch starts
 (``branch_radius_ratio``, then halving per order) and taper linearly to ``min_radius`` at the tip.
 """
 
@@ -89,12 +91,37 @@ def _segments(length: float, radius: float) -> int:
     return int(np.clip(np.ceil(length / np.clip(6 * radius, 0.15, 0.6)), 1, 60))
 
 
-def _crown_profile(a: Archetype, z: float) -> float:
-    """Crown radius available at height z (a half-ellipse over the live crown)."""
+BRANCHES_PER_WHORL = 4   # Pinus radiata: first-order branches per whorl
+
+
+def crown_radius(a: Archetype, z: float) -> float:
+    """Crown radius available at height z: the family's envelope over the live crown.
+
+    Eucalyptus a half-ellipse widest just below mid-crown; Acacia a flatter, broader superellipse
+    widest at 60 % of the crown; Pinus radiata a cone from the crown base to the top.
+    """
     base = a.height * (1 - a.crown_ratio)
-    mid, half = base + 0.45 * (a.height - base), 0.5 * (a.height - base)
-    u = np.clip((z - mid) / (half * 1.1), -1, 1)
-    return 0.5 * a.crown_diameter * np.sqrt(1 - u * u)
+    radius = 0.5 * a.crown_diameter
+    if a.species == "pinus_radiata":
+        u = np.clip((z - base) / (a.height - base), 0, 1)
+        return radius * (1.0 - u) ** 0.9
+    widest, exponent = (0.6, 3.0) if a.species == "acacia" else (0.45, 2.0)
+    mid, half = base + widest * (a.height - base), 0.5 * (a.height - base)
+    u = np.clip(np.abs(z - mid) / (half * 1.1), 0, 1)
+    return radius * (1 - u ** exponent) ** (1 / exponent)
+
+
+def _branch_site(a: Archetype, i: int, s_lo: float, rng) -> tuple[float, float]:
+    """Arc-length fraction along the parent and roll increment of first-order branch ``i``: spread
+    evenly (a golden-angle spiral), or in whorls of BRANCHES_PER_WHORL for Pinus radiata."""
+    if a.species == "pinus_radiata":
+        whorls = -(-a.branches // BRANCHES_PER_WHORL)
+        w, k = divmod(i, BRANCHES_PER_WHORL)
+        s = s_lo + (0.95 - s_lo) * (w + 0.5 + rng.uniform(-0.08, 0.08)) / whorls
+        turn = (GOLDEN_ANGLE if k == 0 else 2 * np.pi / BRANCHES_PER_WHORL) + rng.normal(0, 0.15)
+        return s, turn
+    s = s_lo + (0.93 - s_lo) * (i + rng.uniform(0.2, 0.8)) / a.branches
+    return s, GOLDEN_ANGLE + rng.normal(0, 0.3)
 
 
 def grow(a: Archetype) -> list[Branch]:
@@ -130,12 +157,12 @@ def grow(a: Archetype) -> list[Branch]:
     for i in range(a.branches):
         parent = parents[i % len(parents)]
         s_lo = 0.0 if parent.order else crown_base / a.height
-        s = s_lo + (0.93 - s_lo) * (i + rng.uniform(0.2, 0.8)) / a.branches
+        s, turn = _branch_site(a, i, s_lo, rng)
         p, d, r = parent.at(s)
-        roll += GOLDEN_ANGLE + rng.normal(0, 0.3)
+        roll += turn
         angle = np.deg2rad(a.branch_angle + rng.normal(0, 8))
         direction = _direction(np.array([0.0, 0.0, 1.0]), angle, roll)
-        reach = max(_crown_profile(a, p[2]), 0.4) * rng.uniform(0.75, 1.05)
+        reach = max(crown_radius(a, p[2]), 0.4) * rng.uniform(0.75, 1.05)
         length = reach / max(np.sin(angle), 0.3)
         r0 = max(a.branch_radius_ratio * r * rng.uniform(0.8, 1.1), 2 * a.min_radius)
         start = p + direction * 0.5 * r  # start inside the parent, half-way to its surface

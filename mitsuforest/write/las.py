@@ -2,8 +2,8 @@
 
 Classification uses ASPRS codes where they fit — ground 2, bush 4 (medium vegetation), tree wood and
 leaves 5 (high vegetation) — and the user range for the rest: deadwood 64, rock 65, stump 66. Our own
-classes (1-7, as in the PCD) are in the extra dimension ``label``; ``treeid``, ``instance`` and
-``object_id`` are extra dimensions too. Intensity is scaled to 16 bits by a fixed factor
+classes (1-7, as in the PCD) are in the extra dimension ``label``; ``treeid``, ``instance``,
+``object_id`` and ``species`` (classes.SPECIES_CODES, also in the VLR) are extra dimensions too. Intensity is scaled to 16 bits by a fixed factor
 (INTENSITY_SCALE, also written in the header's VLR and the file description): the float amplitude
 is kept exact in the extra dimension ``amplitude``. Coordinates are stored at 0.1 mm with the
 georeference in the header offsets. The scene's ``origin.crs`` is written as the standard OGC WKT
@@ -19,7 +19,7 @@ import laspy
 import numpy as np
 from laspy.vlrs.known import WktCoordinateSystemVlr
 
-from ..classes import BUSH, DEADWOOD, GROUND, ROCK, STUMP, TREE_LEAVES, TREE_WOOD
+from ..classes import BUSH, DEADWOOD, GROUND, ROCK, SPECIES_CODES, STUMP, TREE_LEAVES, TREE_WOOD
 from ..errors import UserError
 from .atomic import atomic_path
 
@@ -61,10 +61,11 @@ def las_header(offset, crs: str | None = None) -> laspy.LasHeader:
         laspy.ExtraBytesParams("instance", np.uint32, "object instance id"),
         laspy.ExtraBytesParams("object_id", np.uint32, "component id"),
         laspy.ExtraBytesParams("amplitude", np.float32, "echo amplitude (white at 1 m=1)"),
+        laspy.ExtraBytesParams("species", np.uint8, "tree family code, 0 none"),
     ])
     header.vlrs.append(laspy.VLR("mitsuforest", 1, "intensity and classes", json.dumps(
         {"intensity_scale": INTENSITY_SCALE, "classification": {str(k): v for k, v in ASPRS_CODE.items()},
-         "crs": crs}).encode()))
+         "species": {str(v): k for k, v in SPECIES_CODES.items()}, "crs": crs}).encode()))
     header.global_encoding.wkt = True  # LAS 1.4 requires it for point formats 6-10; PDAL refuses files without
     if crs:
         header.vlrs.append(WktCoordinateSystemVlr(crs_wkt(crs)))
@@ -86,6 +87,8 @@ def las_points(header: laspy.LasHeader, points: np.ndarray) -> laspy.LasData:
     las.instance = points["instance"]
     las.object_id = points["object_id"]
     las.amplitude = points["intensity"]
+    if "species" in points.dtype.names:
+        las.species = points["species"]
     return las
 
 

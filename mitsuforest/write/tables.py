@@ -24,39 +24,52 @@ def _f(x, digits=9):
     return f"{x:.{digits}g}"
 
 
+WOODY_KINDS = ("tree", "deadwood", "stump")   # the kinds whose wood volume is tabled
+
+
+def model_species(spec) -> str:
+    """The species name of a model: a tree's family, ``none`` for everything else."""
+    return spec.archetype.species if spec.kind == "tree" and spec.archetype is not None else "none"
+
+
 def volume_rows(plan, models: dict, offset) -> list[list]:
-    """One row per tree archetype and per deadwood piece, then one per placed tree."""
+    """One row per tree archetype, deadwood piece and stump model, then one per placed tree, deadwood
+    piece and stump."""
     rows = []
     for name, spec in plan.models.items():
-        if spec.kind in ("tree", "deadwood") and name in models and models[name].volume:
+        if spec.kind in WOODY_KINDS and name in models and models[name].volume:
             v = models[name].volume
             rows.append([spec.kind + "_model", name, "", _f(v.union), _f(v.analytic), _f(v.naive), v.parts,
-                         "", "", "", ""])
+                         "", "", "", "", model_species(spec)])
     for obj in plan.objects:
-        if obj.kind in ("tree", "deadwood"):
+        if obj.kind in WOODY_KINDS and models[obj.model].volume:
             v = models[obj.model].volume
             x, y, z = (p + o for p, o in zip(obj.position, offset))
             rows.append([obj.kind, obj.model, obj.instance, _f(v.union), _f(v.analytic), _f(v.naive),
-                         v.parts, obj.treeid, f"{x:.4f}", f"{y:.4f}", f"{z:.4f}"])
+                         v.parts, obj.treeid, f"{x:.4f}", f"{y:.4f}", f"{z:.4f}",
+                         model_species(plan.models[obj.model])])
     return rows
 
 
 def write_volumes(path, plan, models, offset) -> None:
     header = ["row", "model", "instance", "volume_union_m3", "volume_analytic_m3", "volume_naive_m3",
-              "parts", "treeid", "x", "y", "z"]
+              "parts", "treeid", "x", "y", "z", "species"]
     write_text(path, csv_text(header, volume_rows(plan, models, offset)))
 
 
 def write_ids(path, plan, models, offset) -> None:
-    """Every object and component: object_id, instance, treeid, classification, kind, model, position."""
-    rows = [[plan.ground_object_id, 0, 0, GROUND, "ground", "", "", "", ""]]
+    """Every object and component: object_id, instance, treeid, classification, kind, model, position,
+    species (the name; its code is the points' ``species`` field, classes.SPECIES_CODES)."""
+    rows = [[plan.ground_object_id, 0, 0, GROUND, "ground", "", "", "", "", "none"]]
     for obj in plan.objects:
         x, y, z = (f"{p + o:.4f}" for p, o in zip(obj.position, offset))
+        species = model_species(plan.models[obj.model])
         for k, comp in enumerate(models[obj.model].components):
             treeid = obj.treeid if comp.classification in (TREE_WOOD, TREE_LEAVES) or obj.kind == "deadwood" else 0
             rows.append([obj.object_id + k, obj.instance, treeid, comp.classification, comp.kind,
-                         obj.model, x, y, z])
-    write_text(path, csv_text(["object_id", "instance", "treeid", "classification", "kind", "model", "x", "y", "z"], rows))
+                         obj.model, x, y, z, species])
+    write_text(path, csv_text(["object_id", "instance", "treeid", "classification", "kind", "model", "x", "y", "z",
+                               "species"], rows))
 
 
 def trajectory(legs, rate: float = 10.0) -> np.ndarray:

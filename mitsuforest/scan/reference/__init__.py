@@ -58,4 +58,5 @@ def trace_reference(tracer, pulses: Pulses, first_id: int = 0) -> np.ndarray:
     out["scan_angle"] = np.rad2deg(pulses.scan_angle[echoes.pulse])
     out["pulse_id"] = first_id + pulses.index[echoes.pulse]
     out["range"] = echoes.range
+    out["species"] = tracer.table.species(out["instance"])
     return out
