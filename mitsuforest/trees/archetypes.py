@@ -89,9 +89,9 @@ PINUS_ARCHETYPES: tuple[Archetype, ...] = tuple(Archetype(**{**dict(species="pin
                                                           curvature=-20, children=4, twigs=2, leaf_length=0.15,
                                                           leaf_width=0.015, leaf_inclination=30, leaf_clumping=0.6,
                                                           lean=1.5), **k}) for k in (
-    dict(height=22.0, dbh=0.30, crown_diameter=7.0, crown_ratio=0.50, branches=40, leaf_area=30, seed=201),
-    dict(height=28.0, dbh=0.38, crown_diameter=8.0, crown_ratio=0.45, branches=48, leaf_area=40, seed=202),
-    dict(height=16.0, dbh=0.22, crown_diameter=6.0, crown_ratio=0.60, branches=36, leaf_area=22, seed=203),
+    dict(height=22.0, dbh=0.34, crown_diameter=5.5, crown_ratio=0.50, branches=40, leaf_area=30, seed=201),
+    dict(height=28.0, dbh=0.42, crown_diameter=6.5, crown_ratio=0.45, branches=48, leaf_area=40, seed=202),
+    dict(height=16.0, dbh=0.25, crown_diameter=4.5, crown_ratio=0.60, branches=36, leaf_area=22, seed=203),
 ))
 
 FAMILY_ARCHETYPES = {"eucalyptus": DEFAULT_ARCHETYPES, "acacia": ACACIA_ARCHETYPES, "pinus_radiata": PINUS_ARCHETYPES}
