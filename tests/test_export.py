@@ -111,6 +111,7 @@ def test_the_parts_table_maps_every_part(exported):
 def test_the_survey_flies_our_legs_with_our_sensor(exported):
     folder, scene, plan, models = exported
     survey = ET.parse(folder / "demo_helios_survey.xml").getroot().find("survey")
+    assert survey.get("seed") == str(scene.seed) == "7"
     for key, tag in (("platform", "platform"), ("scanner", "scanner"), ("scene", "scene")):
         path, ident = survey.get(key).split("#")
         assert Path(path).is_absolute() and Path(path).is_file()

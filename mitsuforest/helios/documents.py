@@ -86,11 +86,11 @@ def helios_path(path: Path) -> str:
 def survey_xml(scene, plan, scene_file: Path, platform_file: Path, scanner_file: Path) -> str:
     """A HELIOS++ survey flying the plan's legs: a waypoint at each leg's start (scanner on) and end
     (scanner off while turning to the next start), at the legs' altitude and the survey's speed,
-    pulse and scan frequency and field of view."""
+    pulse and scan frequency and field of view; the scene's seed is the survey's."""
     survey = ET.Element("survey", name=scene.name,
                         platform=f"{helios_path(platform_file)}#{PLATFORM_ID}",
                         scanner=f"{helios_path(scanner_file)}#{SCANNER_ID}",
-                        scene=f"{helios_path(scene_file)}#{scene.name}")
+                        scene=f"{helios_path(scene_file)}#{scene.name}", seed=str(scene.seed))
     ET.SubElement(survey, "FWFSettings", beamSampleQuality=str(beam_sample_quality(scene.simulation.beam_samples)))
     for leg in plan.legs:
         speed = math.dist(leg.start, leg.end) / (leg.t1 - leg.t0)

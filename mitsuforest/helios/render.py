@@ -93,7 +93,7 @@ def survey_scene(survey: HeliosSurvey, output_dir=None, seed=None, variant=None)
     if altitude <= 0:
         raise fail(f"survey.leg[{flown[0]}].platformSettings.z", "the legs must fly above the ground's mean height")
     data = {
-        "name": survey.name, "seed": 0 if seed is None else seed,
+        "name": survey.name, "seed": seed if seed is not None else survey.seed or 0,
         "area": {"size": [max(float(v), 0.01) for v in hi_xy - lo_xy]},
         "forest": {"trees": 0}, "understory": {"bushes": 0, "rocks": 0, "deadwood": 0, "stumps": 0},
         "sensor": sensor,

@@ -70,6 +70,7 @@ class HeliosSurvey:
     beam_samples: int | None      # from FWFSettings beamSampleQuality
     waypoints: tuple[Waypoint, ...]
     parts: tuple[Part, ...]
+    seed: int | None = None       # the survey's seed (None: AUTO)
 
 
 class _Reader:
@@ -155,7 +156,10 @@ def read_survey(path, assets=()) -> HeliosSurvey:
     if len(surveys) != 1:
         reader.fail("survey", f"the file must hold one <survey>, it holds {len(surveys)}")
     survey = surveys[0]
-    _check_attributes(reader, survey, "survey", {"platform", "scanner", "scene"} | IGNORED["survey"])
+    _check_attributes(reader, survey, "survey", {"platform", "scanner", "scene", "seed"} | IGNORED["survey"])
+    seed = survey.get("seed", "AUTO")
+    if seed != "AUTO" and not seed.isdigit():
+        reader.fail("survey.seed", f"must be a whole number >= 0 or AUTO, got {seed!r}")
     for key in ("platform", "scanner", "scene"):
         if not survey.get(key):
             reader.fail("survey", f"attribute {key} is required")
@@ -180,7 +184,7 @@ def read_survey(path, assets=()) -> HeliosSurvey:
         reader.fail("survey.leg", "a survey needs at least two legs (waypoints)")
     parts = tuple(_part(reader, node, i) for i, node in enumerate(_scene_parts(reader, scene_node, scene_path)))
     return HeliosSurvey(survey.get("name") or Path(path).stem, Path(path).resolve(), scanner, beam_samples,
-                        waypoints, parts)
+                        waypoints, parts, int(seed) if seed.isdigit() else None)
 
 
 def _check_attributes(reader, node, where: str, known) -> None:
