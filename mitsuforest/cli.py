@@ -1,4 +1,4 @@
-"""The ``mitsuforest`` command line: render, plan, trees, export, info.
+"""The ``mitsuforest`` command line: render, plan, trees, export, dataset, info.
 
 User errors (bad files, bad values, refused overwrites, a busy or unwritable output folder) print
 one line ``mitsuforest: ...`` and exit with code 2, without a traceback. A write that fails mid-run
@@ -56,6 +56,16 @@ def _parser() -> argparse.ArgumentParser:
     e.add_argument("scene", type=Path, help="scene file")
     e.add_argument("-o", "--output", type=Path, required=True, help="output folder")
     e.add_argument("--seed", type=int, help="override the scene's seed")
+
+    d = sub.add_parser("dataset", help="render many plots (or large ones split by leg) on Dask",
+                       description="Render every plot of a dataset file on Dask (an embedded LocalCluster, or "
+                                   "--scheduler), with tiles, index.csv, splits.json and dataset_manifest.json. "
+                                   "Finished plots are kept; run again to finish an interrupted dataset.")
+    d.add_argument("dataset", type=Path, help="dataset file (examples/dataset.yaml)")
+    d.add_argument("-o", "--output", type=Path, help="output folder (default: out/<dataset name>)")
+    d.add_argument("--workers", type=int, help="worker processes of the embedded LocalCluster (default: one per core)")
+    d.add_argument("--scheduler", help="address of a running Dask scheduler, e.g. tcp://HOST:8786")
+    d.add_argument("--quiet", action="store_true", help="no progress bars or summary")
 
     i = sub.add_parser("info", help="summarise a point file", description="Summarise a PCD, LAS or LAZ file.")
     i.add_argument("file", type=Path, help="a .pcd, .las or .laz file")
@@ -171,13 +181,22 @@ def _export(args) -> int:
     return 0
 
 
+def _dataset(args) -> int:
+    from .dataset import run_dataset
+    log = (lambda *a: None) if args.quiet else (lambda msg: print(msg, file=sys.stderr))
+    run_dataset(args.dataset, args.output, workers=args.workers, scheduler=args.scheduler,
+                progress=not args.quiet, log=log)
+    return 0
+
+
 def _info(args) -> int:
     from .write.info import summary
     print(summary(args.file))
     return 0
 
 
-_COMMANDS = {"render": _render, "plan": _plan, "trees": _trees, "export": _export, "info": _info}
+_COMMANDS = {"render": _render, "plan": _plan, "trees": _trees, "export": _export, "dataset": _dataset,
+             "info": _info}
 
 if __name__ == "__main__":
     raise SystemExit(main())

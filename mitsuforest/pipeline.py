@@ -41,7 +41,8 @@ class RenderResult:
 
 
 def render(scene, *, output_dir=None, seed=None, variant=None, overwrite=False, progress=True,
-           write=True, keep_points=None, log=print, plan=None, models=None, reflectance=None) -> RenderResult:
+           write=True, keep_points=None, log=print, plan=None, models=None, reflectance=None,
+           scan_source=None) -> RenderResult:
     """Render a scene: a file (path), a loaded :class:`~mitsuforest.config.types.Scene`, or a mapping of
     the scene file's form (validated like the file).
 
@@ -52,6 +53,10 @@ def render(scene, *, output_dir=None, seed=None, variant=None, overwrite=False, 
     :param keep_points: also return every point in memory; by default only when not writing.
     :param plan, models, reflectance: a plan and its models made elsewhere (a HELIOS++ survey's, see
         :mod:`mitsuforest.helios.render`) instead of the scene's, and their (256,) reflectance by class.
+    :param scan_source: points scanned elsewhere instead of a scan here (the dataset's legs scanned on
+        other workers): a callable ``(on_points) -> ScanResult`` that feeds the survey's batches in
+        order, with the scene's ``objects``, ``culled``, ``triangles`` and ``variant`` as attributes.
+        The files are then the same bytes as a render that scans itself.
     """
     scene = _as_scene(scene, seed=seed, variant=variant, output_dir=output_dir)
     keep_points = (not write) if keep_points is None else keep_points
@@ -66,14 +71,19 @@ def render(scene, *, output_dir=None, seed=None, variant=None, overwrite=False, 
         f"{len(plan.legs)} legs")
     models = models or build_models(plan)
     timings.lap("trees")
-    scan_scene = build_scene(plan, models, scene.sensor, scene.simulation.variant)
-    scan_scene.reflectance = reflectance
+    if scan_source is None:
+        scan_scene = build_scene(plan, models, scene.sensor, scene.simulation.variant)
+        scan_scene.reflectance = reflectance
+    else:
+        scan_scene = scan_source
     timings.lap("scene")
     log(f"scene: {scan_scene.objects} objects ({scan_scene.culled} out of reach), "
         f"{scan_scene.triangles:,} distinct triangles, variant {scan_scene.variant}")
     with output_lock(out, name) if write else nullcontext():
         staging = Staging(out, name) if write else None
-        result, manifest, writer, files = _scan_and_write(scene, plan, models, scan_scene, timings, progress,
+        run_scan = scan_source or (lambda on_points: scan(scene, plan, scan_scene, progress=progress,
+                                                          on_points=on_points))
+        result, manifest, writer, files = _scan_and_write(scene, plan, models, scan_scene, timings, run_scan,
                                                           keep_points, staging, overwrite)
     log(f"scan: {result.pulses_cast:,} pulses cast in {result.seconds:.1f} s "
         f"({result.pulses_cast / max(result.seconds, 1e-9):,.0f} pulses/s), {manifest['points']:,} points, "
@@ -101,7 +111,7 @@ def _refuse_existing(out: Path, name: str, overwrite: bool) -> None:
                         " pass --overwrite to replace them")
 
 
-def _scan_and_write(scene, plan, models, scan_scene, timings, progress, keep_points, staging, overwrite):
+def _scan_and_write(scene, plan, models, scan_scene, timings, run_scan, keep_points, staging, overwrite):
     """Scan, streaming points to the writer, then write every file into ``staging`` and move them into
     place; on any failure or interrupt the staging folder is removed."""
     writer = None
@@ -109,7 +119,7 @@ def _scan_and_write(scene, plan, models, scan_scene, timings, progress, keep_poi
         writer = PointWriter(staging, scene, keep=keep_points)
         sink = Background(writer.add)
         try:
-            result = scan(scene, plan, scan_scene, progress=progress, on_points=sink)
+            result = run_scan(sink)
         finally:
             sink.close()
         writer.close()

@@ -33,21 +33,27 @@ class ScanResult:
     seconds: float = 0.0
 
 
-def scan(scene, plan, scan_scene, progress: bool = True, on_points=None) -> ScanResult:
+def scan(scene, plan, scan_scene, progress: bool = True, on_points=None, legs: range | None = None) -> ScanResult:
     """Simulate the whole survey of ``plan`` over ``scan_scene`` (see module docstring).
 
     :param scene: the :class:`~mitsuforest.config.types.Scene` (sensor, survey, simulation, seed).
     :param on_points: called with each batch's points (local frame, POINT_DTYPE) as they are made;
         without it, the points are collected in ``ScanResult.points``.
+    :param legs: only these legs (indices into ``plan.legs``), with the same batches and pulse ids
+        as in the whole survey: the batches of consecutive leg ranges, concatenated in order, are
+        those of the whole survey.
     """
     batch = scene.simulation.pulses_per_batch or BATCH_SLOTS[scan_scene.variant.split("_")[0]]
     sim = scene.simulation
     tracer = PulseTracer(scan_scene, scene.sensor, sim.beam_samples, scene.seed, sim.beam_pattern)
     result = ScanResult()
-    chunks, first_id = [], 0
+    chunks = []
+    counts = [leg.pulse_count(scene.pulse_frequency) for leg in plan.legs]
+    legs = range(len(plan.legs)) if legs is None else legs
+    first_id = sum(counts[:legs.start])
     start = time.perf_counter()
-    for leg_no, leg in enumerate(plan.legs):
-        total = leg.pulse_count(scene.pulse_frequency)
+    for leg_no in legs:
+        leg, total = plan.legs[leg_no], counts[leg_no]
         bar = _bar(progress, total, f"leg {leg_no + 1}/{len(plan.legs)}")
         for first in range(0, total, batch):
             count = min(batch, total - first)

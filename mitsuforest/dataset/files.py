@@ -1,0 +1,269 @@
+"""The dataset's files: plot scene files, plot records with checksums, tiles, the index, splits and
+the manifest.
+
+Layout of a dataset folder ``DIR``::
+
+    DIR/scenes/plot_0000.yaml         each plot's resolved scene (``mitsuforest render`` takes it)
+    DIR/plots/plot_0000/              the plot's render: every usual file (see README, Outputs)
+    DIR/plots/plot_0000/tiles/        plot_0000_x00_y00.laz and plot_0000_x00_y00_trees.csv, ...
+    DIR/plots/plot_0000/plot_0000_dataset.json   the plot's record: files and their SHA-256, counts
+    DIR/index.csv, DIR/splits.json, DIR/dataset_manifest.json
+
+A plot is finished exactly when its record exists and every file it lists has the listed checksum;
+the record is written last, atomically. The index lists only finished plots.
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import json
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from ..classes import CLASS_NAMES, DEADWOOD, TREE_LEAVES, TREE_WOOD
+from ..config.types import to_mapping
+from ..write.atomic import atomic_path, write_text
+from ..write.las import write_las
+from ..write.pcd import pcd_header, read_pcd
+from ..write.tables import csv_text
+from . import tiles as tiling
+
+RECORD_SUFFIX = "_dataset.json"
+
+
+def plot_folder(root, name: str) -> Path:
+    return Path(root) / "plots" / name
+
+
+def scene_file(root, name: str) -> Path:
+    return Path(root) / "scenes" / f"{name}.yaml"
+
+
+def scene_yaml(scene) -> str:
+    """A scene as a YAML file that loads back to the same scene (paths absolute; the sensor by its
+    file when it has one)."""
+    data = to_mapping(scene, plain=True)
+    if scene.sensor.file:
+        data["sensor"] = scene.sensor.file
+    return yaml.safe_dump(data, sort_keys=False)
+
+
+def write_scene_file(path, scene) -> None:
+    """Write a plot's scene file, unless an identical one is there (a re-run keeps its time stamps)."""
+    path = Path(path)
+    text = scene_yaml(scene)
+    if path.is_file() and path.read_text() == text:
+        return
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_text(path, text)
+
+
+def sha256(path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        while block := f.read(1 << 22):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def checksums(root, paths) -> dict:
+    """``{path relative to root: sha256}``, in the given order."""
+    root = Path(root)
+    return {str(Path(p).relative_to(root)): sha256(p) for p in paths}
+
+
+def read_record(root, name: str) -> dict | None:
+    """The plot's record if it exists and is readable, else None."""
+    path = plot_folder(root, name) / f"{name}{RECORD_SUFFIX}"
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def valid_record(root, name: str) -> dict | None:
+    """The plot's record if every file it lists (tiles included) is there with its checksum."""
+    record = read_record(root, name)
+    if record is None:
+        return None
+    listed = {**record["files"], **{k: v for t in record.get("tiles", []) for k, v in t["files"].items()}}
+    for rel, digest in listed.items():
+        path = Path(root) / rel
+        if not path.is_file() or sha256(path) != digest:
+            return None
+    return record
+
+
+def write_record(root, name: str, record: dict) -> None:
+    write_text(plot_folder(root, name) / f"{name}{RECORD_SUFFIX}", json.dumps(record, indent=1, default=str) + "\n")
+
+
+def remove_record(root, name: str) -> None:
+    (plot_folder(root, name) / f"{name}{RECORD_SUFFIX}").unlink(missing_ok=True)
+
+
+def class_shares(classes: dict) -> dict:
+    """``{class name: share of points}`` from ``{class code: count}`` (codes as ints or strings)."""
+    total = sum(classes.values())
+    return {name: (classes.get(code, classes.get(str(code), 0)) / total if total else 0.0)
+            for code, name in CLASS_NAMES.items()}
+
+
+# --- tiles ----------------------------------------------------------------------------------------
+
+def read_plot_points(folder, name: str, formats) -> np.ndarray:
+    """A plot's points as written: the PCD when there is one (all fields; x, y, z georeferenced when
+    ``origin.offset`` is set, local otherwise), else the LAS/LAZ (our fields; no pulse_id or range)."""
+    folder = Path(folder)
+    if "pcd" in formats:
+        return np.array(read_pcd(folder / f"{name}.pcd"))
+    import laspy
+    fmt = "las" if "las" in formats else "laz"
+    las = laspy.read(str(folder / f"{name}.{fmt}"))
+    dtype = [("treeid", "<u2"), ("x", "<f8"), ("y", "<f8"), ("z", "<f8"), ("classification", "u1"),
+             ("instance", "<u4"), ("object_id", "<u4"), ("number_of_returns", "u1"), ("return_number", "u1"),
+             ("intensity", "<f4"), ("gps_time", "<f8"), ("scan_angle", "<f4")]
+    out = np.zeros(len(las.points), dtype)
+    for key, value in (("treeid", las.treeid), ("x", las.x), ("y", las.y), ("z", las.z),
+                       ("classification", las.label), ("instance", las.instance), ("object_id", las.object_id),
+                       ("number_of_returns", las.number_of_returns), ("return_number", las.return_number),
+                       ("intensity", las.amplitude), ("gps_time", las.gps_time),
+                       ("scan_angle", np.asarray(las.scan_angle) * 0.006)):
+        out[key] = np.asarray(value)
+    return out
+
+
+def read_volumes(path) -> dict:
+    """``{instance: (kind, treeid, union volume m³)}`` of the placed trees and deadwood pieces of a
+    render's ``_volumes.csv``."""
+    out = {}
+    with open(path, newline="") as f:
+        for row in csv.DictReader(f):
+            if row["row"] in ("tree", "deadwood") and row["instance"]:
+                out[int(row["instance"])] = (row["row"], int(row["treeid"]), float(row["volume_union_m3"]))
+    return out
+
+
+def write_tiles(root, scene, tiles) -> list[dict]:
+    """Cut a rendered plot's points into tiles (see :mod:`.tiles`): one point file and one tree table
+    per tile, each written atomically. Returns one record per tile."""
+    name, folder = scene.name, plot_folder(root, scene.name)
+    points = read_plot_points(folder, name, scene.output.formats)
+    offset = np.asarray(scene.origin.offset, np.float64)
+    x, y = points["x"] - offset[0], points["y"] - offset[1]     # PCD x, y include the offset when it is set
+    volumes = read_volumes(folder / f"{name}_volumes.csv")
+    kept = np.isin(points["classification"], (TREE_WOOD, TREE_LEAVES, DEADWOOD))
+    instances = np.array(sorted(volumes), np.int64)
+    boxes = tiling.instance_boxes(points["instance"][kept].astype(np.int64), x[kept], y[kept], instances)
+    out_dir = folder / "tiles"
+    out_dir.mkdir(exist_ok=True)
+    nx, ny = tiling.tile_grid(scene.area.size, tiles.size)
+    ci, cj = tiling.core_tile(x, y, scene.area.size, tiles.size)
+    records = []
+    for i in range(nx):
+        for j in range(ny):
+            tile_id = f"{name}_x{i:0{len(str(nx - 1))}d}_y{j:0{len(str(ny - 1))}d}"
+            extent = tiling.tile_extent(i, j, scene.area.size, tiles.size, tiles.buffer)
+            sel = tiling.in_extent(x, y, extent)
+            core = (ci[sel] == i) & (cj[sel] == j)
+            tile_points = points[sel]
+            point_file = out_dir / f"{tile_id}.{tiles.format}"
+            _write_points(point_file, tile_points, offset, scene.origin.crs)
+            rows = _tree_rows(tile_points, kept[sel], instances, boxes, volumes, extent, offset, x[sel], y[sel])
+            table = out_dir / f"{tile_id}_trees.csv"
+            write_text(table, csv_text(["instance", "kind", "treeid", "volume_union_m3", "points", "whole_inside"],
+                                       rows))
+            classes = np.bincount(tile_points["classification"], minlength=8)
+            records.append({
+                "tile": tile_id, "i": i, "j": j,
+                "core": list(tiling.core_bounds(i, j, scene.area.size, tiles.size)),
+                "points": int(sel.sum()), "core_points": int(core.sum()), "trees": len(rows),
+                "classes": {int(k): int(v) for k, v in enumerate(classes) if v},
+                "files": checksums(root, [point_file, table]),
+            })
+    return records
+
+
+def _tree_rows(points, kept, instances, boxes, volumes, extent, offset, x, y) -> list[list]:
+    ids, counts = np.unique(points["instance"][kept], return_counts=True)
+    rows = []
+    for inst, count in zip(ids.tolist(), counts.tolist()):
+        if inst not in volumes:
+            continue
+        kind, treeid, volume = volumes[inst]
+        box = boxes[np.searchsorted(instances, inst)]
+        rows.append([inst, kind, treeid, f"{volume:.9g}", count, int(tiling.box_inside(box, extent))])
+    return rows
+
+
+def _write_points(path, points: np.ndarray, offset, crs) -> None:
+    if path.suffix == ".pcd":
+        with atomic_path(path) as tmp, open(tmp, "wb") as f:
+            f.write(pcd_header(points.dtype, len(points)).encode("ascii"))
+            f.write(np.ascontiguousarray(points).data)
+    else:
+        write_las(path, points, offset, crs)
+
+
+# --- the dataset's own files ------------------------------------------------------------------------
+
+INDEX_COLUMNS = ["kind", "id", "plot", "split", "points", "core_points", "trees", "x0", "y0", "x1", "y1",
+                 "files", "sha256"]
+
+
+def index_rows(records: list[dict], varied, splits: dict) -> tuple[list[str], list[list]]:
+    """One row per plot, then its tiles: parameters (one column per varied key), files, counts, class
+    shares and checksums (files and checksums ``;``-separated, in the same order)."""
+    split_of = {plot: split for split, plots in splits.items() for plot in plots}
+    shares = [f"share_{n}" for n in CLASS_NAMES.values()]
+    header = [*INDEX_COLUMNS, *shares, *varied, "seconds"]
+    rows = []
+    for rec in sorted(records, key=lambda r: r["plot"]):
+        plot = rec["plot"]
+        params = [_cell(rec["values"].get(k)) for k in varied]
+        rows.append(["plot", plot, plot, split_of.get(plot, ""), rec["points"], "", "", "", "", "", "",
+                     ";".join(rec["files"]), ";".join(rec["files"].values()),
+                     *_shares(rec["classes"]), *params, rec.get("seconds", "")])
+        for t in rec.get("tiles", []):
+            x0, y0, x1, y1 = t["core"]
+            rows.append(["tile", t["tile"], plot, split_of.get(plot, ""), t["points"], t["core_points"], t["trees"],
+                         x0, y0, x1, y1, ";".join(t["files"]), ";".join(t["files"].values()),
+                         *_shares(t["classes"]), *params, ""])
+    return header, rows
+
+
+def _shares(classes: dict) -> list[str]:
+    return [f"{v:.6f}" for v in class_shares(classes).values()]
+
+
+def _cell(value):
+    if isinstance(value, (list, dict)):
+        return json.dumps(value)
+    return "" if value is None else value
+
+
+def write_index(root, records, varied, splits) -> None:
+    header, rows = index_rows(records, varied, splits)
+    write_text(Path(root) / "index.csv", csv_text(header, rows))
+
+
+def assign_splits(names: list[str], ratios: dict, seed: int) -> dict:
+    """``{split: [plot names]}``: the plots shuffled with ``seed`` and cut by ``ratios`` (largest
+    remainders), so no plot is in two splits and every plot is in one."""
+    order = list(np.random.default_rng([seed, 1]).permutation(len(names)))
+    exact = np.array([ratios[k] for k in ratios]) * len(names)
+    counts = np.floor(exact).astype(int)
+    for k in np.argsort(-(exact - counts), kind="stable")[: len(names) - counts.sum()]:
+        counts[k] += 1
+    out, start = {}, 0
+    for key, n in zip(ratios, counts):
+        out[key] = sorted(names[k] for k in order[start:start + n])
+        start += n
+    return out
+
+
+def write_json(path, data) -> None:
+    write_text(path, json.dumps(data, indent=1, default=str) + "\n")

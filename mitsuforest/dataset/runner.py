@@ -1,0 +1,221 @@
+"""The client side of ``mitsuforest dataset``: connect to Dask, submit the plots, follow them, write the
+index, the splits and the manifest.
+
+All scheduling is Dask's: one future per plot (or per range of a large plot's legs, then one
+merging them), retried on another worker when a worker dies (``retries``). With no scheduler
+address an embedded ``LocalCluster`` (one process per worker, one Dask thread each) starts and
+stops with the command.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import time
+from pathlib import Path
+
+from ..errors import UserError
+from ..write import check_output_folder
+from . import files, tasks
+from .spec import Dataset, load_dataset
+
+RETRIES = 2            # a task is tried this many more times after failing (a dead worker is not counted)
+INDEX_EVERY_S = 10.0   # the index is rewritten at most this often while plots finish
+CONNECT_TIMEOUT = "10s"
+
+
+def run_dataset(dataset, output_dir=None, workers: int | None = None, scheduler: str | None = None,
+                progress: bool = True, log=print) -> dict:
+    """Render every plot of a dataset (a file or a :class:`~.spec.Dataset`) on Dask and write the
+    index, splits and manifest into ``output_dir`` (default ``out/<dataset name>``).
+
+    Plots already finished and undamaged are kept; the rest are (re)done. Returns the manifest.
+
+    :param workers: worker processes of the embedded LocalCluster (default: one per core).
+    :param scheduler: the address of a running Dask scheduler (``tcp://HOST:8786``) instead.
+    :raises UserError: bad input or an unreachable scheduler, before anything is written.
+    """
+    if not isinstance(dataset, Dataset):
+        dataset = load_dataset(dataset)
+    root = Path(output_dir or Path("out", dataset.name)).absolute()
+    check_output_folder(root)
+    if workers is not None and workers < 1:
+        raise UserError(f"--workers: must be >= 1, got {workers}")
+    client, cluster, threads = _connect(scheduler, workers)
+    start = time.perf_counter()
+    try:
+        for plot in dataset.plots:
+            scene = plot.scene.with_({"output.dir": str(files.plot_folder(root, plot.name))})
+            files.write_scene_file(files.scene_file(root, plot.name), scene)
+        splits = files.assign_splits([p.name for p in dataset.plots], dataset.splits, dataset.seed)
+        files.write_json(root / "splits.json", splits)
+        records, failures = _run(client, dataset, str(root), threads, splits, progress)
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+    manifest = _manifest(dataset, records, failures, time.perf_counter() - start, scheduler,
+                         workers if scheduler is None else None)
+    files.write_index(root, records, dataset.varied, splits)
+    files.write_json(root / "dataset_manifest.json", manifest)
+    done = len(records)
+    log(f"dataset {dataset.name}: {done}/{len(dataset.plots)} plots ({sum(r.get('skipped', False) for r in records)} "
+        f"already done), {sum(r['points'] for r in records):,} points, "
+        f"{sum(len(r.get('tiles', [])) for r in records)} tiles in {manifest['seconds']:.1f} s -> {root}")
+    if failures:
+        first = next(iter(failures.items()))
+        raise DatasetIncomplete(f"{len(failures)} of {len(dataset.plots)} plots failed (first: {first[0]}: "
+                                f"{first[1]}); the index lists the {done} finished. Run the same command again "
+                                "to retry them")
+    return manifest
+
+
+class DatasetIncomplete(UserError):
+    """Some plots failed: the others are finished and indexed."""
+
+    exit_code = 1
+
+
+def _connect(scheduler: str | None, workers: int | None):
+    """A Dask client: to ``scheduler``, or to a new LocalCluster. Returns (client, cluster or None,
+    Dr.Jit threads per worker or None)."""
+    from dask.distributed import Client, LocalCluster
+    if scheduler:
+        try:
+            return Client(scheduler, timeout=CONNECT_TIMEOUT), None, None
+        except (OSError, TimeoutError, ValueError) as e:
+            raise UserError(f"--scheduler: cannot reach the Dask scheduler at {scheduler} ({e})") from None
+    cores = os.cpu_count() or 1
+    workers = workers or cores
+    cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
+                           silence_logs=logging.ERROR)
+    return Client(cluster), cluster, max(1, cores // workers)
+
+
+def _run(client, dataset: Dataset, root: str, threads, splits, progress: bool):
+    """Submit every plot and follow them to the end; returns (records, {plot: failure})."""
+    from dask.distributed import as_completed
+    kinds, plot_of = {}, {}
+    futures = []
+    whole = [p for p in dataset.plots if not dataset.legs_per_task]
+    split = [p for p in dataset.plots if dataset.legs_per_task]
+    for plot in whole:
+        f = client.submit(tasks.render_plot, root, plot.name, dataset.tiles, threads, key=f"plot-{plot.name}",
+                          retries=RETRIES, pure=False)
+        futures.append(f)
+        kinds[f.key], plot_of[f.key] = "plot", plot.name
+    checks = client.gather([client.submit(tasks.check_plot, root, p.name, key=f"check-{p.name}", pure=False)
+                            for p in split])
+    records, failures = [], {}
+    for plot, record in zip(split, checks):
+        if record is not None:
+            records.append(_with_values({**record, "skipped": True}, dataset))
+            continue
+        legs = _leg_count(plot.scene)
+        parts = []
+        for first in range(0, legs, dataset.legs_per_task):
+            stop = min(first + dataset.legs_per_task, legs)
+            f = client.submit(tasks.scan_legs, root, plot.name, first, stop, threads,
+                              key=f"legs-{plot.name}-{first}", retries=RETRIES, pure=False)
+            parts.append(f)
+            kinds[f.key], plot_of[f.key] = "legs", plot.name
+        f = client.submit(tasks.merge_plot, root, plot.name, parts, dataset.tiles, threads,
+                          key=f"merge-{plot.name}", retries=RETRIES, pure=False)
+        futures += [*parts, f]
+        kinds[f.key], plot_of[f.key] = "plot", plot.name
+    bars = _Bars(progress, len(dataset.plots), sum(_pulses(p.scene) for p in dataset.plots))
+    bars.plot(len(records), sum(r["pulses"] for r in records))
+    last_index = time.perf_counter()
+    try:
+        for future in as_completed(futures):
+            name, kind = plot_of[future.key], kinds[future.key]
+            try:
+                result = future.result()
+            except UserError as e:
+                failures[name] = str(e)
+                _cancel_plot(futures, plot_of, name)
+                bars.plot(1, 0)
+                continue
+            except Exception as e:  # noqa: BLE001 (a worker's error ends this plot only; reported at the end)
+                if future.status == "cancelled":
+                    continue
+                failures[name] = f"{type(e).__name__}: {e}"
+                _cancel_plot(futures, plot_of, name)
+                bars.plot(1, 0)
+                continue
+            if kind == "legs":
+                bars.pulses(result["emitted"])
+                continue
+            records.append(_with_values(result, dataset))
+            bars.plot(1, 0 if dataset.legs_per_task else result["pulses"])   # a split plot's legs counted its pulses
+            if time.perf_counter() - last_index > INDEX_EVERY_S:
+                files.write_index(root, records, dataset.varied, splits)
+                last_index = time.perf_counter()
+    finally:
+        bars.close()
+    return records, failures
+
+
+def _cancel_plot(futures, plot_of, name: str) -> None:
+    for f in futures:
+        if plot_of[f.key] == name and not f.done():
+            f.cancel()
+
+
+def _with_values(record: dict, dataset: Dataset) -> dict:
+    values = next(p.values for p in dataset.plots if p.name == record["plot"])
+    return {**record, "values": values}
+
+
+def _leg_count(scene) -> int:
+    from ..plan.flight import flight_legs
+    return len(flight_legs(scene.area.size, scene.survey, 0.0))
+
+
+def _pulses(scene) -> int:
+    """Time slots of a plot's survey (the legs' durations do not depend on their height)."""
+    from ..plan.flight import flight_legs
+    return sum(leg.pulse_count(scene.pulse_frequency) for leg in flight_legs(scene.area.size, scene.survey, 0.0))
+
+
+class _Bars:
+    """Two progress bars on the client: plots finished, and pulses flown."""
+
+    def __init__(self, enabled: bool, plots: int, pulses: int):
+        self._bars = None
+        if enabled:
+            from tqdm import tqdm
+            self._bars = (tqdm(total=plots, desc="plots", unit=" plots", position=0, dynamic_ncols=True),
+                          tqdm(total=pulses, desc="pulses", unit=" pulses", unit_scale=True, position=1,
+                               dynamic_ncols=True))
+
+    def plot(self, plots: int, pulses: int) -> None:
+        if self._bars:
+            self._bars[0].update(plots)
+            self.pulses(pulses)
+
+    def pulses(self, pulses: int) -> None:
+        if self._bars and pulses:
+            self._bars[1].update(pulses)
+
+    def close(self) -> None:
+        if self._bars:
+            for bar in self._bars:
+                bar.close()
+
+
+def _manifest(dataset: Dataset, records, failures, seconds: float, scheduler, workers) -> dict:
+    from ..pipeline import _versions
+    return {
+        "versions": _versions(),
+        "dataset": dataset.resolved,
+        "file": dataset.file,
+        "base_scene": dataset.base.file,
+        "scheduler": scheduler or f"LocalCluster({workers or os.cpu_count()} workers)",
+        "seconds": round(seconds, 3),
+        "plots": {"total": len(dataset.plots), "finished": len(records),
+                  "skipped": sum(bool(r.get("skipped")) for r in records), "failed": failures},
+        "points": sum(r["points"] for r in records),
+        "tiles": sum(len(r.get("tiles", [])) for r in records),
+        "seconds_per_plot": {r["plot"]: r.get("seconds") for r in sorted(records, key=lambda r: r["plot"])},
+    }

@@ -1,0 +1,173 @@
+"""What the workers run: a whole plot, a range of one plot's flight legs, or the merge of a plot's legs.
+
+Each function takes plain arguments (paths, numbers) and returns plain data, so that Dask can ship
+it to any worker and retry it elsewhere. Everything a task writes is atomic (a render's staging
+folder, temporary names renamed when complete), so a worker killed mid-task leaves nothing that
+looks finished, and the retry starts clean.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from . import files
+
+PARTS = ".parts"   # a split plot's per-leg point files, until the merge
+
+
+def _quiet(*_):
+    pass
+
+
+def set_threads(threads: int | None) -> None:
+    """Limit this worker process's Dr.Jit thread pool (LocalCluster: cores / workers)."""
+    if threads:
+        import drjit as dr
+        if dr.thread_count() != threads:
+            dr.set_thread_count(threads)
+
+
+def render_plot(root: str, name: str, tiles=None, threads: int | None = None) -> dict:
+    """Render one plot from ``DIR/scenes/NAME.yaml`` into ``DIR/plots/NAME`` (every usual file), cut
+    its tiles, and write its record; a plot whose record checks out is left as it is."""
+    record = files.valid_record(root, name)
+    if record is not None:
+        return {**record, "skipped": True}
+    set_threads(threads)
+    from ..pipeline import render
+    start = time.perf_counter()
+    files.remove_record(root, name)
+    result = render(files.scene_file(root, name), output_dir=files.plot_folder(root, name), overwrite=True,
+                    progress=False, log=_quiet)
+    return _finish(root, result, tiles, time.perf_counter() - start)
+
+
+def check_plot(root: str, name: str) -> dict | None:
+    """The plot's record when it is finished and undamaged (run on a worker: it reads every file)."""
+    return files.valid_record(root, name)
+
+
+def scan_legs(root: str, name: str, first: int, stop: int, threads: int | None = None) -> dict:
+    """Scan legs ``first .. stop-1`` of a plot into ``DIR/plots/NAME/.parts/``: the points of each batch
+    appended to one file, the batch sizes and pulse counts in a JSON beside it (written last). A part
+    already there is reused."""
+    part = _part_path(root, name, first, stop)
+    done = _read_part(part)
+    if done is not None:
+        return done
+    set_threads(threads)
+    from ..scan import scan
+    scene, plan, scan_scene = _scan_setup(files.scene_file(root, name))
+    part.parent.mkdir(parents=True, exist_ok=True)
+    batches = []
+    with files.atomic_path(part.with_suffix(".points")) as tmp, open(tmp, "wb") as f:
+        def keep(points):
+            batches.append(len(points))
+            f.write(np.ascontiguousarray(points).data)
+        result = scan(scene, plan, scan_scene, progress=False, on_points=keep, legs=range(first, stop))
+    info = {"first": first, "stop": stop, "batches": batches, "points": part.with_suffix(".points").name,
+            "emitted": result.pulses_emitted, "fired": result.pulses_fired, "cast": result.pulses_cast,
+            "rays": result.rays, "seconds": result.seconds,
+            "scene": {"objects": scan_scene.objects, "culled": scan_scene.culled,
+                      "triangles": scan_scene.triangles, "variant": scan_scene.variant}}
+    files.write_json(part, info)
+    return info
+
+
+def merge_plot(root: str, name: str, parts: list[dict], tiles=None, threads: int | None = None) -> dict:
+    """Write a split plot's files from its parts, in leg order, through the render's own writer: the
+    same bytes as a render of the whole plot in one process. Then tiles and record; the parts go."""
+    set_threads(threads)
+    from ..pipeline import render
+    start = time.perf_counter()
+    files.remove_record(root, name)
+    source = PartsSource(files.plot_folder(root, name) / PARTS, sorted(parts, key=lambda p: p["first"]))
+    result = render(files.scene_file(root, name), output_dir=files.plot_folder(root, name), overwrite=True,
+                    progress=False, log=_quiet, scan_source=source)
+    record = _finish(root, result, tiles, time.perf_counter() - start + sum(p["seconds"] for p in parts))
+    shutil.rmtree(files.plot_folder(root, name) / PARTS, ignore_errors=True)
+    return record
+
+
+@dataclass
+class PartsSource:
+    """Feeds the batches of a plot's parts, in order, as the scan would (see ``render(scan_source=)``)."""
+
+    folder: Path
+    parts: list
+
+    def __post_init__(self):
+        scene = self.parts[0]["scene"]
+        self.objects, self.culled = scene["objects"], scene["culled"]
+        self.triangles, self.variant = scene["triangles"], scene["variant"]
+
+    def __call__(self, on_points):
+        from ..scan import POINT_DTYPE, ScanResult
+        result = ScanResult()
+        for part in self.parts:
+            data = np.fromfile(self.folder / part["points"], POINT_DTYPE)
+            starts = np.concatenate([[0], np.cumsum(part["batches"])])
+            for a, b in zip(starts[:-1], starts[1:]):
+                on_points(data[a:b])
+            result.pulses_emitted += part["emitted"]
+            result.pulses_fired += part["fired"]
+            result.pulses_cast += part["cast"]
+            result.rays += part["rays"]
+            result.seconds += part["seconds"]
+        return result
+
+
+def _finish(root, result, tiles, seconds: float) -> dict:
+    scene, manifest = result.scene, result.manifest
+    tile_records = files.write_tiles(root, scene, tiles) if tiles else []
+    record = {
+        "plot": scene.name,
+        "files": files.checksums(root, sorted(result.files)),
+        "points": manifest["points"],
+        "classes": manifest["classes"],
+        "pulses": manifest["pulses"]["emitted"],
+        "seconds": round(seconds, 3),
+        "tiles": tile_records,
+    }
+    files.write_record(root, scene.name, record)
+    return record
+
+
+def _part_path(root, name: str, first: int, stop: int) -> Path:
+    return files.plot_folder(root, name) / PARTS / f"legs-{first:05d}-{stop:05d}.json"
+
+
+def _read_part(path: Path) -> dict | None:
+    try:
+        info = json.loads(path.read_text())
+        size = (path.parent / info["points"]).stat().st_size
+    except (OSError, ValueError, KeyError):
+        return None
+    from ..scan import POINT_DTYPE
+    return info if size == sum(info["batches"]) * POINT_DTYPE.itemsize else None
+
+
+_SETUP: dict = {}   # this worker's plot in memory: {scene file: (scene, plan, Mitsuba scene)}
+
+
+def _scan_setup(path):
+    """The plot's scene, plan and Mitsuba scene, kept for the next legs of the same plot (one plot at a
+    time: a new plot replaces the last)."""
+    key = (str(path), os.stat(path).st_mtime_ns)
+    if key not in _SETUP:
+        _SETUP.clear()
+        from ..config import load_scene
+        from ..plan import make_plan
+        from ..scene import build_scene
+        from ..trees import build_models
+        scene = load_scene(path)
+        plan = make_plan(scene)
+        _SETUP[key] = (scene, plan, build_scene(plan, build_models(plan), scene.sensor, scene.simulation.variant))
+    return _SETUP[key]
