@@ -1,0 +1,272 @@
+"""`mitsuforest dataset` on a 2-worker LocalCluster: the same bytes as single renders, legs split and
+merged, tiles that partition the points, splits, resuming after killed workers and a killed client,
+and bad input refused before anything is written.
+
+Tiny plots (12 m, thin beam, 100 kHz at 20 m/s: 0.2 M pulses each) keep this module short.
+"""
+
+import csv
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from conftest import ROOT
+
+BASE = f"""
+name: tiny
+seed: 3
+area: {{size: [12, 12]}}
+forest: {{type: open, trees: 2, min_spacing: 4}}
+understory: {{bushes: 2, rocks: 1, deadwood: 1, stumps: 1}}
+sensor: {ROOT}/sensors/riegl_vux-1uav22.yaml
+survey: {{altitude: 30, speed: 20, pulse_frequency: 100000, line_spacing: 6, margin: 2}}
+simulation: {{beam_samples: 1, beam_pattern: fixed, variant: llvm_ad_mono}}
+output: {{formats: [pcd, laz]}}
+"""
+SKIP_COMPARE = ("_manifest.json",)   # times and machine
+
+
+def _dataset_file(folder: Path, body: str) -> Path:
+    (folder / "base.yaml").write_text(BASE)
+    path = folder / "set.yaml"
+    path.write_text("base: base.yaml\n" + body)
+    return path
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    from dask.distributed import LocalCluster
+    import logging
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
+                      silence_logs=logging.ERROR) as c:
+        yield c
+
+
+@pytest.fixture(scope="module")
+def three_plots(tmp_path_factory, cluster):
+    """Three tiny plots with 5 m tiles (1 m buffer, PCD), rendered on the 2-worker cluster."""
+    from mitsuforest.dataset import run_dataset
+    folder = tmp_path_factory.mktemp("three")
+    path = _dataset_file(folder, "seed: 5\nplots: 3\nvary:\n  forest.trees: {range: [1, 3]}\n"
+                                 "  survey.altitude: {range: [25.0, 35.0]}\n"
+                                 "tiles: {size: 5, buffer: 1, format: pcd}\n"
+                                 "splits: {train: 0.34, validation: 0.33, test: 0.33}\n")
+    out = folder / "out"
+    manifest = run_dataset(path, out, scheduler=cluster.scheduler_address, progress=False, log=lambda *_: None)
+    return out, manifest
+
+
+def _index(out: Path) -> list[dict]:
+    with open(out / "index.csv", newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def _same_files(a: Path, b: Path) -> list[str]:
+    """Names of the files of render folder ``a`` that differ from (or are missing in) ``b``."""
+    names = sorted(p.name for p in a.iterdir() if p.is_file() and not p.name.endswith(SKIP_COMPARE))
+    assert len(names) >= 8
+    return [n for n in names if not (b / n).is_file() or (a / n).read_bytes() != (b / n).read_bytes()]
+
+
+def test_plots_are_the_bytes_of_single_renders(three_plots, tmp_path):
+    from mitsuforest.pipeline import render
+    out, manifest = three_plots
+    assert manifest["plots"]["finished"] == 3 and not manifest["plots"]["failed"]
+    trees = set()
+    for k in range(3):
+        name = f"plot_{k:04d}"
+        single = render(out / "scenes" / f"{name}.yaml", output_dir=tmp_path / name, progress=False, log=lambda *_: None)
+        trees.add(single.scene.forest.trees)
+        assert _same_files(tmp_path / name, out / "plots" / name) == []
+    assert trees <= {1, 2, 3}
+
+
+def test_index_lists_every_file_with_its_checksum(three_plots):
+    from mitsuforest.dataset.files import sha256
+    out, _ = three_plots
+    rows = _index(out)
+    plots = [r for r in rows if r["kind"] == "plot"]
+    assert [r["id"] for r in plots] == ["plot_0000", "plot_0001", "plot_0002"]
+    assert len([r for r in rows if r["kind"] == "tile"]) == 3 * 9
+    for row in rows:
+        for rel, digest in zip(row["files"].split(";"), row["sha256"].split(";")):
+            assert sha256(out / rel) == digest
+        shares = [float(row[k]) for k in row if k.startswith("share_")]
+        assert sum(shares) == pytest.approx(1, abs=1e-5)
+    manifest = json.loads((out / "dataset_manifest.json").read_text())
+    assert manifest["points"] == sum(int(r["points"]) for r in plots)
+
+
+def test_splits_never_share_a_plot(three_plots):
+    out, _ = three_plots
+    splits = json.loads((out / "splits.json").read_text())
+    names = [n for plots in splits.values() for n in plots]
+    assert sorted(names) == ["plot_0000", "plot_0001", "plot_0002"]       # each plot once, none twice
+    assert [len(v) for v in splits.values()] == [1, 1, 1]
+    split_of = {r["plot"]: r["split"] for r in _index(out)}
+    assert all(n in splits[split_of[n]] for n in names)                  # tiles follow their plot
+
+
+def test_tiles_partition_the_points(three_plots):
+    from mitsuforest.dataset.tiles import core_tile, tile_extent
+    from mitsuforest.write import read_pcd
+    out, _ = three_plots
+    rows = _index(out)
+    for plot in ("plot_0000", "plot_0001", "plot_0002"):
+        points = read_pcd(out / "plots" / plot / f"{plot}.pcd")
+        key = points["pulse_id"].astype(np.int64) * 64 + points["return_number"]
+        cores = []
+        for row in (r for r in rows if r["plot"] == plot and r["kind"] == "tile"):
+            i, j = (int(s[1:]) for s in row["id"].split("_")[-2:])
+            tile = read_pcd(out / row["files"].split(";")[0])
+            # the file holds exactly the plot's points inside the core plus the 1 m buffer
+            x0, y0, x1, y1 = tile_extent(i, j, (12, 12), 5, 1)
+            inside = (points["x"] >= x0) & (points["x"] < x1) & (points["y"] >= y0) & (points["y"] < y1)
+            assert np.array_equal(np.sort(key[inside]), np.sort(tile["pulse_id"].astype(np.int64) * 64
+                                                                  + tile["return_number"]))
+            ci, cj = core_tile(tile["x"], tile["y"], (12, 12), 5)
+            core = tile[(ci == i) & (cj == j)]
+            assert len(core) == int(row["core_points"])
+            cores.append(core["pulse_id"].astype(np.int64) * 64 + core["return_number"])
+        joined = np.concatenate(cores)
+        assert len(joined) == len(points)                                  # nothing lost ...
+        assert np.array_equal(np.sort(joined), np.sort(key))               # ... nothing twice
+
+
+def test_tile_tree_tables(three_plots):
+    out, _ = three_plots
+    folder = out / "plots" / "plot_0000"
+    with open(folder / "plot_0000_volumes.csv", newline="") as f:
+        volumes = {r["instance"]: r["volume_union_m3"] for r in csv.DictReader(f) if r["row"] == "tree"}
+    seen = set()
+    for table in sorted((folder / "tiles").glob("*_trees.csv")):
+        with open(table, newline="") as f:
+            for r in csv.DictReader(f):
+                if r["kind"] == "tree":
+                    assert r["volume_union_m3"] == volumes[r["instance"]]
+                    seen.add(r["instance"])
+                assert int(r["points"]) > 0 and r["whole_inside"] in ("0", "1")
+    assert seen == set(volumes)           # every tree is listed by some tile
+    # a 12 m plot with 5 m tiles: no tree crown (several metres wide) fits whole in a corner tile's core
+    corner = (folder / "tiles" / "plot_0000_x1_y1_trees.csv").read_text().splitlines()[1:]
+    assert all(line.endswith(",0") for line in corner if ",tree," in line)
+
+
+def test_plot_split_by_legs_is_the_bytes_of_one_process(tmp_path, cluster):
+    from mitsuforest.dataset import run_dataset
+    from mitsuforest.pipeline import render
+    path = _dataset_file(tmp_path, "plots: 1\nlegs_per_task: 1\n")
+    out = tmp_path / "out"
+    run_dataset(path, out, scheduler=cluster.scheduler_address, progress=False, log=lambda *_: None)
+    plan = json.loads((out / "plots" / "plot_0000" / "plot_0000_plan.json").read_text())
+    assert len(plan["legs"]) == 3
+    render(out / "scenes" / "plot_0000.yaml", output_dir=tmp_path / "single", progress=False, log=lambda *_: None)
+    assert _same_files(tmp_path / "single", out / "plots" / "plot_0000") == []
+    assert not (out / "plots" / "plot_0000" / ".parts").exists()
+
+
+def test_killed_worker_and_killed_client_then_rerun(tmp_path, cluster):
+    """A worker killed mid-task: its task is retried and the dataset completes. The whole command
+    killed: the re-run finishes it, each plot once; a damaged file makes only its plot run again."""
+    from dask.distributed import Client
+    from mitsuforest.dataset import run_dataset
+    path = _dataset_file(tmp_path, "plots: 4\nvary: {forest.trees: {choice: [1, 2]}}\n")
+    out = tmp_path / "out"
+    done = {}
+    runner = threading.Thread(target=lambda: done.update(run_dataset(
+        path, out, scheduler=cluster.scheduler_address, progress=False, log=lambda *_: None)))
+    with Client(cluster.scheduler_address) as client:
+        runner.start()
+        busy = []
+        while not busy and runner.is_alive():
+            busy = [w for w, keys in client.processing().items() if any("plot-" in str(k) for k in keys)]
+            time.sleep(0.05)
+        assert busy, "no task ran"
+        time.sleep(0.5)                                                # mid-render
+        pid = client.run(os.getpid, workers=busy[:1])[busy[0]]
+        os.kill(pid, signal.SIGKILL)
+        runner.join(300)
+    assert done["plots"]["finished"] == 4 and not done["plots"]["failed"]
+    _assert_complete(out, 4)
+
+    # kill the whole command (client and its LocalCluster) once a plot is finished, then run it again
+    out2 = tmp_path / "out2"
+    cmd = [sys.executable, "-m", "mitsuforest.cli", "dataset", str(path), "-o", str(out2), "--workers", "1", "--quiet"]
+    proc = subprocess.Popen(cmd, start_new_session=True, stderr=subprocess.PIPE)
+    deadline = time.time() + 240
+    while not list(out2.glob("plots/*/*_dataset.json")) and time.time() < deadline and proc.poll() is None:
+        time.sleep(0.05)
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    rerun = run_dataset(path, out2, scheduler=cluster.scheduler_address, progress=False, log=lambda *_: None)
+    assert 1 <= rerun["plots"]["skipped"] < 4
+    _assert_complete(out2, 4)
+
+    # damage one finished file: only its plot is redone
+    pcd = out2 / "plots" / "plot_0002" / "plot_0002.pcd"
+    pcd.write_bytes(pcd.read_bytes()[:-100])
+    rerun = run_dataset(path, out2, scheduler=cluster.scheduler_address, progress=False, log=lambda *_: None)
+    assert rerun["plots"]["skipped"] == 3
+    _assert_complete(out2, 4)
+
+
+def _assert_complete(out: Path, count: int) -> None:
+    from mitsuforest.dataset.files import valid_record
+    rows = [r for r in _index(out) if r["kind"] == "plot"]
+    assert sorted(r["id"] for r in rows) == [f"plot_{k:04d}" for k in range(count)]     # each once
+    for row in rows:
+        assert valid_record(out, row["id"]) is not None
+        folder = out / "plots" / row["id"]
+        assert not [p for p in folder.iterdir() if ".partial-" in p.name or ".tmp-" in p.name]
+
+
+@pytest.mark.parametrize("body, message", [
+    ("plots: 2\nvary: {forest.tres: {range: [1, 3]}}\n",
+     "set.yaml: vary.forest.tres: unknown scene key 'forest.tres' (did you mean 'forest.trees'?)"),
+    ("plots: 2\nvary: {forest.trees: {range: [5, 3]}}\n", "set.yaml: vary.forest.trees.range: is empty: low 5 > high 3"),
+    ("plots: 2\nvary: {survey.altitude: {choice: []}}\n", "set.yaml: vary.survey.altitude.choice: must be a non-empty"),
+    ("plots: 2\ntiles: {size: 0.05}\n", "set.yaml: tiles.size: 0.05 m tiles make 57,600 tiles per plot"),
+    ("plots: 2\nvary: {forest.trees: {range: [1, 300]}}\n", "set.yaml: plot 0: forest.trees="),
+    ("vary: {forest.trees: {range: [1, 3]}}\n", "set.yaml: plots: is required"),
+    ("plots: 2\nsplits: {train: 0.5, validation: 0.1, test: 0.1}\n", "set.yaml: splits: the ratios must add up to 1"),
+])
+def test_bad_input_one_line_exit_2_nothing_written(tmp_path, capsys, body, message):
+    from mitsuforest.cli import main
+    path = _dataset_file(tmp_path, body)
+    assert main(["dataset", str(path), "-o", str(tmp_path / "out"), "--workers", "1"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and message in err, err
+    assert not (tmp_path / "out").exists()
+
+
+def test_unreachable_scheduler(tmp_path, capsys, monkeypatch):
+    from mitsuforest.cli import main
+    from mitsuforest.dataset import runner
+    monkeypatch.setattr(runner, "CONNECT_TIMEOUT", "1s")
+    path = _dataset_file(tmp_path, "plots: 1\n")
+    assert main(["dataset", str(path), "-o", str(tmp_path / "out"), "--scheduler", "tcp://127.0.0.1:9"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("mitsuforest: --scheduler: cannot reach the Dask scheduler at tcp://127.0.0.1:9")
+    assert not (tmp_path / "out").exists()
+
+
+def test_plot_draws_do_not_depend_on_the_plot_count(tmp_path):
+    from mitsuforest.dataset import load_dataset
+    body = "seed: 9\nvary: {forest.trees: {range: [1, 3]}, survey.altitude: {range: [25.0, 35.0]}}\n"
+    few = load_dataset(_dataset_file(tmp_path, "plots: 3\n" + body))
+    many = load_dataset(_dataset_file(tmp_path, "plots: 50\n" + body))
+    assert [p.values for p in few.plots] == [p.values for p in many.plots[:3]]
+    alts = [p.values["survey.altitude"] for p in many.plots]
+    assert 25 <= min(alts) < 26 and 34 < max(alts) <= 35                    # uniform over the range
+    assert {p.values["forest.trees"] for p in many.plots} == {1, 2, 3}      # integer ends inclusive
+    grid = load_dataset(_dataset_file(tmp_path, "grid: {forest.trees: [1, 2], survey.speed: [5, 10, 20]}\n"))
+    assert [(p.values["forest.trees"], p.values["survey.speed"]) for p in grid.plots] == \
+        [(1, 5), (1, 10), (1, 20), (2, 5), (2, 10), (2, 20)]
