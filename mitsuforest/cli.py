@@ -65,6 +65,8 @@ def _parser() -> argparse.ArgumentParser:
     d.add_argument("-o", "--output", type=Path, help="output folder (default: out/<dataset name>)")
     d.add_argument("--workers", type=int, help="worker processes of the embedded LocalCluster (default: one per core)")
     d.add_argument("--scheduler", help="address of a running Dask scheduler, e.g. tcp://HOST:8786")
+    d.add_argument("--threads", type=int, help="Dr.Jit threads per worker (default: cores / workers locally, "
+                                               "all cores of each machine with --scheduler)")
     d.add_argument("--quiet", action="store_true", help="no progress bars or summary")
 
     i = sub.add_parser("info", help="summarise a point file", description="Summarise a PCD, LAS or LAZ file.")
@@ -184,7 +186,7 @@ def _export(args) -> int:
 def _dataset(args) -> int:
     from .dataset import run_dataset
     log = (lambda *a: None) if args.quiet else (lambda msg: print(msg, file=sys.stderr))
-    run_dataset(args.dataset, args.output, workers=args.workers, scheduler=args.scheduler,
+    run_dataset(args.dataset, args.output, workers=args.workers, scheduler=args.scheduler, threads=args.threads,
                 progress=not args.quiet, log=log)
     return 0
 

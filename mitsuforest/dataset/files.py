@@ -18,6 +18,7 @@ from __future__ import annotations
 import csv
 import hashlib
 import json
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -159,7 +160,8 @@ def write_tiles(root, scene, tiles) -> list[dict]:
     instances = np.array(sorted(volumes), np.int64)
     boxes = tiling.instance_boxes(points["instance"][kept].astype(np.int64), x[kept], y[kept], instances)
     out_dir = folder / "tiles"
-    out_dir.mkdir(exist_ok=True)
+    shutil.rmtree(out_dir, ignore_errors=True)      # an earlier run's tiles (another layout, or damaged)
+    out_dir.mkdir()
     nx, ny = tiling.tile_grid(scene.area.size, tiles.size)
     ci, cj = tiling.core_tile(x, y, scene.area.size, tiles.size)
     records = []

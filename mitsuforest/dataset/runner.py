@@ -25,7 +25,7 @@ CONNECT_TIMEOUT = "10s"
 
 
 def run_dataset(dataset, output_dir=None, workers: int | None = None, scheduler: str | None = None,
-                progress: bool = True, log=print) -> dict:
+                threads: int | None = None, progress: bool = True, log=print) -> dict:
     """Render every plot of a dataset (a file or a :class:`~.spec.Dataset`) on Dask and write the
     index, splits and manifest into ``output_dir`` (default ``out/<dataset name>``).
 
@@ -33,6 +33,8 @@ def run_dataset(dataset, output_dir=None, workers: int | None = None, scheduler:
 
     :param workers: worker processes of the embedded LocalCluster (default: one per core).
     :param scheduler: the address of a running Dask scheduler (``tcp://HOST:8786``) instead.
+    :param threads: Dr.Jit threads per worker process (default: cores / workers on the LocalCluster;
+        all cores of its machine on a scheduler's workers, right for one worker process per machine).
     :raises UserError: bad input or an unreachable scheduler, before anything is written.
     """
     if not isinstance(dataset, Dataset):
@@ -41,7 +43,10 @@ def run_dataset(dataset, output_dir=None, workers: int | None = None, scheduler:
     check_output_folder(root)
     if workers is not None and workers < 1:
         raise UserError(f"--workers: must be >= 1, got {workers}")
-    client, cluster, threads = _connect(scheduler, workers)
+    if threads is not None and threads < 1:
+        raise UserError(f"--threads: must be >= 1, got {threads}")
+    client, cluster, default_threads = _connect(scheduler, workers)
+    threads = threads or default_threads
     start = time.perf_counter()
     try:
         for plot in dataset.plots:

@@ -62,6 +62,7 @@ def scan_legs(root: str, name: str, first: int, stop: int, threads: int | None =
     done = _read_part(part)
     if done is not None:
         return done
+    started = time.perf_counter()
     set_threads(threads)
     from ..scan import scan
     scene, plan, scan_scene = _scan_setup(files.scene_file(root, name))
@@ -74,7 +75,7 @@ def scan_legs(root: str, name: str, first: int, stop: int, threads: int | None =
         result = scan(scene, plan, scan_scene, progress=False, on_points=keep, legs=range(first, stop))
     info = {"first": first, "stop": stop, "batches": batches, "points": part.with_suffix(".points").name,
             "emitted": result.pulses_emitted, "fired": result.pulses_fired, "cast": result.pulses_cast,
-            "rays": result.rays, "seconds": result.seconds,
+            "rays": result.rays, "seconds": result.seconds, "task_seconds": time.perf_counter() - started,
             "scene": {"objects": scan_scene.objects, "culled": scan_scene.culled,
                       "triangles": scan_scene.triangles, "variant": scan_scene.variant}}
     files.write_json(part, info)
@@ -91,7 +92,12 @@ def merge_plot(root: str, name: str, parts: list[dict], tiles=None, threads: int
     source = PartsSource(files.plot_folder(root, name) / PARTS, sorted(parts, key=lambda p: p["first"]))
     result = render(files.scene_file(root, name), output_dir=files.plot_folder(root, name), overwrite=True,
                     progress=False, log=_quiet, scan_source=source)
-    record = _finish(root, result, tiles, time.perf_counter() - start + sum(p["seconds"] for p in parts))
+    merge = time.perf_counter() - start
+    legs = [{"legs": [p["first"], p["stop"]], "pulses": p["emitted"], "points": sum(p["batches"]),
+             "scan_seconds": round(p["seconds"], 3), "task_seconds": round(p.get("task_seconds", p["seconds"]), 3)}
+            for p in sorted(parts, key=lambda p: p["first"])]
+    record = _finish(root, result, tiles, merge + sum(p["task_seconds"] for p in legs),
+                     {"leg_tasks": legs, "merge_seconds": round(merge, 3)})
     shutil.rmtree(files.plot_folder(root, name) / PARTS, ignore_errors=True)
     return record
 
@@ -124,7 +130,7 @@ class PartsSource:
         return result
 
 
-def _finish(root, result, tiles, seconds: float) -> dict:
+def _finish(root, result, tiles, seconds: float, extra: dict | None = None) -> dict:
     scene, manifest = result.scene, result.manifest
     tile_records = files.write_tiles(root, scene, tiles) if tiles else []
     record = {
@@ -135,6 +141,7 @@ def _finish(root, result, tiles, seconds: float) -> dict:
         "pulses": manifest["pulses"]["emitted"],
         "seconds": round(seconds, 3),
         "tiles": tile_records,
+        **(extra or {}),
     }
     files.write_record(root, scene.name, record)
     return record

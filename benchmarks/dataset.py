@@ -1,0 +1,141 @@
+"""`mitsuforest dataset` at scale: many demo-size plots on 1 and 2 workers, and one large plot split by
+flight leg.
+
+    python benchmarks/dataset.py                  # 8 demo plots on 1 and 2 workers; a 4 ha plot, one leg a task
+    python benchmarks/dataset.py --large-beam 19  # the 4 ha plot at the default beam (long)
+    python benchmarks/dataset.py --quick          # 2 small plots and a small split plot, 2 workers (CI)
+
+Each run gets a fresh LocalCluster (one process a worker, Dr.Jit threads = cores / workers) and
+reads its figures from the dataset's records and manifest; the workers' peak memory is their own
+``ru_maxrss``. Every plot is a full render (all files), as ``mitsuforest dataset`` writes it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import resource
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+
+def _peak_rss_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
+def run(dataset_file: Path, out: Path, workers: int) -> dict:
+    """One dataset run on a fresh LocalCluster; wall time, the manifest and the workers' peak memory."""
+    from dask.distributed import Client, LocalCluster
+    from mitsuforest.dataset import run_dataset
+    cores = os.cpu_count() or 1
+    with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
+                      silence_logs=logging.ERROR) as cluster, Client(cluster) as client:
+        start = time.perf_counter()
+        manifest = run_dataset(dataset_file, out, scheduler=cluster.scheduler_address,
+                               threads=max(1, cores // workers), progress=False, log=lambda *_: None)
+        wall = time.perf_counter() - start
+        peaks = client.run(_peak_rss_mb)
+    return {"wall": wall, "manifest": manifest, "worker_peak_mb": sorted(peaks.values())}
+
+
+def write_yaml(path: Path, data: dict) -> Path:
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    return path
+
+
+def many_plots(folder: Path, plots: int, worker_counts, quick: bool) -> list[dict]:
+    base = yaml.safe_load((ROOT / "scenes" / "demo.yaml").read_text())
+    base["sensor"] = str(ROOT / "sensors" / "riegl_vux-1uav22.yaml")
+    base.pop("output")
+    if quick:
+        base["survey"].update({"lines": [[[10, -2], [10, 22]]], "pulse_frequency": 100000})
+        base["simulation"] = {"beam_samples": 1, "beam_pattern": "fixed"}
+    write_yaml(folder / "demo_base.yaml", base)
+    dataset = write_yaml(folder / "demo_plots.yaml", {"name": "demo_plots", "base": "demo_base.yaml",
+                                                      "plots": plots, "vary": {"forest.trees": {"range": [3, 7]}}})
+    rows = []
+    for workers in worker_counts:
+        r = run(dataset, folder / f"plots_{workers}w", workers)
+        per_plot = list(r["manifest"]["seconds_per_plot"].values())
+        rows.append({"workers": workers, "wall_s": round(r["wall"], 1), "plots": len(per_plot),
+                     "mean_plot_s": round(sum(per_plot) / len(per_plot), 2),
+                     "points": r["manifest"]["points"], "worker_peak_mb": [round(m) for m in r["worker_peak_mb"]]})
+    one = rows[0]["wall_s"]
+    for row in rows:
+        row["speed_up"] = round(one / row["wall_s"], 2)
+    return rows
+
+
+def large_plot(folder: Path, size: float, beam: int, workers: int, legs_per_task: int, quick: bool) -> dict:
+    base = yaml.safe_load((ROOT / "scenes" / "open.yaml").read_text())
+    base["sensor"] = str(ROOT / "sensors" / "riegl_vux-1uav22.yaml")
+    base.pop("output", None)
+    scale = size * size / 1e4
+    base["area"] = {"size": [size, size]}
+    if base["forest"].get("trees"):
+        base["forest"]["trees"] = max(1, round(base["forest"]["trees"] * scale))
+    base["understory"] = {k: max(1, round(v * scale)) for k, v in base.get("understory", {}).items()} or None
+    if base["understory"] is None:
+        base.pop("understory")
+    base["simulation"] = {"beam_samples": beam, "beam_pattern": "fixed" if beam == 1 else "stratified"}
+    if quick:
+        base["survey"]["pulse_frequency"] = 100000
+        base["survey"]["speed"] = 10
+    write_yaml(folder / "large_base.yaml", base)
+    dataset = write_yaml(folder / "large.yaml", {"name": "large", "base": "large_base.yaml", "plots": 1,
+                                                 "legs_per_task": legs_per_task})
+    r = run(dataset, folder / "large", workers)
+    record = json.loads((folder / "large" / "plots" / "plot_0000" / "plot_0000_dataset.json").read_text())
+    legs = record["leg_tasks"]
+    return {"area_ha": round(scale, 2), "beam_samples": beam, "workers": workers, "wall_s": round(r["wall"], 1),
+            "leg_tasks": len(legs), "pulses": record["pulses"], "points": record["points"],
+            "mean_leg_task_s": round(sum(x["task_seconds"] for x in legs) / len(legs), 2),
+            "mean_leg_scan_s": round(sum(x["scan_seconds"] for x in legs) / len(legs), 2),
+            "merge_s": record["merge_seconds"], "merge_points_per_s": round(record["points"] / record["merge_seconds"]),
+            "worker_peak_mb": [round(m) for m in r["worker_peak_mb"]]}
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--plots", type=int, default=8)
+    p.add_argument("--workers", type=int, nargs="+", default=[1, 2])
+    p.add_argument("--large-size", type=float, default=200.0, help="side of the large plot, m (200: 4 ha)")
+    p.add_argument("--large-beam", type=int, default=1, help="sub-rays of the large plot (1: thin beam)")
+    p.add_argument("--legs-per-task", type=int, default=1)
+    p.add_argument("--skip-large", action="store_true")
+    p.add_argument("--quick", action="store_true", help="2 small plots and a 30 m split plot on 2 workers (CI)")
+    p.add_argument("--out", type=Path, help="keep the datasets here (default: a temporary folder)")
+    args = p.parse_args()
+    if args.quick:
+        args.plots, args.large_size, args.workers = 2, 30.0, [2]
+    os.environ.setdefault("MITSUFOREST_CACHE", str(Path.home() / ".cache" / "mitsuforest"))
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = args.out or Path(tmp)
+        folder.mkdir(parents=True, exist_ok=True)
+        print(f"machine: {os.cpu_count()} cores; {args.plots} demo-size plots")
+        print("| workers | wall | plots | mean time per plot (task) | points | speed-up | peak memory per worker |")
+        print("| --- | --- | --- | --- | --- | --- | --- |")
+        for row in many_plots(folder, args.plots, args.workers, args.quick):
+            print(f"| {row['workers']} | {row['wall_s']} s | {row['plots']} | {row['mean_plot_s']} s | "
+                  f"{row['points']:,} | {row['speed_up']}x | {', '.join(f'{m} MB' for m in row['worker_peak_mb'])} |")
+        if not args.skip_large:
+            r = large_plot(folder, args.large_size, args.large_beam, max(args.workers), args.legs_per_task, args.quick)
+            print(f"\nlarge plot: {r['area_ha']} ha, {r['beam_samples']} sub-rays, {r['workers']} workers, "
+                  f"{r['leg_tasks']} leg tasks: wall {r['wall_s']} s; {r['pulses']:,} pulses, {r['points']:,} points; "
+                  f"per leg task {r['mean_leg_task_s']} s (scan {r['mean_leg_scan_s']} s); merge {r['merge_s']} s "
+                  f"({r['merge_points_per_s']:,} points/s); peak memory per worker "
+                  + ", ".join(f"{m} MB" for m in r["worker_peak_mb"]))
+        print(f"client peak memory {_peak_rss_mb():.0f} MB")
+
+
+if __name__ == "__main__":
+    main()
