@@ -18,3 +18,6 @@ class ConfigError(UserError):
         self.reason = reason
         where = f"{self.file}: {key}: " if key else f"{self.file}: "
         super().__init__(where + reason)
+
+    def __reduce__(self):   # pickled whole (Dask sends a worker's errors to the client)
+        return type(self), (self.file, self.key, self.reason)

@@ -217,6 +217,12 @@ def test_killed_worker_and_killed_client_then_rerun(tmp_path, cluster):
     assert rerun["plots"]["skipped"] == 3
     _assert_complete(out2, 4)
 
+    # a plot whose scene changed (another dataset file in the same folder) is not finished any more
+    from mitsuforest.dataset.files import valid_record
+    scene = out2 / "scenes" / "plot_0001.yaml"
+    scene.write_text(scene.read_text().replace("seed:", "seed: 1", 1))
+    assert valid_record(out2, "plot_0000") is not None and valid_record(out2, "plot_0001") is None
+
 
 def _assert_complete(out: Path, count: int) -> None:
     from mitsuforest.dataset.files import valid_record
@@ -270,3 +276,16 @@ def test_plot_draws_do_not_depend_on_the_plot_count(tmp_path):
     grid = load_dataset(_dataset_file(tmp_path, "grid: {forest.trees: [1, 2], survey.speed: [5, 10, 20]}\n"))
     assert [(p.values["forest.trees"], p.values["survey.speed"]) for p in grid.plots] == \
         [(1, 5), (1, 10), (1, 20), (2, 5), (2, 10), (2, 20)]
+
+
+def test_a_plot_failing_on_a_worker_fails_alone(tmp_path, capsys, cluster):
+    """Found only while planning (on the worker): that plot fails, the other is finished and indexed."""
+    from mitsuforest.cli import main
+    path = _dataset_file(tmp_path, "grid: {understory.rocks: [1, 400]}\n")
+    out = tmp_path / "out"
+    assert main(["dataset", str(path), "-o", str(out), "--scheduler", cluster.scheduler_address, "--quiet"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1
+    assert "1 of 2 plots failed (first: plot_0001: " in err and "understory.rocks: 400 rocks do not fit" in err, err
+    assert [r["id"] for r in _index(out) if r["kind"] == "plot"] == ["plot_0000"]
+    assert json.loads((out / "dataset_manifest.json").read_text())["plots"]["failed"].keys() == {"plot_0001"}

@@ -86,9 +86,10 @@ def read_record(root, name: str) -> dict | None:
 
 
 def valid_record(root, name: str) -> dict | None:
-    """The plot's record if every file it lists (tiles included) is there with its checksum."""
+    """The plot's record if it was made from the plot's current scene file and every file it lists
+    (tiles included) is there with its checksum."""
     record = read_record(root, name)
-    if record is None:
+    if record is None or record.get("scene_sha256") != sha256(scene_file(root, name)):
         return None
     listed = {**record["files"], **{k: v for t in record.get("tiles", []) for k, v in t["files"].items()}}
     for rel, digest in listed.items():

@@ -59,7 +59,8 @@ def scan_legs(root: str, name: str, first: int, stop: int, threads: int | None =
     appended to one file, the batch sizes and pulse counts in a JSON beside it (written last). A part
     already there is reused."""
     part = _part_path(root, name, first, stop)
-    done = _read_part(part)
+    scene_sha = files.sha256(files.scene_file(root, name))
+    done = _read_part(part, scene_sha)
     if done is not None:
         return done
     started = time.perf_counter()
@@ -73,7 +74,7 @@ def scan_legs(root: str, name: str, first: int, stop: int, threads: int | None =
             batches.append(len(points))
             f.write(np.ascontiguousarray(points).data)
         result = scan(scene, plan, scan_scene, progress=False, on_points=keep, legs=range(first, stop))
-    info = {"first": first, "stop": stop, "batches": batches, "points": part.with_suffix(".points").name,
+    info = {"first": first, "stop": stop, "scene_sha256": scene_sha, "batches": batches, "points": part.with_suffix(".points").name,
             "emitted": result.pulses_emitted, "fired": result.pulses_fired, "cast": result.pulses_cast,
             "rays": result.rays, "seconds": result.seconds, "task_seconds": time.perf_counter() - started,
             "scene": {"objects": scan_scene.objects, "culled": scan_scene.culled,
@@ -135,6 +136,7 @@ def _finish(root, result, tiles, seconds: float, extra: dict | None = None) -> d
     tile_records = files.write_tiles(root, scene, tiles) if tiles else []
     record = {
         "plot": scene.name,
+        "scene_sha256": files.sha256(scene.file),
         "files": files.checksums(root, sorted(result.files)),
         "points": manifest["points"],
         "classes": manifest["classes"],
@@ -151,14 +153,16 @@ def _part_path(root, name: str, first: int, stop: int) -> Path:
     return files.plot_folder(root, name) / PARTS / f"legs-{first:05d}-{stop:05d}.json"
 
 
-def _read_part(path: Path) -> dict | None:
+def _read_part(path: Path, scene_sha: str) -> dict | None:
+    """A finished part of the same scene (its points file complete), else None."""
     try:
         info = json.loads(path.read_text())
         size = (path.parent / info["points"]).stat().st_size
     except (OSError, ValueError, KeyError):
         return None
     from ..scan import POINT_DTYPE
-    return info if size == sum(info["batches"]) * POINT_DTYPE.itemsize else None
+    complete = size == sum(info["batches"]) * POINT_DTYPE.itemsize
+    return info if complete and info.get("scene_sha256") == scene_sha else None
 
 
 _SETUP: dict = {}   # this worker's plot in memory: {scene file: (scene, plan, Mitsuba scene)}
