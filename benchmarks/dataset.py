@@ -32,6 +32,11 @@ def _peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
+def _cpu_seconds() -> float:
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    return usage.ru_utime + usage.ru_stime
+
+
 def run(dataset_file: Path, out: Path, workers: int) -> dict:
     """One dataset run on a fresh LocalCluster; wall time, the manifest and the workers' peak memory."""
     from dask.distributed import Client, LocalCluster
@@ -44,7 +49,9 @@ def run(dataset_file: Path, out: Path, workers: int) -> dict:
                                threads=max(1, cores // workers), progress=False, log=lambda *_: None)
         wall = time.perf_counter() - start
         peaks = client.run(_peak_rss_mb)
-    return {"wall": wall, "manifest": manifest, "worker_peak_mb": sorted(peaks.values())}
+        cpu = client.run(_cpu_seconds)
+    return {"wall": wall, "manifest": manifest, "worker_peak_mb": sorted(peaks.values()),
+            "worker_cpu_s": sum(cpu.values()), "load": os.getloadavg()[0]}
 
 
 def write_yaml(path: Path, data: dict) -> Path:
@@ -68,7 +75,8 @@ def many_plots(folder: Path, plots: int, worker_counts, quick: bool) -> list[dic
         per_plot = list(r["manifest"]["seconds_per_plot"].values())
         rows.append({"workers": workers, "wall_s": round(r["wall"], 1), "plots": len(per_plot),
                      "mean_plot_s": round(sum(per_plot) / len(per_plot), 2),
-                     "points": r["manifest"]["points"], "worker_peak_mb": [round(m) for m in r["worker_peak_mb"]]})
+                     "points": r["manifest"]["points"], "worker_peak_mb": [round(m) for m in r["worker_peak_mb"]],
+                     "cpu_per_plot_s": round(r["worker_cpu_s"] / len(per_plot), 1), "load": round(r["load"], 1)})
     one = rows[0]["wall_s"]
     for row in rows:
         row["speed_up"] = round(one / row["wall_s"], 2)
@@ -101,7 +109,8 @@ def large_plot(folder: Path, size: float, beam: int, workers: int, legs_per_task
             "mean_leg_task_s": round(sum(x["task_seconds"] for x in legs) / len(legs), 2),
             "mean_leg_scan_s": round(sum(x["scan_seconds"] for x in legs) / len(legs), 2),
             "merge_s": record["merge_seconds"], "merge_points_per_s": round(record["points"] / record["merge_seconds"]),
-            "worker_peak_mb": [round(m) for m in r["worker_peak_mb"]]}
+            "worker_peak_mb": [round(m) for m in r["worker_peak_mb"]], "worker_cpu_s": round(r["worker_cpu_s"]),
+            "load": round(r["load"], 1)}
 
 
 def main() -> None:
@@ -122,18 +131,20 @@ def main() -> None:
         folder = args.out or Path(tmp)
         folder.mkdir(parents=True, exist_ok=True)
         print(f"machine: {os.cpu_count()} cores; {args.plots} demo-size plots")
-        print("| workers | wall | plots | mean time per plot (task) | points | speed-up | peak memory per worker |")
-        print("| --- | --- | --- | --- | --- | --- | --- |")
+        print("| workers | wall | plots | mean time per plot (task) | worker CPU per plot | points | speed-up | "
+              "peak memory per worker | load average at the end |")
+        print("| --- | --- | --- | --- | --- | --- | --- | --- | --- |")
         for row in many_plots(folder, args.plots, args.workers, args.quick):
             print(f"| {row['workers']} | {row['wall_s']} s | {row['plots']} | {row['mean_plot_s']} s | "
-                  f"{row['points']:,} | {row['speed_up']}x | {', '.join(f'{m} MB' for m in row['worker_peak_mb'])} |")
+                  f"{row['cpu_per_plot_s']} s | {row['points']:,} | {row['speed_up']}x | "
+                  f"{', '.join(f'{m} MB' for m in row['worker_peak_mb'])} | {row['load']} |", flush=True)
         if not args.skip_large:
             r = large_plot(folder, args.large_size, args.large_beam, max(args.workers), args.legs_per_task, args.quick)
             print(f"\nlarge plot: {r['area_ha']} ha, {r['beam_samples']} sub-rays, {r['workers']} workers, "
                   f"{r['leg_tasks']} leg tasks: wall {r['wall_s']} s; {r['pulses']:,} pulses, {r['points']:,} points; "
                   f"per leg task {r['mean_leg_task_s']} s (scan {r['mean_leg_scan_s']} s); merge {r['merge_s']} s "
-                  f"({r['merge_points_per_s']:,} points/s); peak memory per worker "
-                  + ", ".join(f"{m} MB" for m in r["worker_peak_mb"]))
+                  f"({r['merge_points_per_s']:,} points/s); worker CPU {r['worker_cpu_s']} s; peak memory per worker "
+                  + ", ".join(f"{m} MB" for m in r["worker_peak_mb"]) + f"; load average {r['load']}", flush=True)
         print(f"client peak memory {_peak_rss_mb():.0f} MB")
 
 

@@ -97,3 +97,8 @@ def test_helios_compare_runs_against_a_stand_in(tmp_path):
     offsets = [float(line.split()[1]) for line in stdout.splitlines()[1:]
                if line.split() and line.split()[0].isdigit() and line.split()[1] != "-"]
     assert offsets and max(offsets) < 0.001, stdout   # the same seed: the same points
+
+
+def test_dataset_benchmark_quick(tmp_path):
+    stdout = _run([str(ROOT / "benchmarks" / "dataset.py"), "--quick", "--out", str(tmp_path)], ROOT)
+    assert "| 2 |" in stdout and "leg tasks" in stdout and "merge" in stdout

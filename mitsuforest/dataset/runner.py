@@ -43,6 +43,9 @@ def run_dataset(dataset, output_dir=None, workers: int | None = None, scheduler:
     check_output_folder(root)
     if workers is not None and workers < 1:
         raise UserError(f"--workers: must be >= 1, got {workers}")
+    if workers is not None and scheduler:
+        raise UserError("--workers: sets the embedded LocalCluster's size; with --scheduler the cluster's own "
+                        "workers are used")
     if threads is not None and threads < 1:
         raise UserError(f"--threads: must be >= 1, got {threads}")
     client, cluster, default_threads = _connect(scheduler, workers)
@@ -168,8 +171,7 @@ def _cancel_plot(futures, plot_of, name: str) -> None:
 
 
 def _with_values(record: dict, dataset: Dataset) -> dict:
-    values = next(p.values for p in dataset.plots if p.name == record["plot"])
-    return {**record, "values": values}
+    return {**record, "values": dataset.values_of(record["plot"])}
 
 
 def _leg_count(scene) -> int:

@@ -74,6 +74,12 @@ class Dataset:
     legs_per_task: int | None
     resolved: dict                    # the dataset file with every default filled (for the manifest)
 
+    def values_of(self, plot: str) -> dict:
+        """The values drawn for a plot, by name."""
+        if not hasattr(self, "_values"):
+            object.__setattr__(self, "_values", {p.name: p.values for p in self.plots})
+        return self._values[plot]
+
 
 def load_dataset(path) -> Dataset:
     """Load and validate a dataset file and draw its plots (see module docstring).
