@@ -102,72 +102,69 @@ def _connect(scheduler: str | None, workers: int | None):
 
 def _run(client, dataset: Dataset, root: str, threads, splits, progress: bool):
     """Submit every plot and follow them to the end; returns (records, {plot: failure})."""
-    from dask.distributed import as_completed
-    kinds, plot_of = {}, {}
-    futures = []
-    whole = [p for p in dataset.plots if not dataset.legs_per_task]
-    split = [p for p in dataset.plots if dataset.legs_per_task]
-    for plot in whole:
-        f = client.submit(tasks.render_plot, root, plot.name, dataset.tiles, threads, key=f"plot-{plot.name}",
-                          retries=RETRIES, pure=False)
-        futures.append(f)
-        kinds[f.key], plot_of[f.key] = "plot", plot.name
-    checks = client.gather([client.submit(tasks.check_plot, root, p.name, key=f"check-{p.name}", pure=False)
-                            for p in split])
-    records, failures = [], {}
-    for plot, record in zip(split, checks):
-        if record is not None:
-            records.append(_with_values({**record, "skipped": True}, dataset))
-            continue
-        legs = _leg_count(plot.scene)
-        parts = []
-        for first in range(0, legs, dataset.legs_per_task):
-            stop = min(first + dataset.legs_per_task, legs)
-            f = client.submit(tasks.scan_legs, root, plot.name, first, stop, threads,
-                              key=f"legs-{plot.name}-{first}", retries=RETRIES, pure=False)
-            parts.append(f)
-            kinds[f.key], plot_of[f.key] = "legs", plot.name
-        f = client.submit(tasks.merge_plot, root, plot.name, parts, dataset.tiles, threads,
-                          key=f"merge-{plot.name}", retries=RETRIES, pure=False)
-        futures += [*parts, f]
-        kinds[f.key], plot_of[f.key] = "plot", plot.name
+    records = []
+    if dataset.legs_per_task:
+        futures, kept = _submit_split_plots(client, dataset, root, threads)
+        records += [_with_values({**r, "skipped": True}, dataset) for r in kept]
+    else:
+        futures = [client.submit(tasks.render_plot, root, p.name, dataset.tiles, threads, key=f"plot-{p.name}",
+                                 retries=RETRIES, pure=False) for p in dataset.plots]
     bars = _Bars(progress, len(dataset.plots), sum(_pulses(p.scene) for p in dataset.plots))
     bars.plot(len(records), sum(r["pulses"] for r in records))
-    last_index = time.perf_counter()
     try:
-        for future in as_completed(futures):
-            name, kind = plot_of[future.key], kinds[future.key]
-            try:
-                result = future.result()
-            except UserError as e:
-                failures[name] = str(e)
-                _cancel_plot(futures, plot_of, name)
-                bars.plot(1, 0)
-                continue
-            except Exception as e:  # noqa: BLE001 (a worker's error ends this plot only; reported at the end)
-                if future.status == "cancelled":
-                    continue
-                failures[name] = f"{type(e).__name__}: {e}"
-                _cancel_plot(futures, plot_of, name)
-                bars.plot(1, 0)
-                continue
-            if kind == "legs":
-                bars.pulses(result["emitted"])
-                continue
-            records.append(_with_values(result, dataset))
-            bars.plot(1, 0 if dataset.legs_per_task else result["pulses"])   # a split plot's legs counted its pulses
-            if time.perf_counter() - last_index > INDEX_EVERY_S:
-                files.write_index(root, records, dataset.varied, splits)
-                last_index = time.perf_counter()
+        failures = _follow(futures, records, dataset, root, splits, bars)
     finally:
         bars.close()
     return records, failures
 
 
-def _cancel_plot(futures, plot_of, name: str) -> None:
-    for f in futures:
-        if plot_of[f.key] == name and not f.done():
-            f.cancel()
+def _submit_split_plots(client, dataset: Dataset, root: str, threads):
+    """Per plot not finished yet: one task per ``legs_per_task`` legs, then one merging them (Dask runs it
+    when they are done). Returns (futures, records of the finished plots)."""
+    checks = client.gather([client.submit(tasks.check_plot, root, p.name, key=f"check-{p.name}", pure=False)
+                            for p in dataset.plots])
+    futures, kept = [], []
+    for plot, record in zip(dataset.plots, checks):
+        if record is not None:
+            kept.append(record)
+            continue
+        legs = _leg_count(plot.scene)
+        parts = [client.submit(tasks.scan_legs, root, plot.name, first, min(first + dataset.legs_per_task, legs),
+                               threads, key=f"legs-{plot.name}-{first}", retries=RETRIES, pure=False)
+                 for first in range(0, legs, dataset.legs_per_task)]
+        futures += [*parts, client.submit(tasks.merge_plot, root, plot.name, parts, dataset.tiles, threads,
+                                          key=f"plot-{plot.name}", retries=RETRIES, pure=False)]
+    return futures, kept
+
+
+def _follow(futures, records: list, dataset: Dataset, root: str, splits, bars) -> dict:
+    """Collect results as they come (records appended to ``records``); a failed task fails its plot only
+    (its other tasks are cancelled). The index is rewritten every INDEX_EVERY_S. Returns the failures."""
+    from dask.distributed import as_completed
+    failures, last_index = {}, time.perf_counter()
+    plot_of = {f.key: f.key.split("-")[1] for f in futures}     # keys: plot-NAME, legs-NAME-FIRST
+    for future in as_completed(futures):
+        name = plot_of[future.key]
+        if name in failures or future.status == "cancelled":
+            continue
+        try:
+            result = future.result()
+        except Exception as e:  # noqa: BLE001 (a worker's error ends this plot only; reported at the end)
+            failures[name] = str(e) if isinstance(e, UserError) else f"{type(e).__name__}: {e}"
+            for f in futures:
+                if plot_of[f.key] == name and not f.done():
+                    f.cancel()
+            bars.plot(1, 0)
+            continue
+        if future.key.startswith("legs-"):
+            bars.pulses(result["emitted"])
+            continue
+        records.append(_with_values(result, dataset))
+        bars.plot(1, 0 if dataset.legs_per_task else result["pulses"])   # a split plot's legs counted its pulses
+        if time.perf_counter() - last_index > INDEX_EVERY_S:
+            files.write_index(root, records, dataset.varied, splits)
+            last_index = time.perf_counter()
+    return failures
 
 
 def _with_values(record: dict, dataset: Dataset) -> dict:
