@@ -2,6 +2,7 @@
 flight leg.
 
     python benchmarks/dataset.py                  # 8 demo plots on 1 and 2 workers; a 4 ha plot, one leg a task
+    python benchmarks/dataset.py --skip-plots --large-pulse-frequency 200000 --large-speed 2   # the paper's survey
     python benchmarks/dataset.py --large-beam 19  # the 4 ha plot at the default beam (long)
     python benchmarks/dataset.py --quick          # 2 small plots and a small split plot, 2 workers (CI)
 
@@ -83,7 +84,8 @@ def many_plots(folder: Path, plots: int, worker_counts, quick: bool) -> list[dic
     return rows
 
 
-def large_plot(folder: Path, size: float, beam: int, workers: int, legs_per_task: int, quick: bool) -> dict:
+def large_plot(folder: Path, size: float, beam: int, workers: int, legs_per_task: int, quick: bool,
+               pulse_frequency: float, speed: float) -> dict:
     base = yaml.safe_load((ROOT / "scenes" / "open.yaml").read_text())
     base["sensor"] = str(ROOT / "sensors" / "riegl_vux-1uav22.yaml")
     base.pop("output", None)
@@ -95,16 +97,15 @@ def large_plot(folder: Path, size: float, beam: int, workers: int, legs_per_task
     if base["understory"] is None:
         base.pop("understory")
     base["simulation"] = {"beam_samples": beam, "beam_pattern": "fixed" if beam == 1 else "stratified"}
-    if quick:
-        base["survey"]["pulse_frequency"] = 100000
-        base["survey"]["speed"] = 10
+    base["survey"]["pulse_frequency"] = pulse_frequency
+    base["survey"]["speed"] = speed
     write_yaml(folder / "large_base.yaml", base)
     dataset = write_yaml(folder / "large.yaml", {"name": "large", "base": "large_base.yaml", "plots": 1,
                                                  "legs_per_task": legs_per_task})
     r = run(dataset, folder / "large", workers)
     record = json.loads((folder / "large" / "plots" / "plot_0000" / "plot_0000_dataset.json").read_text())
     legs = record["leg_tasks"]
-    return {"area_ha": round(scale, 2), "beam_samples": beam, "workers": workers, "wall_s": round(r["wall"], 1),
+    return {"area_ha": round(scale, 2), "beam_samples": beam, "survey": f"{pulse_frequency:g} Hz at {speed:g} m/s", "workers": workers, "wall_s": round(r["wall"], 1),
             "leg_tasks": len(legs), "pulses": record["pulses"], "points": record["points"],
             "mean_leg_task_s": round(sum(x["task_seconds"] for x in legs) / len(legs), 2),
             "mean_leg_scan_s": round(sum(x["scan_seconds"] for x in legs) / len(legs), 2),
@@ -119,33 +120,44 @@ def main() -> None:
     p.add_argument("--workers", type=int, nargs="+", default=[1, 2])
     p.add_argument("--large-size", type=float, default=200.0, help="side of the large plot, m (200: 4 ha)")
     p.add_argument("--large-beam", type=int, default=1, help="sub-rays of the large plot (1: thin beam)")
+    p.add_argument("--large-pulse-frequency", type=float, default=100000.0,
+                   help="pulse rate of the large plot's survey, Hz (the paper's 200000 at 2 m/s is 10x the pulses)")
+    p.add_argument("--large-speed", type=float, default=10.0, help="flying speed of the large plot's survey, m/s")
     p.add_argument("--legs-per-task", type=int, default=1)
     p.add_argument("--skip-large", action="store_true")
+    p.add_argument("--skip-plots", action="store_true", help="only the large plot")
     p.add_argument("--quick", action="store_true", help="2 small plots and a 30 m split plot on 2 workers (CI)")
     p.add_argument("--out", type=Path, help="keep the datasets here (default: a temporary folder)")
     args = p.parse_args()
     if args.quick:
         args.plots, args.large_size, args.workers = 2, 30.0, [2]
     os.environ.setdefault("MITSUFOREST_CACHE", str(Path.home() / ".cache" / "mitsuforest"))
+    print(f"machine: {os.cpu_count()} cores")
     with tempfile.TemporaryDirectory() as tmp:
         folder = args.out or Path(tmp)
         folder.mkdir(parents=True, exist_ok=True)
-        print(f"machine: {os.cpu_count()} cores; {args.plots} demo-size plots")
-        print("| workers | wall | plots | mean time per plot (task) | worker CPU per plot | points | speed-up | "
-              "peak memory per worker | load average at the end |")
-        print("| --- | --- | --- | --- | --- | --- | --- | --- | --- |")
-        for row in many_plots(folder, args.plots, args.workers, args.quick):
-            print(f"| {row['workers']} | {row['wall_s']} s | {row['plots']} | {row['mean_plot_s']} s | "
-                  f"{row['cpu_per_plot_s']} s | {row['points']:,} | {row['speed_up']}x | "
-                  f"{', '.join(f'{m} MB' for m in row['worker_peak_mb'])} | {row['load']} |", flush=True)
+        if not args.skip_plots:
+            plots_table(folder, args)
         if not args.skip_large:
-            r = large_plot(folder, args.large_size, args.large_beam, max(args.workers), args.legs_per_task, args.quick)
-            print(f"\nlarge plot: {r['area_ha']} ha, {r['beam_samples']} sub-rays, {r['workers']} workers, "
+            r = large_plot(folder, args.large_size, args.large_beam, max(args.workers), args.legs_per_task, args.quick,
+                           args.large_pulse_frequency, args.large_speed)
+            print(f"\nlarge plot: {r['area_ha']} ha, {r['beam_samples']} sub-rays, {r['survey']}, {r['workers']} workers, "
                   f"{r['leg_tasks']} leg tasks: wall {r['wall_s']} s; {r['pulses']:,} pulses, {r['points']:,} points; "
                   f"per leg task {r['mean_leg_task_s']} s (scan {r['mean_leg_scan_s']} s); merge {r['merge_s']} s "
                   f"({r['merge_points_per_s']:,} points/s); worker CPU {r['worker_cpu_s']} s; peak memory per worker "
                   + ", ".join(f"{m} MB" for m in r["worker_peak_mb"]) + f"; load average {r['load']}", flush=True)
         print(f"client peak memory {_peak_rss_mb():.0f} MB")
+
+
+def plots_table(folder: Path, args) -> None:
+    print(f"{args.plots} demo-size plots\n")
+    print("| workers | wall | plots | mean time per plot (task) | worker CPU per plot | points | speed-up | "
+          "peak memory per worker | load average at the end |")
+    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+    for row in many_plots(folder, args.plots, args.workers, args.quick):
+        print(f"| {row['workers']} | {row['wall_s']} s | {row['plots']} | {row['mean_plot_s']} s | "
+              f"{row['cpu_per_plot_s']} s | {row['points']:,} | {row['speed_up']}x | "
+              f"{', '.join(f'{m} MB' for m in row['worker_peak_mb'])} | {row['load']} |", flush=True)
 
 
 if __name__ == "__main__":
