@@ -5,7 +5,8 @@ GROUND, TREE_WOOD, TREE_LEAVES, DEADWOOD, ROCK, STUMP, BUSH = 1, 2, 3, 4, 5, 6, 
 CLASS_NAMES = {GROUND: "ground", TREE_WOOD: "tree_wood", TREE_LEAVES: "tree_leaves", DEADWOOD: "deadwood",
                ROCK: "rock", STUMP: "stump", BUSH: "bush"}
 
-DEADWOOD_TREEID = 11   # treeid of deadwood points; trees carry their archetype number 1-10; others 0
+DEADWOOD_TREEID = 11   # treeid of deadwood points (one past the last tree model when there are more than ten);
+                       # trees carry their model number: archetypes 1.., then forest.models; others 0
 GROUND_OBJECT_ID = 1   # object ids start at 1 with the ground; 0 never labels a point
 
 # Per-point ``species`` codes (PCD field and LAS extra dimension): the tree's procedural family;

@@ -44,9 +44,10 @@ def _parser() -> argparse.ArgumentParser:
     pl.add_argument("--seed", type=int, help="override the scene's seed")
 
     t = sub.add_parser("trees", help="write the tree archetypes' meshes, volumes and a picture",
-                       description="Write each archetype's wood and leaf meshes (PLY), volumes.csv and trees.png.")
+                       description="Write each archetype's and imported model's wood and leaf meshes (PLY), "
+                                  "volumes.csv, trees.png and (for imported meshes) repairs.csv.")
     t.add_argument("-o", "--output", type=Path, default=Path("out/trees"), help="output folder (default: out/trees)")
-    t.add_argument("--scene", type=Path, help="take the archetypes from this scene file (default: the built-in ten)")
+    t.add_argument("--scene", type=Path, help="take the archetypes and forest.models from this scene file (default: the built-in ten)")
 
     e = sub.add_parser("export", help="write the planned scene as meshes and a HELIOS++ survey that runs as it is",
                        description="Write each model's components (OBJ, with materials), the ground, "
@@ -162,13 +163,15 @@ def _plan(args) -> int:
 def _trees(args) -> int:
     from .trees.archetypes import DEFAULT_ARCHETYPES
     from .trees.gallery import write_gallery
+    models = ()
     if args.scene:
         from .config import load_scene
-        archetypes = load_scene(args.scene).forest.archetypes
+        forest = load_scene(args.scene).forest
+        archetypes, models = forest.archetypes, forest.models
     else:
         archetypes = DEFAULT_ARCHETYPES
-    write_gallery(archetypes, args.output)
-    print(f"wrote {len(archetypes)} trees, volumes.csv and trees.png to {args.output}")
+    write_gallery(archetypes, args.output, models=models)
+    print(f"wrote {len(archetypes) + len(models)} trees, volumes.csv and trees.png to {args.output}")
     return 0
 
 

@@ -24,6 +24,7 @@ from .plan import Plan, make_plan
 from .scan import scan
 from .scene import build_scene
 from .trees import build_models
+from .trees.imported import import_report
 from .write import (PointWriter, Staging, check_output_folder, existing_outputs, output_lock, write_manifest,
                     write_render_outputs)
 from .write.background import Background
@@ -125,6 +126,7 @@ def _scan_and_write(scene, plan, models, scan_scene, timings, run_scan, keep_poi
         writer.close()
         timings.lap("scan")
         manifest = _manifest(scene, plan, scan_scene, result, writer.statistics(), timings)
+        manifest["imported_trees"] = import_report(plan, models)
         files = []
         if staging:
             write_render_outputs(staging, scene=scene, plan=plan, models=models, writer=writer)

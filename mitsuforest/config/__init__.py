@@ -19,6 +19,7 @@ import yaml
 
 from ..errors import ConfigError, UserError
 from ..trees.archetypes import DEFAULT_ARCHETYPES, FAMILY_ARCHETYPES, FIELDS as ARCHETYPE_FIELDS, Archetype
+from ..trees.sources import DEFAULT_LEAF_PATTERNS, REPAIR_MODES, UNITS, UP_AXES, MeshTree, QsmTree
 from .schema import REQUIRED, Context, Custom, FilePath, ListOf, Number, Text, Vector, parse_mapping
 from .types import BEAM_PATTERNS, FOREST_BANDS, Scene, Sensor, display_path, from_mapping, to_mapping
 
@@ -56,8 +57,8 @@ SENSOR_SPEC = {
 def _archetypes(value, ctx: Context, key: str):
     if value == "default":
         return list(DEFAULT_ARCHETYPES)
-    if not isinstance(value, (list, tuple)) or not value:
-        ctx.fail(key, "must be 'default' or a non-empty list of archetype mappings")
+    if not isinstance(value, (list, tuple)):
+        ctx.fail(key, "must be 'default' or a list of archetype mappings ([] for none, beside forest.models)")
     spec = {name: Text(f.default, choices=f.metadata["choices"]) if f.metadata["choices"] else
             Number(f.default, integer=f.metadata["integer"], ge=f.metadata["lo"], le=f.metadata["hi"])
             for name, f in ARCHETYPE_FIELDS.items()}
@@ -74,6 +75,50 @@ def _archetypes(value, ctx: Context, key: str):
         explicit = {k: given[k] for k in item if k != "base"}
         out.append(Archetype(**{**{k: given[k] for k in ARCHETYPE_FIELDS}, **merged, **explicit}))
     return out
+
+
+MAX_TREE_MODELS = 65_534   # treeid is 16 bits, and deadwood takes the number after the last tree model
+_MODEL_COMMON = {"units": Text("m", choices=tuple(UNITS)), "up": Text("z", choices=UP_AXES),
+                 "weight": Number(1.0, ge=0, le=1e6)}
+MESH_SPEC = {"mesh": FilePath(None, nullable=True), "wood": FilePath(None, nullable=True),
+             "leaves": Custom(lambda v, c, k: v, None), "repair": Text("fix", choices=REPAIR_MODES), **_MODEL_COMMON}
+QSM_SPEC = {"qsm": FilePath(REQUIRED), **_MODEL_COMMON, "seed": Number(0, integer=True, ge=0, le=2**31 - 1),
+            **{k: Number(ARCHETYPE_FIELDS[k].default, ge=ARCHETYPE_FIELDS[k].metadata["lo"],
+                         le=ARCHETYPE_FIELDS[k].metadata["hi"])
+               for k in ("leaf_area", "leaf_length", "leaf_width", "leaf_inclination", "leaf_clumping")}}
+
+
+def _models(value, ctx: Context, key: str):
+    """``forest.models``: tree meshes (``mesh:``, or ``wood:`` and ``leaves:``) and QSMs (``qsm:``)."""
+    if value is None:
+        return []
+    if not isinstance(value, (list, tuple)):
+        ctx.fail(key, "must be a list of model mappings, each with mesh:, wood: or qsm:")
+    return [_model_entry(item, ctx, f"{key}[{i}]") for i, item in enumerate(value)]
+
+
+def _model_entry(item, ctx: Context, where: str):
+    if isinstance(item, (MeshTree, QsmTree)):
+        item = {k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(item).items()
+                if v is not None}
+    if not isinstance(item, dict):
+        ctx.fail(where, "must be a mapping with mesh:, wood: or qsm:")
+    given = [k for k in ("mesh", "wood", "qsm") if item.get(k) is not None]
+    if len(given) != 1:
+        ctx.fail(where, "give exactly one of mesh: (one file), wood: (with a leaves: file) or qsm: (a cylinder table)"
+                 + (f", not {' and '.join(given)}" if given else ""))
+    if given == ["qsm"]:
+        return QsmTree(**parse_mapping(QSM_SPEC, item, ctx, where))
+    entry = parse_mapping(MESH_SPEC, item, ctx, where)
+    leaves = item.get("leaves", DEFAULT_LEAF_PATTERNS if entry["mesh"] else None)
+    if entry["mesh"]:
+        leaves = [leaves] if isinstance(leaves, str) else leaves
+        entry["leaves"] = tuple(ListOf(Text()).parse(list(leaves) if isinstance(leaves, tuple) else leaves, ctx,
+                                                     where + ".leaves"))
+    elif leaves is not None:
+        entry["leaves"] = FilePath(REQUIRED).parse(leaves, ctx, where + ".leaves") if not isinstance(leaves, list) \
+            else ctx.fail(where + ".leaves", "with wood: give the leaves file (name patterns go with mesh:)")
+    return MeshTree(**entry)
 
 
 def _sensor(value, ctx: Context, key: str):
@@ -147,6 +192,7 @@ SCENE_SPEC = {
         "min_spacing": Number(3.0, ge=0),
         "tilt": Number(5.0, ge=0, le=45),
         "archetypes": Custom(_archetypes, "default"),
+        "models": Custom(_models, None),
     },
     "understory": {k: Number(d, integer=True, ge=0) for k, d in
                    (("bushes", 120), ("rocks", 40), ("deadwood", 25), ("stumps", 15))},
@@ -287,8 +333,10 @@ def _check_scene(scene: dict, ctx: Context):
     lo, hi = FOREST_BANDS[forest["type"]]
     if cover is not None and not lo <= cover <= hi:
         ctx.fail("forest.canopy_cover", f"{cover:g} is outside the {forest['type']} band {lo:g}-{hi:g}")
-    if not sum(a.weight for a in forest["archetypes"]) > 0:
-        ctx.fail("forest.archetypes", "at least one archetype needs weight > 0")
+    if not sum(a.weight for a in [*forest["archetypes"], *forest["models"]]) > 0:
+        ctx.fail("forest.archetypes", "at least one archetype or model needs weight > 0")
+    if len(forest["archetypes"]) + len(forest["models"]) > MAX_TREE_MODELS:
+        ctx.fail("forest.models", f"at most {MAX_TREE_MODELS:,} archetypes and models together (treeid is 16 bits)")
     if scene["terrain"]["type"] == "mesh" and not scene["terrain"]["path"]:
         ctx.fail("terrain.path", "is required when terrain.type is mesh")
     freqs = sensor.pulse_frequencies

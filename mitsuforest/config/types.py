@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..trees.archetypes import Archetype
+from ..trees.sources import MeshTree, QsmTree
 
 # Australia's National Forest Inventory crown cover classes.
 FOREST_BANDS = {"woodland": (0.20, 0.50), "open": (0.50, 0.80), "closed": (0.80, 1.00)}
@@ -124,6 +125,7 @@ class Forest:
     min_spacing: float
     tilt: float
     archetypes: tuple[Archetype, ...]
+    models: tuple[MeshTree | QsmTree, ...] = ()   # imported trees (trees/sources.py), treeids after the archetypes
 
     @property
     def target_cover(self) -> float | None:
@@ -262,7 +264,7 @@ def to_mapping(section, plain: bool = False) -> dict:
     A nested sensor and the archetypes stay objects (the parser takes them back as they are), unless
     ``plain`` asks for JSON-ready data.
     """
-    if isinstance(section, Archetype):
+    if isinstance(section, (Archetype, MeshTree, QsmTree)):
         return dataclasses.asdict(section)
     return {key: _nested(getattr(section, f.name), plain) for f, key in _keyed_fields(type(section))}
 
@@ -270,7 +272,7 @@ def to_mapping(section, plain: bool = False) -> dict:
 def _nested(value, plain: bool):
     if isinstance(value, (tuple, list)):
         return [_nested(v, plain) for v in value]
-    if isinstance(value, (Sensor, Archetype)) and not plain:
+    if isinstance(value, (Sensor, Archetype, MeshTree, QsmTree)) and not plain:
         return value
     if dataclasses.is_dataclass(value):
         return to_mapping(value, plain)

@@ -16,6 +16,7 @@ import numpy as np
 from ..classes import DEADWOOD_TREEID, GROUND_OBJECT_ID
 from ..config import RSA_JAMMING, scene_error
 from ..errors import UserError
+from ..trees.imported import summary as imported_summary
 from ..trees.models import tree_components
 from ..trees.skeleton import grow
 from ..trees.understory import SHRUB_FORMS, UNDERSTORY_COMPONENTS
@@ -62,12 +63,12 @@ def _plan(scene) -> Plan:
         raise _Refusal("terrain.path", str(e)) from None
     legs = _checked_legs(scene, flight_legs(size, scene.survey, terrain.mean_height))   # before the slow part
     _check_understory_fits(scene)
-    archetypes = scene.forest.archetypes
-    summaries = [_summarise(a) for a in archetypes]
-    models = {f"tree{i + 1:02d}": ModelSpec("tree", components, archetype=a)
-              for i, (a, (_, components)) in enumerate(zip(archetypes, summaries))}
-    trees, cover = _place_trees(scene.forest, size, [crown for crown, _ in summaries], terrain, rng)
-    understory, understory_models = _place_understory(scene, size, trees, terrain, rng)
+    models = _tree_models(scene.forest)
+    crowns = [crown for crown, _ in models.values()]
+    models = {name: spec for name, (_, spec) in models.items()}
+    trees, cover = _place_trees(scene.forest, size, crowns, terrain, rng)
+    understory, understory_models = _place_understory(scene, size, trees, terrain, rng,
+                                                      deadwood_treeid=deadwood_treeid(len(models)))
     models.update(understory_models)
     return Plan(
         scene=scene.name, seed=scene.seed, area=tuple(size), forest_type=scene.forest.type,
@@ -113,6 +114,24 @@ def plan_json(plan: Plan) -> str:
     return plan.to_json()
 
 
+def deadwood_treeid(tree_models: int) -> int:
+    """Deadwood's treeid: 11, or one past the last tree model when there are more than ten."""
+    return max(DEADWOOD_TREEID, tree_models + 1)
+
+
+def _tree_models(forest) -> dict[str, tuple[np.ndarray, ModelSpec]]:
+    """``treeNN``: (crown points, spec) of the archetypes, then of the imported models (``forest.models``),
+    numbered on: tree model N carries treeid N."""
+    out = {}
+    for a in forest.archetypes:
+        crown, components = _summarise(a)
+        out[f"tree{len(out) + 1:02d}"] = crown, ModelSpec("tree", components, archetype=a)
+    for entry in forest.models:
+        crown, components = imported_summary(entry)   # builds (or loads) the model: files are read here
+        out[f"tree{len(out) + 1:02d}"] = crown, ModelSpec("tree", components, source=entry)
+    return out
+
+
 def _summarise(a) -> tuple[np.ndarray, int]:
     """Crown points (skeleton widened outward by a leaf length) and component count of an archetype."""
     branches = grow(a)
@@ -135,7 +154,7 @@ def _tree(archetype_index: int, xy, terrain, tilt_max, rng) -> PlacedObject:
 
 def _place_trees(forest, size, crowns, terrain, rng) -> tuple[list[PlacedObject], float]:
     """Dart throwing with ``min_spacing`` until the tree count or the canopy-cover target is met."""
-    weights = np.array([a.weight for a in forest.archetypes], float)
+    weights = np.array([a.weight for a in (*forest.archetypes, *forest.models)], float)
     weights /= weights.sum()
     target_count, target_cover = forest.trees, forest.target_cover
     grid = CoverGrid(size)
@@ -173,7 +192,7 @@ CLEARANCE = {"bush": 1.35, "rock": 1.0, "stump": 1.0, "deadwood": 1.5}  # logs: 
 MIN_LOG = 1.5  # m, the shortest log drawn
 
 
-def _place_understory(scene: dict, size, trees, terrain, rng):
+def _place_understory(scene: dict, size, trees, terrain, rng, deadwood_treeid: int = DEADWOOD_TREEID):
     """Bushes, rocks, deadwood and stumps at random, clear of stems and of each other, each wholly
     inside the plot (the ground ends at the plot's edge: a part beyond it would show its buried base).
 
@@ -203,7 +222,7 @@ def _place_understory(scene: dict, size, trees, terrain, rng):
             taken.append(spot)
             x, y = spot.centre
             objects.append(PlacedObject(
-                kind=kind, model=model, treeid=DEADWOOD_TREEID if kind == "deadwood" else 0,
+                kind=kind, model=model, treeid=deadwood_treeid if kind == "deadwood" else 0,
                 position=(float(x), float(y), float(terrain.height(x, y))), rotation=spot.yaw, tilt=(0.0, 0.0)))
     return objects, models
 

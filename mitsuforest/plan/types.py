@@ -10,6 +10,7 @@ import numpy as np
 
 from ..classes import GROUND, GROUND_OBJECT_ID
 from ..trees.archetypes import Archetype
+from ..trees.sources import MeshTree, QsmTree
 from .terrain import Terrain
 from .transforms import rotation
 
@@ -53,7 +54,8 @@ class ModelSpec:
 
     kind: str                            # tree, bush, rock, deadwood, stump (or custom, in tests)
     components: int                      # labelled components (object ids per placed copy)
-    archetype: Archetype | None = None   # trees
+    archetype: Archetype | None = None   # procedural trees
+    source: MeshTree | QsmTree | None = None   # imported trees (forest.models)
     seed: int | None = None              # understory
     length: float | None = None          # deadwood
     radius: float | None = None

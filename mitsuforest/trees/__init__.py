@@ -9,6 +9,7 @@ import dataclasses
 
 from .archetypes import DEFAULT_ARCHETYPES, Archetype
 from .cache import cached
+from .imported import imported_model
 from .models import Component, Model, Part, tree_model
 from .understory import bush_model, deadwood_model, rock_model, stump_model
 
@@ -20,6 +21,8 @@ _BUILDERS = {"bush": bush_model, "rock": rock_model, "stump": stump_model, "dead
 def build_model(name: str, spec) -> Model:
     """One model from its plan entry (:class:`~mitsuforest.plan.types.ModelSpec`): a tree archetype or an
     understory kind with its seed (deadwood also its length and radius)."""
+    if spec.kind == "tree" and spec.source is not None:
+        return imported_model(spec.source, name)
     if spec.kind == "tree":
         archetype = spec.archetype
         params = {k: v for k, v in dataclasses.asdict(archetype).items() if k != "weight"}

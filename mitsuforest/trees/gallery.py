@@ -14,31 +14,45 @@ from ..plan.types import ModelSpec
 from . import build_model
 
 
-def write_gallery(archetypes, folder, progress=print) -> list[dict]:
-    """Write ``treeNN_wood.ply``, ``treeNN_leaves.ply``, ``volumes.csv`` and ``trees.png`` into ``folder``."""
+def write_gallery(archetypes, folder, progress=print, models=()) -> list[dict]:
+    """Write ``treeNN_wood.ply``, ``treeNN_leaves.ply``, ``volumes.csv`` and ``trees.png`` into ``folder``:
+    the archetypes, then the imported ``models`` (``forest.models`` entries), numbered as a render
+    numbers them. With imported meshes, ``repairs.csv`` lists every wood part the repair changed."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    rows, pictures = [], []
-    for i, a in enumerate(archetypes):
+    specs = [ModelSpec("tree", 0, archetype=a) for a in archetypes] + [ModelSpec("tree", 0, source=m) for m in models]
+    rows, pictures, repairs = [], [], []
+    for i, spec in enumerate(specs):
         name = f"tree{i + 1:02d}"
-        model = build_model(name, ModelSpec("tree", 0, archetype=a))
+        model = build_model(name, spec)
         for part in model.parts:
             mesh = trimesh.Trimesh(part.vertices, part.faces, process=False)
             with atomic_path(folder / f"{name}_{part.name}.ply") as tmp:
                 mesh.export(tmp, file_type="ply")
-        v = model.volume
-        rows.append({"model": name, "height_m": a.height, "dbh_m": a.dbh, "volume_union_m3": v.union,
-                     "volume_analytic_m3": v.analytic, "volume_naive_m3": v.naive, "parts": v.parts,
-                     "wood_triangles": len(model.parts[0].faces),
-                     "leaf_triangles": sum(len(p.faces) for p in model.parts[1:])})
+        v, a = model.volume, spec.archetype
+        rows.append({"model": name, "height_m": a.height if a else model.meta["height"], "dbh_m": a.dbh if a else "",
+                     "volume_union_m3": v.union, "volume_analytic_m3": v.analytic, "volume_naive_m3": v.naive,
+                     "parts": v.parts, "wood_triangles": len(model.parts[0].faces),
+                     "leaf_triangles": sum(len(p.faces) for p in model.parts[1:]),
+                     "source": model.meta.get("source", ""), "parts_repaired": v.repaired, "parts_skipped": v.skipped})
+        repairs += [{"model": name, "source": model.meta["source"], **r} for r in model.meta.get("repair", [])]
         pictures.append(_side_picture(model))
-        progress(f"{name}: {v.union:.4f} m3 wood (union), {model.triangles:,} triangles")
+        progress(f"{name}: {v.union:.4f} m3 wood (union), {model.triangles:,} triangles"
+                 + (f", {v.repaired} parts repaired, {v.skipped} skipped" if spec.source else ""))
     header = list(rows[0])
-    write_text(folder / "volumes.csv", csv_text(header, [[f"{r[k]:.9g}" if isinstance(r[k], float) else r[k]
-                                                          for k in header] for r in rows]))
+    write_text(folder / "volumes.csv", csv_text(header, [[_cell(r[k]) for k in header] for r in rows]))
+    if repairs:
+        write_text(folder / "repairs.csv", csv_text(list(repairs[0]), [[_cell(r[k]) for k in repairs[0]]
+                                                                         for r in repairs]))
     with atomic_path(folder / "trees.png") as tmp:
         _side_by_side(pictures).save(tmp, format="PNG")
     return rows
+
+
+def _cell(x):
+    if isinstance(x, float):
+        return "" if np.isnan(x) else f"{x:.9g}"
+    return x
 
 
 def _side_picture(model, pixels_per_m=14, samples=250_000):

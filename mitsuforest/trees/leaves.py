@@ -34,3 +34,25 @@ def leaf_blades(anchors: np.ndarray, length: float, width: float, inclination: f
     i = 4 * np.arange(k)[:, None]
     faces = np.concatenate([i + [0, 1, 3], i + [1, 2, 3]], axis=1).reshape(-1, 3)
     return vertices, faces
+
+
+def leaves_on_twigs(twigs, leaf_area: float, length: float, width: float, inclination: float, clumping: float,
+                    rng) -> tuple[np.ndarray, np.ndarray]:
+    """Blades for a one-sided ``leaf_area`` spread over twigs, denser toward their tips.
+
+    :param twigs: list of (n_i, 3) twig centrelines, base to tip.
+    :param clumping: the outer fraction of each twig that carries leaves.
+    :returns: vertices (4k, 3) and faces (2k, 3), as :func:`leaf_blades`.
+    """
+    count = leaf_count(leaf_area, length, width)
+    which = rng.integers(0, len(twigs), count)
+    s = 1 - clumping * rng.random(count) ** 2   # most leaves in a clump at the twig's tip
+    anchors = np.empty((count, 3))
+    for k, points in enumerate(twigs):
+        sel = which == k
+        seg = np.linalg.norm(np.diff(points, axis=0), axis=1)
+        cum = np.concatenate([[0.0], np.cumsum(seg)]) / seg.sum()
+        for axis in range(3):
+            anchors[sel, axis] = np.interp(s[sel], cum, points[:, axis])
+    anchors += rng.normal(0, 0.25 * length, anchors.shape)   # a clump of petioles, not a line
+    return leaf_blades(anchors, length, width, inclination, rng)

@@ -13,7 +13,7 @@ import numpy as np
 
 from ..classes import TREE_LEAVES, TREE_WOOD
 from .archetypes import Archetype
-from .leaves import leaf_blades, leaf_count
+from .leaves import leaf_count, leaves_on_twigs
 from .skeleton import grow, terminal_branches
 from .tubes import frustum_volume, tube
 from .volume import WoodVolume, wood_volume
@@ -93,16 +93,6 @@ def tree_model(archetype: Archetype, name: str) -> Model:
 def _leaves(a: Archetype, branches, rng):
     if not bears_leaves(a, branches):
         return None
-    count = leaf_count(a.leaf_area, a.leaf_length, a.leaf_width)
-    twigs = terminal_branches(branches)
-    which = rng.integers(0, len(twigs), count)
-    s = 1 - a.leaf_clumping * rng.random(count) ** 2  # most leaves in a clump at the twig's tip
-    anchors = np.empty((count, 3))
-    for k, twig in enumerate(twigs):
-        sel = which == k
-        seg = np.linalg.norm(np.diff(twig.points, axis=0), axis=1)
-        cum = np.concatenate([[0.0], np.cumsum(seg)]) / seg.sum()
-        for axis in range(3):
-            anchors[sel, axis] = np.interp(s[sel], cum, twig.points[:, axis])
-    anchors += rng.normal(0, 0.25 * a.leaf_length, anchors.shape)  # a clump of petioles, not a line
-    return leaf_blades(anchors, a.leaf_length, a.leaf_width, a.leaf_inclination, rng)
+    twigs = [t.points for t in terminal_branches(branches)]
+    return leaves_on_twigs(twigs, a.leaf_area, a.leaf_length, a.leaf_width, a.leaf_inclination,
+                           a.leaf_clumping, rng)

@@ -26,9 +26,12 @@ class WoodVolume:
     analytic: float   # m³, sum of the round frustums' analytic volumes (joints counted twice)
     naive: float      # m³, sum of the meshed parts' volumes (joints counted twice)
     parts: int        # number of closed parts
+    repaired: int = 0  # imported meshes: parts closed or turned outward by the repair (trees/repair.py)
+    skipped: int = 0   # imported meshes: parts left out of the volume (repair: skip)
 
     def as_dict(self) -> dict:
-        return {"union": self.union, "analytic": self.analytic, "naive": self.naive, "parts": self.parts}
+        return {"union": self.union, "analytic": self.analytic, "naive": self.naive, "parts": self.parts,
+                "repaired": self.repaired, "skipped": self.skipped}
 
 
 def to_manifold(vertices: np.ndarray, faces: np.ndarray, name: str = "part") -> manifold3d.Manifold:

@@ -21,7 +21,12 @@ def csv_text(header, rows) -> str:
 
 
 def _f(x, digits=9):
-    return f"{x:.{digits}g}"
+    return "" if np.isnan(x) else f"{x:.{digits}g}"
+
+
+def _source(model) -> str:
+    """The file an imported tree came from (forest.models); empty for generated models."""
+    return model.meta.get("source", "")
 
 
 WOODY_KINDS = ("tree", "deadwood", "stump")   # the kinds whose wood volume is tabled
@@ -40,36 +45,39 @@ def volume_rows(plan, models: dict, offset) -> list[list]:
         if spec.kind in WOODY_KINDS and name in models and models[name].volume:
             v = models[name].volume
             rows.append([spec.kind + "_model", name, "", _f(v.union), _f(v.analytic), _f(v.naive), v.parts,
-                         "", "", "", "", model_species(spec)])
+                         "", "", "", "", model_species(spec), _source(models[name]), v.repaired, v.skipped])
     for obj in plan.objects:
         if obj.kind in WOODY_KINDS and models[obj.model].volume:
             v = models[obj.model].volume
             x, y, z = (p + o for p, o in zip(obj.position, offset))
             rows.append([obj.kind, obj.model, obj.instance, _f(v.union), _f(v.analytic), _f(v.naive),
                          v.parts, obj.treeid, f"{x:.4f}", f"{y:.4f}", f"{z:.4f}",
-                         model_species(plan.models[obj.model])])
+                         model_species(plan.models[obj.model]), _source(models[obj.model]), v.repaired, v.skipped])
     return rows
 
 
 def write_volumes(path, plan, models, offset) -> None:
+    """Volumes (see :func:`volume_rows`). ``parts_repaired`` and ``parts_skipped`` count the wood parts of
+    an imported mesh that the repair changed or left out of the volume (``repair: skip``)."""
     header = ["row", "model", "instance", "volume_union_m3", "volume_analytic_m3", "volume_naive_m3",
-              "parts", "treeid", "x", "y", "z", "species"]
+              "parts", "treeid", "x", "y", "z", "species", "source", "parts_repaired", "parts_skipped"]
     write_text(path, csv_text(header, volume_rows(plan, models, offset)))
 
 
 def write_ids(path, plan, models, offset) -> None:
     """Every object and component: object_id, instance, treeid, classification, kind, model, position,
-    species (the name; its code is the points' ``species`` field, classes.SPECIES_CODES)."""
-    rows = [[plan.ground_object_id, 0, 0, GROUND, "ground", "", "", "", "", "none"]]
+    species (the name; its code is the points' ``species`` field, classes.SPECIES_CODES), source (the file
+    of an imported tree)."""
+    rows = [[plan.ground_object_id, 0, 0, GROUND, "ground", "", "", "", "", "none", ""]]
     for obj in plan.objects:
         x, y, z = (f"{p + o:.4f}" for p, o in zip(obj.position, offset))
         species = model_species(plan.models[obj.model])
         for k, comp in enumerate(models[obj.model].components):
             treeid = obj.treeid if comp.classification in (TREE_WOOD, TREE_LEAVES) or obj.kind == "deadwood" else 0
             rows.append([obj.object_id + k, obj.instance, treeid, comp.classification, comp.kind,
-                         obj.model, x, y, z, species])
+                         obj.model, x, y, z, species, _source(models[obj.model])])
     write_text(path, csv_text(["object_id", "instance", "treeid", "classification", "kind", "model", "x", "y", "z",
-                               "species"], rows))
+                               "species", "source"], rows))
 
 
 def trajectory(legs, rate: float = 10.0) -> np.ndarray:

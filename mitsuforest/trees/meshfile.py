@@ -1,0 +1,105 @@
+"""Reading tree meshes: pieces with names, wood and leaves apart, in metres with +z up.
+
+Any format trimesh reads (OBJ with groups and materials, PLY, GLB/glTF, OFF, STL). A file is read as
+named pieces: for OBJ, one per object, group and material (trimesh names them
+``object_group_material``); for glTF, one per mesh primitive. Leaf pieces are picked by name patterns
+matched against a piece's name and its material's name.
+"""
+
+from __future__ import annotations
+
+import fnmatch
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .sources import MAX_HEIGHT, MIN_HEIGHT, UNITS, ModelFileError
+
+Y_UP_TO_Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])   # +y becomes +z
+BASE_SLICE = 0.1   # m: the stem base is the centre of the wood's lowest 10 cm (less for small trees)
+
+
+@dataclass
+class Piece:
+    names: tuple[str, ...]     # the piece's own name and its material's
+    vertices: np.ndarray       # (n, 3) float64, file units and axes
+    faces: np.ndarray          # (m, 3) int64
+
+
+def read_pieces(path) -> list[Piece]:
+    """Every triangle piece of a mesh file, with the scene graph's transforms applied."""
+    import trimesh
+    options = {"split_objects": True, "split_groups": True} if Path(path).suffix.lower() == ".obj" else {}
+    try:
+        scene = trimesh.load(str(path), force="scene", process=False, **options)
+    except Exception as e:   # trimesh raises many kinds for a file it cannot parse
+        raise ModelFileError(path, "", f"cannot read the mesh ({type(e).__name__}: {e})") from None
+    pieces = []
+    for node in scene.graph.nodes_geometry:
+        transform, geometry = scene.graph[node]
+        mesh = scene.geometry[geometry]
+        if not hasattr(mesh, "faces") or not len(mesh.faces):
+            continue
+        material = getattr(getattr(mesh.visual, "material", None), "name", None)
+        v = np.asarray(mesh.vertices, np.float64) @ transform[:3, :3].T + transform[:3, 3]
+        names = tuple(n for n in (str(node), str(geometry), material) if n)
+        pieces.append(Piece(names, v, np.asarray(mesh.faces, np.int64)))
+    if not pieces:
+        raise ModelFileError(path, "", "no triangles in the file")
+    return pieces
+
+
+def split_by_patterns(path, pieces: list[Piece], patterns) -> tuple[list[Piece], list[Piece]]:
+    """Wood and leaf pieces: a piece is leaves when any name of it matches any pattern (any case).
+
+    :raises ModelFileError: when the patterns match no piece, or every piece.
+    """
+    patterns = [p.lower() for p in patterns]
+    is_leaf = [any(fnmatch.fnmatchcase(n.lower(), p) for n in piece.names for p in patterns) for piece in pieces]
+    if not patterns:
+        return pieces, []
+    found = sorted({piece.names[-1] for piece in pieces})
+    listed = ", ".join(found[:8]) + (", ..." if len(found) > 8 else "")
+    if not any(is_leaf):
+        raise ModelFileError(path, "leaves", f"the patterns {list(patterns)} match no piece (pieces and materials: "
+                             f"{listed}); name the leaf pieces, or give leaves: [] for a tree without leaves")
+    if all(is_leaf):
+        raise ModelFileError(path, "leaves", f"the patterns {list(patterns)} match every piece ({listed}), so "
+                             "nothing is left for the wood; narrow them")
+    return ([p for p, leaf in zip(pieces, is_leaf) if not leaf], [p for p, leaf in zip(pieces, is_leaf) if leaf])
+
+
+def joined(pieces: list[Piece]) -> tuple[np.ndarray, np.ndarray]:
+    """One (vertices, faces) of pieces, vertices at the same position merged (to 10 nm)."""
+    import trimesh
+    if not pieces:
+        return np.zeros((0, 3)), np.zeros((0, 3), np.int64)
+    base = np.cumsum([0] + [len(p.vertices) for p in pieces[:-1]])
+    v = np.vstack([p.vertices for p in pieces])
+    f = np.vstack([p.faces + b for p, b in zip(pieces, base)])
+    mesh = trimesh.Trimesh(v, f, process=False)
+    mesh.merge_vertices(merge_tex=True, merge_norm=True)
+    keep = mesh.nondegenerate_faces() if hasattr(mesh, "nondegenerate_faces") else slice(None)
+    return np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int64)[keep]
+
+
+def to_tree_frame(vertices: np.ndarray, units: str, up: str) -> np.ndarray:
+    """File coordinates in metres with +z up."""
+    v = vertices * UNITS[units]
+    return v @ Y_UP_TO_Z_UP.T if up == "y" else v
+
+
+def stem_base(wood_vertices: np.ndarray) -> np.ndarray:
+    """(3,) the stem base: the lowest wood point's height, at the centre of the wood's lowest slice."""
+    z0 = wood_vertices[:, 2].min()
+    height = np.ptp(wood_vertices[:, 2])
+    low = wood_vertices[wood_vertices[:, 2] <= z0 + min(BASE_SLICE, 0.02 * height)]
+    centre = (low[:, :2].min(axis=0) + low[:, :2].max(axis=0)) / 2
+    return np.array([centre[0], centre[1], z0])
+
+
+def check_height(path, height: float, units: str, up: str) -> None:
+    if not MIN_HEIGHT <= height <= MAX_HEIGHT:
+        raise ModelFileError(path, "units", f"the tree is {height:,.4g} m tall with units: {units} and up: {up} "
+                             f"(a tree is {MIN_HEIGHT:g}-{MAX_HEIGHT:g} m); check units and up")

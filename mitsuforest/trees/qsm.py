@@ -1,0 +1,222 @@
+"""Quantitative structure models (QSMs): cylinder tables of real trees (TreeQSM, AdQSM, SimpleForest).
+
+A table has one cylinder a line and a header naming its columns; CSV (commas) or whitespace- or
+tab-separated text. Column names are matched without case, spaces, underscores or a unit suffix
+such as ``(m)``:
+
+=============  ============================================================  ========
+quantity       accepted names                                                needed
+=============  ============================================================  ========
+radius         radius, rad, r                                                yes
+start x y z    start_x.., startpoint_x.., sx.., x_start..; or ``start_point``   yes
+               / ``start`` followed by two blank header cells (TreeQSM)
+axis x y z     axis_x.., axisdirection_x.., ax..; or ``axis_direction``       axis and
+               / ``axis`` followed by two blank cells                          length, or
+length         length, len, l                                                 end
+end x y z      end_x.., endpoint_x.., ex.., x_end..                           (see left)
+id             id, cylinder, cylinderid, cyl                                  no: 1.. by line
+parent         parent, parentid, parentcylinder                               no
+branch         branch, branchid, branchindex                                  no
+branch order   branchorder, order, bo                                         no
+=============  ============================================================  ========
+
+A table without a header is read as TreeQSM's cylinder export (radius, length, start x y z, axis
+x y z, parent, extension, branch, branch order, ...: at least 12 numeric columns). ``parent`` refers
+to ``id`` (TreeQSM: the 1-based line number; 0 for the stem base). Object ids are given per branch;
+without a branch column the whole wood is one component.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+import numpy as np
+
+from .sources import ModelFileError
+
+ALIASES = {
+    "radius": ("radius", "rad", "r"),
+    "length": ("length", "len", "l"),
+    "id": ("id", "cylinder", "cylinderid", "cyl", "cylid"),
+    "parent": ("parent", "parentid", "parentcylinder"),
+    "branch": ("branch", "branchid", "branchindex"),
+    "order": ("branchorder", "order", "bo"),
+}
+VECTORS = {   # quantity: (names of the vector header cell, prefixes and suffixes of its x y z columns)
+    "start": (("startpoint", "start", "sta"), ("start", "startpoint", "s", "sta"), ("start", "s")),
+    "axis": (("axisdirection", "axis", "axe", "direction"), ("axis", "axisdirection", "a", "dir", "axe"), ("axis",)),
+    "end": (("endpoint", "end"), ("end", "endpoint", "e"), ("end", "e")),
+}
+TREEQSM_COLUMNS = ["radius", "length", "start_x", "start_y", "start_z", "axis_x", "axis_y", "axis_z", "parent",
+                   "extension", "branch", "order"]
+
+
+@dataclass
+class Cylinders:
+    """A QSM's cylinders, in the table's order.
+
+    ``start``, ``end``: (n, 3) float64; ``radius``: (n,); ``parent``: (n,) row of the parent
+    cylinder, -1 for none; ``branch``: (n,) int64 branch ids (all 0 without a branch column);
+    ``order``: (n,) branch order (0 stem).
+    """
+
+    start: np.ndarray
+    end: np.ndarray
+    radius: np.ndarray
+    parent: np.ndarray
+    branch: np.ndarray
+    order: np.ndarray
+
+    @property
+    def length(self) -> np.ndarray:
+        return np.linalg.norm(self.end - self.start, axis=1)
+
+    def volume(self) -> float:
+        """The QSM's own volume: the sum of its cylinders, ``Σ π r² L`` (joints counted twice)."""
+        return float(np.sum(np.pi * self.radius ** 2 * self.length))
+
+    def branch_lines(self) -> dict[int, np.ndarray]:
+        """Each branch's centreline (k+1, 3): its cylinders' starts in table order and the last end."""
+        lines = {}
+        for b in np.unique(self.branch):
+            rows = np.flatnonzero(self.branch == b)
+            lines[int(b)] = np.vstack([self.start[rows], self.end[rows[-1:]]])
+        return lines
+
+    def terminal_branches(self) -> list[int]:
+        """Branches no other branch grows from (the twigs that carry leaves); every branch without
+        parents. Without a branch column: the cylinders no cylinder grows from, each as a branch."""
+        has_child = np.zeros(len(self.radius), bool)
+        has_child[self.parent[self.parent >= 0]] = True
+        if np.all(self.branch == self.branch[0]) and len(self.radius) > 1:
+            return [int(i) for i in np.flatnonzero(~has_child)]
+        parent_branch = np.full(len(self.radius), -1)
+        ok = self.parent >= 0
+        parent_branch[ok] = self.branch[self.parent[ok]]
+        grown_from = set(parent_branch[ok & (parent_branch != self.branch)].tolist())
+        return [int(b) for b in np.unique(self.branch) if int(b) not in grown_from]
+
+
+def _key(name: str) -> str:
+    name = re.sub(r"\(.*?\)|\[.*?\]", "", name.lower())
+    return re.sub(r"[^a-z0-9]", "", name)
+
+
+def _column_names(keys: list[str]) -> list[str]:
+    """Header keys as quantity names (``radius``, ``start_x`` ...); a vector cell (``start_point``) becomes
+    three columns, taking the two blank cells after it where the header has them (TreeQSM's tabs)."""
+    out, i = [], 0
+    while i < len(keys):
+        k = keys[i]
+        vector = next((q for q, (cells, _, _) in VECTORS.items() if k in cells), None)
+        if vector:
+            out += [f"{vector}_{a}" for a in "xyz"]
+            i += 3 if keys[i + 1:i + 3] == ["", ""] else 1
+            continue
+        out.append(_component(k) or next((q for q, names in ALIASES.items() if k in names), k))
+        i += 1
+    return out
+
+
+def _component(k: str) -> str | None:
+    for quantity, (_, prefixes, suffixes) in VECTORS.items():
+        for a in "xyz":
+            if k in {p + a for p in prefixes} | {a + s for s in suffixes}:
+                return f"{quantity}_{a}"
+    return None
+
+
+def read_qsm(path) -> Cylinders:
+    """Read a cylinder table (see module docstring).
+
+    :raises ModelFileError: on missing columns, text in number columns, non-positive radii or lengths.
+    """
+    try:
+        lines = [ln for ln in open(path, encoding="utf-8-sig").read().splitlines() if ln.strip() and
+                 not ln.lstrip().startswith("#")]
+    except (OSError, UnicodeDecodeError) as e:
+        raise ModelFileError(path, "", f"cannot read the cylinder table ({e})") from None
+    if not lines:
+        raise ModelFileError(path, "", "the cylinder table is empty")
+    sep = "," if "," in lines[0] else ("\t" if "\t" in lines[0] else None)
+    header = [c.strip() for c in lines[0].split(sep)]
+    if all(_number(c) for c in header if c):
+        if len([c for c in header if c]) < len(TREEQSM_COLUMNS):
+            raise ModelFileError(path, "", "no header line, and fewer than the 12 columns of TreeQSM's cylinder "
+                                 "export; add a header naming the columns (see the README)")
+        columns, rows = TREEQSM_COLUMNS, lines
+    else:
+        columns, rows = _column_names([_key(c) for c in header]), lines[1:]
+    table = _numbers(path, rows, sep, len(columns))
+    named = {}
+    for i, c in enumerate(columns):
+        if c:
+            named.setdefault(c, table[:, i])
+    return _cylinders(path, named)
+
+
+def _number(text: str) -> bool:
+    try:
+        float(text)
+        return True
+    except ValueError:
+        return False
+
+
+def _numbers(path, rows, sep, width) -> np.ndarray:
+    if not rows:
+        raise ModelFileError(path, "", "no cylinders after the header")
+    out = np.empty((len(rows), width))
+    for n, row in enumerate(rows, start=2):
+        cells = [c.strip() for c in row.split(sep)]
+        cells = [c for c in cells if c] if sep != "," else cells
+        if len(cells) < width:
+            raise ModelFileError(path, f"line {n}", f"{len(cells)} values, the header names {width} columns")
+        try:
+            out[n - 2] = [float(c) for c in cells[:width]]
+        except ValueError:
+            raise ModelFileError(path, f"line {n}", f"not a number in {row.strip()[:60]!r}") from None
+    if not np.all(np.isfinite(out)):
+        n = int(np.flatnonzero(~np.all(np.isfinite(out), axis=1))[0]) + 2
+        raise ModelFileError(path, f"line {n}", "a value is not finite")
+    return out
+
+
+def _cylinders(path, col: dict) -> Cylinders:
+    def need(*names):
+        missing = [n for n in names if n not in col]
+        if missing:
+            raise ModelFileError(path, "", f"no {', '.join(missing)} column (columns: {', '.join(c for c in col if c)}); "
+                                 "a QSM needs radius, start x y z, and axis x y z with length or end x y z")
+        return [col[n] for n in names]
+
+    (radius,) = need("radius")
+    start = np.column_stack(need("start_x", "start_y", "start_z"))
+    if all(f"end_{a}" in col for a in "xyz"):
+        end = np.column_stack(need("end_x", "end_y", "end_z"))
+    else:
+        axis = np.column_stack(need("axis_x", "axis_y", "axis_z"))
+        (length,) = need("length")
+        norm = np.linalg.norm(axis, axis=1)
+        if np.any(norm == 0):
+            raise ModelFileError(path, f"line {int(np.argmax(norm == 0)) + 2}", "the axis is zero")
+        end = start + axis / norm[:, None] * length[:, None]
+    for name, values in (("radius", radius), ("length", np.linalg.norm(end - start, axis=1))):
+        bad = np.flatnonzero(~(values > 0))
+        if len(bad):
+            raise ModelFileError(path, f"line {bad[0] + 2}", f"{name} {values[bad[0]]:g} is not positive "
+                                 f"({len(bad)} cylinders like it)")
+    return Cylinders(start, end, radius, _parent_rows(path, col, len(radius)),
+                     col.get("branch", np.zeros(len(radius))).astype(np.int64),
+                     col.get("order", np.zeros(len(radius))).astype(np.int64))
+
+
+def _parent_rows(path, col, n) -> np.ndarray:
+    """Parent ids as rows (-1: none). Ids are the ``id`` column, else 1-based line numbers (TreeQSM)."""
+    if "parent" not in col:
+        return np.full(n, -1)
+    ids = col["id"].astype(np.int64) if "id" in col else np.arange(1, n + 1)
+    row_of = {int(i): r for r, i in enumerate(ids)}
+    parents = col["parent"].astype(np.int64)
+    return np.array([row_of.get(int(p), -1) for p in parents])

@@ -1,0 +1,98 @@
+"""Trees from files: the entries of ``forest.models`` in a scene file (see README, "Your own trees").
+
+A :class:`MeshTree` names a mesh (one file split into wood and leaves by name patterns, or two files);
+a :class:`QsmTree` names a cylinder table and the procedural leaves to hang on it. Both are frozen and
+hashable, like :class:`~.archetypes.Archetype`; their files' contents (not their paths) key the model
+cache, see :func:`content_hash`.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..errors import ConfigError
+
+UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
+UP_AXES = ("z", "y")
+REPAIR_MODES = ("fix", "skip")
+DEFAULT_LEAF_PATTERNS = ("*leaf*", "*leaves*", "*foliage*", "*needle*")
+MIN_HEIGHT, MAX_HEIGHT = 0.1, 150.0   # m: outside this an imported tree has the wrong units
+
+
+@dataclass(frozen=True)
+class MeshTree:
+    """A tree mesh: ``mesh`` split by ``leaves`` name patterns, or the two files ``wood`` and ``leaves``."""
+
+    mesh: str | None = None            # one file holding wood and leaves
+    wood: str | None = None            # or the wood file ...
+    leaves: tuple[str, ...] | str | None = DEFAULT_LEAF_PATTERNS   # ... patterns (with mesh) or the leaves file
+    units: str = "m"                   # m, cm or mm
+    up: str = "z"                      # the file's up axis: z or y
+    repair: str = "fix"                # fix: a part that cannot be repaired is an error; skip: left out of the volume
+    weight: float = 1.0
+
+    @property
+    def files(self) -> tuple[str, ...]:
+        if self.mesh:
+            return (self.mesh,)
+        return (self.wood,) + ((self.leaves,) if isinstance(self.leaves, str) else ())
+
+    @property
+    def source(self) -> str:
+        return self.mesh or self.wood
+
+
+@dataclass(frozen=True)
+class QsmTree:
+    """A quantitative structure model (cylinder table) with procedural leaves on its branch tips."""
+
+    qsm: str
+    units: str = "m"
+    up: str = "z"
+    leaf_area: float = 35.0            # one-sided leaf area of the tree (m²); 0: no leaves
+    leaf_length: float = 0.13
+    leaf_width: float = 0.025
+    leaf_inclination: float = 65.0
+    leaf_clumping: float = 0.5
+    seed: int = 0                      # of the leaves' random placement
+    weight: float = 1.0
+
+    @property
+    def files(self) -> tuple[str, ...]:
+        return (self.qsm,)
+
+    @property
+    def source(self) -> str:
+        return self.qsm
+
+
+def content_hash(paths) -> str:
+    """SHA-256 of the files' bytes, in order (a renamed or moved file keeps its cache entry)."""
+    digest = hashlib.sha256()
+    for path in paths:
+        with open(path, "rb") as f:
+            for block in iter(lambda: f.read(1 << 20), b""):
+                digest.update(block)
+        digest.update(b"\0file\0")
+    return digest.hexdigest()
+
+
+def source_name(entry) -> str:
+    return Path(entry.source).name
+
+
+class ModelFileError(ConfigError):
+    """A tree file that cannot be used, reported as ``FILE: where: reason`` (``where`` may be empty)."""
+
+    def __init__(self, path, where: str, reason: str):
+        super().__init__(_shown(path), where, reason)
+
+
+def _shown(path) -> Path:
+    path = Path(path)
+    try:
+        return path.resolve().relative_to(Path.cwd())
+    except ValueError:
+        return path

@@ -1,0 +1,275 @@
+"""Imported trees (forest.models): meshes and QSMs, repaired, labelled, with exact wood volume."""
+
+import numpy as np
+import pytest
+from helpers import ROOT, scene_file, write_obj
+
+from mitsuforest.cli import main
+from mitsuforest.classes import TREE_LEAVES, TREE_WOOD
+from mitsuforest.config import load_scene
+from mitsuforest.trees.cache import cache_dir
+from mitsuforest.trees.imported import imported_model, mesh_tree_model, qsm_tree_model
+from mitsuforest.trees.sources import MeshTree, ModelFileError, QsmTree
+from mitsuforest.trees.tubes import tube
+
+
+def cylinder(start, end, radius, sides=32):
+    """A closed n-gon prism whose volume is exactly π r² h (radii area-corrected, see trees/tubes.py)."""
+    return tube(np.array([start, end], float), np.array([radius, radius]), sides)
+
+
+def without_end_cap(mesh, sides=32):
+    v, f = mesh
+    return v[:-1], f[:-sides]   # the end cap is the last `sides` faces around the last vertex
+
+
+def leaf_sheet(z, size=3.0, centre=(0.0, 0.0)):
+    (x, y), h = centre, size / 2
+    v = np.array([[x - h, y - h, z], [x + h, y - h, z], [x + h, y + h, z], [x - h, y + h, z]])
+    return v, np.array([[0, 1, 2], [0, 2, 3]])
+
+
+def test_cylinder_with_a_missing_cap_repairs_to_its_exact_volume(tmp_path):
+    start, end, r = np.array([1e5, -2e5, 30.0]), np.array([1e5 + 0.4, -2e5 - 0.3, 33.0]), 0.15
+    path = write_obj(tmp_path / "open.obj", {"stem": (*without_end_cap(cylinder(start, end, r)), "bark")})
+    model = mesh_tree_model(MeshTree(mesh=str(path), leaves=()), "t")
+    exact = np.pi * r * r * np.linalg.norm(end - start)
+    assert model.volume.union == pytest.approx(exact, rel=1e-6)
+    assert model.volume.naive == pytest.approx(exact, rel=1e-6)
+    (report,) = model.meta["repair"]
+    assert report["action"] == "repaired" and report["holes"] == 1 and report["faces_removed"] == 0
+    assert report["faces_after"] - report["faces_before"] == report["faces_added"] > 0
+    assert np.isnan(report["volume_before"]) and report["volume_after"] == pytest.approx(exact, rel=1e-6)
+    assert model.volume.repaired == 1 and model.volume.skipped == 0
+
+
+def test_crossing_cylinders_union_to_the_steinmetz_value(tmp_path):
+    """Two loose parts, cylinders of radius r crossing at right angles: the union loses 16 r³/3."""
+    r, half = 0.1, 1.0
+    a = cylinder([0, 0, 0], [0, 0, 2 * half], r, 128)
+    b = cylinder([-half, 0, half], [half, 0, half], r, 128)
+    path = write_obj(tmp_path / "cross.obj", {"a": (*a, "bark"), "b": (*b, "bark")})
+    model = mesh_tree_model(MeshTree(mesh=str(path), leaves=()), "t")
+    steinmetz = 16 * r ** 3 / 3
+    assert model.volume.parts == 2 and model.meta["repair"] == []
+    assert model.volume.naive == pytest.approx(2 * np.pi * r * r * 2 * half, rel=1e-12)
+    # 128-gons, not circles: the intersection is within 0.1 % of the round one
+    assert model.volume.naive - model.volume.union == pytest.approx(steinmetz, rel=1e-3)
+
+
+def test_inward_facing_part_is_turned_round_not_subtracted(tmp_path):
+    v, f = cylinder([0, 0, 0], [0, 0, 3], 0.2)
+    bv, bf = cylinder([0.5, 0, 1], [1.5, 0, 2], 0.05)
+    path = write_obj(tmp_path / "flip.obj", {"stem": (v, f, "bark"), "branch": (bv, bf[:, ::-1], "bark")})
+    model = mesh_tree_model(MeshTree(mesh=str(path), leaves=()), "t")
+    exact = np.pi * (0.04 * 3 + 0.0025 * np.sqrt(2))
+    assert model.volume.union == pytest.approx(exact, rel=1e-9)
+    (report,) = model.meta["repair"]
+    assert report["action"] == "reoriented" and report["volume_before"] < 0 < report["volume_after"]
+
+
+def qsm_text(rows, sep="\t"):
+    header = ["radius (m)", "length (m)", "start_point", "", "", "axis_direction", "", "", "parent", "extension",
+              "branch", "branch_order"]
+    lines = [sep.join(header)] + [sep.join(f"{x:.17g}" for x in row) for row in rows]
+    return "\n".join(lines) + "\n"
+
+
+def test_qsm_gives_its_cylinder_sum_and_exact_union(tmp_path):
+    """TreeQSM's layout: a stem of two stacked cylinders (touching: union = sum), a thinner leader that
+    starts 0.5 m inside the stem's top (overlap π r² 0.5), and a branch off the side (no overlap)."""
+    R, r, rb = 0.2, 0.08, 0.03
+    rows = [[R, 2.0, 500000, 6000000, 10, 0, 0, 1, 0, 2, 1, 0],
+            [R, 2.0, 500000, 6000000, 12, 0, 0, 1, 1, 3, 1, 0],
+            [r, 3.0, 500000, 6000000, 13.5, 0, 0, 1, 2, 0, 2, 1],
+            [rb, 1.0, 500000 + 0.5, 6000000, 15, 1, 0, 0, 3, 0, 3, 2]]
+    path = tmp_path / "tree.txt"
+    path.write_text(qsm_text(rows))
+    model = qsm_tree_model(QsmTree(qsm=str(path), leaf_area=2.0), "q")
+    cylinder_sum = np.pi * (R * R * 4.0 + r * r * 3.0 + rb * rb * 1.0)
+    assert model.volume.analytic == pytest.approx(cylinder_sum, rel=1e-12)
+    assert model.volume.naive == pytest.approx(cylinder_sum, rel=1e-12)
+    assert model.volume.union == pytest.approx(cylinder_sum - np.pi * r * r * 0.5, rel=1e-9)
+    assert [c.kind for c in model.components] == ["stem", "branch", "branch", "leaves"]
+    assert model.meta["height"] == pytest.approx(6.5)   # the base moved to the origin
+    wood, leaves = model.parts
+    assert set(np.unique(wood.component)) == {0, 1, 2} and set(np.unique(leaves.component)) == {3}
+    assert 2.0 / (0.5 * 0.13 * 0.025) == pytest.approx(len(leaves.faces) / 2, abs=1)   # the leaf area
+    tips = leaves.vertices[:, 2]
+    assert tips.min() > 4.0   # leaves hang on the terminal branches (leader and side branch)
+
+
+def test_qsm_csv_with_end_points_and_ids(tmp_path):
+    path = tmp_path / "q.csv"
+    path.write_text("ID,ParentID,Radius,StartX,StartY,StartZ,EndX,EndY,EndZ\n"
+                    "7,0,0.1,0,0,0,0,0,2\n8,7,0.05,0,0,2,1,0,2\n")
+    model = qsm_tree_model(QsmTree(qsm=str(path), leaf_area=0), "q")
+    assert model.volume.analytic == pytest.approx(np.pi * (0.01 * 2 + 0.0025), rel=1e-12)
+    assert len(model.parts) == 1 and [c.kind for c in model.components] == ["stem"]
+
+
+def test_y_up_obj_in_centimetres_stands_upright_at_its_height(tmp_path):
+    stem = cylinder([0, 0, 0], [0, 0, 12.0], 0.25)
+    branch = cylinder([0, 0, 6.0], [3.0, 0, 9.0], 0.05)
+    crown = leaf_sheet(11.0)
+    path = write_obj(tmp_path / "yup.obj", {"trunk": (*stem, "Bark"), "branch": (*branch, "Bark"),
+                                           "crown": (*crown, "Leaf")}, scale=100, y_up=True)
+    model = mesh_tree_model(MeshTree(mesh=str(path), units="cm", up="y"), "t")
+    wood, leaves = model.parts
+    assert model.meta["height"] == pytest.approx(12.0, rel=1e-12)
+    assert wood.vertices[:, 2].min() == pytest.approx(0.0, abs=1e-12)
+    top = wood.vertices[wood.vertices[:, 2] > 12.0 - 1e-9]
+    assert np.abs(top[:, :2]).max() < 0.3    # the stem's top is above its base
+    assert leaves.vertices[:, 2] == pytest.approx(np.full(4, 11.0))
+    assert model.volume.union == pytest.approx(np.pi * (0.0625 * 12 + 0.0025 * np.sqrt(18)) - _inside(0.25, 0.05),
+                                               rel=1e-3)
+    with pytest.raises(ModelFileError, match="1,200 m tall with units: m and up: y.*check units"):
+        mesh_tree_model(MeshTree(mesh=str(path), units="m", up="y"), "t")
+
+
+def _inside(R, r):
+    """Volume of a thin branch leaving a stem's axis at 45° that lies inside the stem (to first order)."""
+    return np.pi * r * r * R * np.sqrt(2)
+
+
+def test_unrepairable_part_is_an_error_or_skipped(tmp_path, caplog):
+    stem = cylinder([0, 0, 0], [0, 0, 5.0], 0.2)
+    sheet = leaf_sheet(3.0, 0.5, (2.0, 0.0))
+    path = write_obj(tmp_path / "t.obj", {"stem": (*stem, "bark"), "flat": (*sheet, "bark")})
+    with pytest.raises(ModelFileError, match=r"t\.obj: part 2: 2 faces, 1 holes: .*repair: skip"):
+        mesh_tree_model(MeshTree(mesh=str(path), leaves=()), "t")
+    model = imported_model(MeshTree(mesh=str(path), leaves=(), repair="skip"), "t")
+    assert model.volume.union == pytest.approx(np.pi * 0.04 * 5, rel=1e-9)
+    assert model.volume.skipped == 1 and model.volume.parts == 1
+    (report,) = model.meta["repair"]
+    assert report["action"] == "skipped" and report["part"] == 2
+    assert "part 2" in caplog.text and "repair: skip" in caplog.text
+    assert len(model.components) == 2    # a skipped part is still scanned, with its own object id
+
+
+def test_cache_is_keyed_on_the_file_content(tmp_path):
+    stem = cylinder([0, 0, 0], [0, 0, 5.0], 0.2)
+    path = write_obj(tmp_path / "c.obj", {"stem": (*stem, "bark"), "leaves": (*leaf_sheet(4.0), "leaf")})
+    entries = lambda: set(cache_dir().glob("mesh_tree-*.npz"))  # noqa: E731
+    before = entries()
+    first = imported_model(MeshTree(mesh=str(path)), "a")
+    added = entries() - before
+    assert len(added) == 1
+    moved = tmp_path / "elsewhere.obj"
+    moved.write_bytes(path.read_bytes())
+    (tmp_path / "elsewhere.mtl").write_bytes(path.with_suffix(".mtl").read_bytes())
+    again = imported_model(MeshTree(mesh=str(moved)), "b")
+    assert entries() - before == added and again.volume.union == first.volume.union
+    write_obj(path, {"stem": (*cylinder([0, 0, 0], [0, 0, 6.0], 0.2), "bark"), "leaves": (*leaf_sheet(4.0), "leaf")})
+    changed = imported_model(MeshTree(mesh=str(path)), "a")
+    assert len(entries() - before) == 2
+    assert changed.volume.union == pytest.approx(np.pi * 0.04 * 6, rel=1e-9)
+
+
+def _tree_scene(tmp_path, model, **forest):
+    return scene_file(tmp_path, area={"size": [4, 4]},
+                      forest={"trees": 1, "archetypes": [], "models": [model], "min_spacing": 0, "tilt": 0, **forest},
+                      survey={"altitude": 30, "speed": 4, "pulse_frequency": 100000, "lines": [[[2, -6], [2, 10]]]})
+
+
+def test_bark_and_leaf_materials_become_wood_and_leaf_points_with_the_tree_ids(tmp_path):
+    from mitsuforest.pipeline import render
+    stem = cylinder([0, 0, 0], [0, 0, 10.0], 0.3)
+    branch = cylinder([0, 0, 5.0], [1.2, 0, 7.0], 0.08)
+    path = write_obj(tmp_path / "tree.obj", {"stem": (*stem, "bark"), "limb": (*branch, "bark"),
+                                             "canopy": (*leaf_sheet(8.0, 2.0, (-1.0, 0)), "leaf")})
+    scene = load_scene(_tree_scene(tmp_path, {"mesh": "tree.obj", "leaves": ["leaf"]}))
+    result = render(scene, write=True, keep_points=True, progress=False, log=lambda *_: None)
+    (tree,) = result.plan.trees
+    assert tree.treeid == 1 and tree.components == 3   # stem, limb, leaves
+    p = result.points
+    on_tree = p["instance"] == tree.instance
+    assert set(np.unique(p["classification"][on_tree])) == {TREE_WOOD, TREE_LEAVES}
+    assert np.all(p["treeid"][on_tree] == 1) and np.all(p["treeid"][~on_tree] == 0)
+    wood, leaves = on_tree & (p["classification"] == TREE_WOOD), on_tree & (p["classification"] == TREE_LEAVES)
+    assert set(np.unique(p["object_id"][wood])) <= {tree.object_id, tree.object_id + 1}
+    assert tree.object_id in p["object_id"][wood]
+    assert np.all(p["object_id"][leaves] == tree.object_id + 2)
+    assert np.allclose(p["z"][leaves] - result.plan.terrain.height(*tree.position[:2]), 8.0 - 0.05, atol=0.01)
+    out = result.scene.output.dir
+    ids = (tmp_path / "out" / "test_ids.csv").read_text().splitlines()
+    assert ids[0].endswith(",source") and sum(r.endswith(",tree.obj") for r in ids) == 3
+    assert any(r.startswith(f"{tree.object_id + 2},{tree.instance},1,{TREE_LEAVES},leaves,tree01,") for r in ids)
+    volumes = (tmp_path / "out" / "test_volumes.csv").read_text().splitlines()
+    assert volumes[0].endswith(",source,parts_repaired,parts_skipped") and out
+    row = next(r.split(",") for r in volumes if r.startswith("tree,"))
+    assert row[4] == "" and row[-3:] == ["tree.obj", "0", "0"]   # no analytic volume for a mesh
+    limb, sine = np.hypot(1.2, 2.0), 1.2 / np.hypot(1.2, 2.0)    # the limb's first 0.3 / sine m are inside the stem
+    assert float(row[3]) == pytest.approx(np.pi * (0.09 * 10 + 0.0064 * (limb - 0.3 / sine)), rel=1e-3)
+
+
+def test_models_come_after_the_archetypes_in_treeid_and_deadwood_moves_past_them(tmp_path):
+    from mitsuforest.plan import make_plan
+    stem = cylinder([0, 0, 0], [0, 0, 8.0], 0.2)
+    write_obj(tmp_path / "a.obj", {"stem": (*stem, "bark"), "leaves": (*leaf_sheet(7.0), "leaf")})
+    models = [{"mesh": "a.obj", "weight": 5}] * 2
+    path = scene_file(tmp_path, area={"size": [30, 30]}, forest={"trees": 12, "min_spacing": 2, "models": models},
+                      understory={"deadwood": 2, "bushes": 0, "rocks": 0, "stumps": 0})
+    plan = make_plan(load_scene(path))
+    assert sorted(n for n in plan.models if n.startswith("tree")) == [f"tree{i:02d}" for i in range(1, 13)]
+    assert plan.models["tree11"].source.mesh == str(tmp_path / "a.obj") and plan.models["tree10"].source is None
+    assert {o.treeid for o in plan.trees if o.model in ("tree11", "tree12")} == {11, 12}
+    assert all(o.treeid == int(o.model[4:]) for o in plan.trees)
+    assert {o.treeid for o in plan.objects if o.kind == "deadwood"} == {13}
+
+
+@pytest.mark.parametrize("case, model, message", [
+    ("missing", {"mesh": "nowhere.obj"}, "forest.models[0].mesh: file not found"),
+    ("unreadable", {"mesh": "junk.glb"}, "junk.glb: cannot read the mesh"),
+    ("no leaves", {"mesh": "tree.obj", "leaves": ["*needle*"]}, "tree.obj: leaves: the patterns ['*needle*'] match no piece"),
+    ("all leaves", {"mesh": "tree.obj", "leaves": ["*"]}, "tree.obj: leaves: the patterns ['*'] match every piece"),
+    ("three km", {"mesh": "tree.obj", "units": "m", "up": "y"}, "tree.obj: units: the tree is 1,000 m tall"),
+    ("columns", {"qsm": "cols.csv"}, "cols.csv: no start_x, start_y, start_z column"),
+    ("radius", {"qsm": "neg.csv"}, "neg.csv: line 3: radius -0.05 is not positive"),
+    ("two kinds", {"mesh": "tree.obj", "qsm": "neg.csv"}, "forest.models[0]: give exactly one of mesh:"),
+    ("bad units", {"mesh": "tree.obj", "units": "ft"}, "forest.models[0].units: must be one of m, cm, mm"),
+])
+def test_bad_model_input_is_one_line_exit_2_and_nothing_written(tmp_path, capsys, case, model, message):
+    write_obj(tmp_path / "tree.obj", {"stem": (*cylinder([0, 0, 0], [0, 0, 10.0], 0.2), "bark"),
+                                      "leaves": (*leaf_sheet(9.0), "leaf")}, scale=100, y_up=True)
+    (tmp_path / "junk.glb").write_bytes(b"glTF not really")
+    (tmp_path / "cols.csv").write_text("radius,length\n0.1,2\n")
+    (tmp_path / "neg.csv").write_text("radius,start_x,start_y,start_z,end_x,end_y,end_z\n"
+                                      "0.1,0,0,0,0,0,1\n-0.05,0,0,1,0,0,2\n")
+    model = {"units": "cm", "up": "y", **model} if "mesh" in model else model
+    path = _tree_scene(tmp_path, model)
+    out = tmp_path / "result"
+    assert main(["render", str(path), "-o", str(out), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and message in err and "Traceback" not in err, err
+    assert not out.exists()
+
+
+def test_trees_command_shows_imported_models(tmp_path):
+    write_obj(tmp_path / "tree.obj", {"stem": (*without_end_cap(cylinder([0, 0, 0], [0, 0, 6.0], 0.2)), "bark"),
+                                      "leaves": (*leaf_sheet(5.0), "leaf")})
+    path = _tree_scene(tmp_path, {"mesh": "tree.obj"}, archetypes=[{"base": 4}])
+    assert main(["trees", "--scene", str(path), "-o", str(tmp_path / "g")]) == 0
+    names = sorted(p.name for p in (tmp_path / "g").iterdir())
+    assert names == ["repairs.csv", "tree01_leaves.ply", "tree01_wood.ply", "tree02_leaves.ply", "tree02_wood.ply",
+                     "trees.png", "volumes.csv"]
+    rows = (tmp_path / "g" / "volumes.csv").read_text().splitlines()
+    assert rows[2].startswith("tree02,6,,") and rows[2].endswith(",tree.obj,1,0")
+    repairs = (tmp_path / "g" / "repairs.csv").read_text().splitlines()
+    assert repairs[1].startswith("tree02,tree.obj,1,repaired,")
+
+
+def test_scene_edits_keep_the_models(tmp_path):
+    write_obj(tmp_path / "tree.obj", {"stem": (*cylinder([0, 0, 0], [0, 0, 6.0], 0.2), "bark")})
+    scene = load_scene(_tree_scene(tmp_path, {"wood": "tree.obj", "weight": 2}))
+    edited = scene.with_({"survey.altitude": 40})
+    assert edited.forest.models == scene.forest.models == (MeshTree(wood=str(tmp_path / "tree.obj"), leaves=None,
+                                                                     weight=2.0),)
+    assert scene.describe()["forest"]["models"][0]["wood"] == str(tmp_path / "tree.obj")
+    with pytest.raises(Exception, match="at least one archetype or model needs weight > 0"):
+        scene.with_({"forest.models": [], "forest.archetypes": []})
+
+
+def test_examples_data_qsm_reads(tmp_path):
+    model = qsm_tree_model(QsmTree(qsm=str(ROOT / "examples" / "data" / "small_qsm.txt")), "q")
+    assert 0 < model.volume.union <= model.volume.analytic
