@@ -6,7 +6,7 @@ import sys
 import pytest
 from helpers import ROOT
 
-EXAMPLES = ["leaf_wood.py", "instances.py", "wood_volume.py", "sensors.py", "python_api.py"]
+EXAMPLES = ["leaf_wood.py", "instances.py", "wood_volume.py", "sensors.py", "python_api.py", "own_models.py"]
 
 
 def _run(args, cwd):
@@ -26,11 +26,14 @@ def test_example_runs(name, shared_render):
     out = shared_render / name.removesuffix(".py")
     stdout = _run([str(ROOT / "examples" / name), "--quick", "--out", str(out)], ROOT)
     expected = {"leaf_wood.py": "confusion_matrix.csv", "instances.py": "instances_side.png",
-                "wood_volume.py": "training_table.csv", "sensors.py": "sensors.md", "python_api.py": None}[name]
+                "wood_volume.py": "training_table.csv", "sensors.py": "sensors.md", "python_api.py": None,
+                "own_models.py": "render/own_models_manifest.json"}[name]
     if expected:
         assert (out / expected).exists(), stdout
     if name == "leaf_wood.py":
         assert "accuracy" in stdout and "IoU wood" in stdout
+    if name == "own_models.py":
+        assert "reoriented" in stdout and stdout.count("repaired ") == 4 and "treeid 4:" in stdout
     if name == "sensors.py":
         assert stdout.count("| RIEGL") == 3 and "Livox" in stdout and "ideal" in stdout
 
@@ -38,6 +41,19 @@ def test_example_runs(name, shared_render):
 def test_custom_scene_plans(tmp_path):
     from mitsuforest.cli import main
     assert main(["plan", str(ROOT / "examples" / "custom_scene.yaml"), "-o", str(tmp_path)]) == 0
+    assert main(["plan", str(ROOT / "examples" / "own_models.yaml"), "-o", str(tmp_path)]) == 0
+
+
+def test_own_models_data_is_what_the_example_writes(tmp_path):
+    import importlib.util
+    sys.path.insert(0, str(ROOT / "examples"))
+    spec = importlib.util.spec_from_file_location("own_models", ROOT / "examples" / "own_models.py")
+    example = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(example)
+    example.write_mesh_tree(tmp_path / "sapling_tree.obj")
+    example.write_qsm(tmp_path / "small_qsm.txt")
+    for name in ("sapling_tree.obj", "sapling_tree.mtl", "small_qsm.txt"):
+        assert (tmp_path / name).read_bytes() == (ROOT / "examples" / "data" / name).read_bytes(), name
 
 
 def test_stability_benchmark_quick():

@@ -136,7 +136,7 @@ def test_unrepairable_part_is_an_error_or_skipped(tmp_path, caplog):
     stem = cylinder([0, 0, 0], [0, 0, 5.0], 0.2)
     sheet = leaf_sheet(3.0, 0.5, (2.0, 0.0))
     path = write_obj(tmp_path / "t.obj", {"stem": (*stem, "bark"), "flat": (*sheet, "bark")})
-    with pytest.raises(ModelFileError, match=r"t\.obj: part 2: 2 faces, 1 holes: .*repair: skip"):
+    with pytest.raises(ModelFileError, match=r"t\.obj: part 2: 2 faces, 1 hole: .*repair: skip"):
         mesh_tree_model(MeshTree(mesh=str(path), leaves=()), "t")
     model = imported_model(MeshTree(mesh=str(path), leaves=(), repair="skip"), "t")
     assert model.volume.union == pytest.approx(np.pi * 0.04 * 5, rel=1e-9)
@@ -256,7 +256,7 @@ def test_trees_command_shows_imported_models(tmp_path):
     rows = (tmp_path / "g" / "volumes.csv").read_text().splitlines()
     assert rows[2].startswith("tree02,6,,") and rows[2].endswith(",tree.obj,1,0")
     repairs = (tmp_path / "g" / "repairs.csv").read_text().splitlines()
-    assert repairs[1].startswith("tree02,tree.obj,1,repaired,")
+    assert repairs[1].startswith("tree02,tree.obj,1,stem_stem_bark,repaired,96,126,1,0,30,,0.75398")
 
 
 def test_scene_edits_keep_the_models(tmp_path):

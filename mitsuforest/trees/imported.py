@@ -22,7 +22,7 @@ from .leaves import leaves_on_twigs
 from .meshfile import check_height, joined, read_pieces, split_by_patterns, stem_base, to_tree_frame
 from .models import Component, Model, Part, merge
 from .qsm import read_qsm
-from .repair import PartRepair, UnrepairablePart, loose_parts, repair_part
+from .repair import PartRepair, UnrepairablePart, boundary_loops, loose_parts, repair_part
 from .sources import UNITS, MeshTree, ModelFileError, QsmTree, content_hash, source_name
 from .tubes import signed_volume, tube
 from .volume import WoodVolume, union_volume
@@ -64,8 +64,8 @@ def summary(entry) -> tuple[np.ndarray, int]:
 def mesh_tree_model(entry: MeshTree, name: str) -> Model:
     """A tree mesh: wood split into loose parts, each repaired and checked, leaves as given."""
     wood_pieces, leaf_pieces = _pieces(entry)
-    wood_v, wood_f = joined(wood_pieces)
-    leaf_v, leaf_f = joined(leaf_pieces)
+    wood_v, wood_f, wood_piece = joined(wood_pieces)
+    leaf_v, leaf_f, _ = joined(leaf_pieces)
     if not len(wood_f):
         raise ModelFileError(entry.source, "", "no wood triangles")
     wood_v, leaf_v = (to_tree_frame(v, entry.units, entry.up) for v in (wood_v, leaf_v))
@@ -73,11 +73,13 @@ def mesh_tree_model(entry: MeshTree, name: str) -> Model:
     wood_v, leaf_v = wood_v - base, leaf_v - base
     height = max(wood_v[:, 2].max(), leaf_v[:, 2].max(initial=0.0))
     check_height(entry.source, height, entry.units, entry.up)
-    parts = _stem_first(loose_parts(wood_v, wood_f))
+    parts, first_faces = loose_parts(wood_v, wood_f)
+    names = [wood_pieces[wood_piece[i]].names[0] for i in first_faces]
+    parts, names = _stem_first(parts, names)
     if len(parts) + 1 > MAX_COMPONENTS:
         raise ModelFileError(entry.source, "", f"{len(parts):,} loose wood parts, more than the {MAX_COMPONENTS - 1:,} "
                              "a model can label; join touching parts in the file")
-    fixed, reports = _repaired(entry, parts)
+    fixed, reports = _repaired(entry, parts, names)
     kept = [p for p, r in zip(fixed, reports) if r.action != "skipped"]
     volume = WoodVolume(union=union_volume(kept, [f"{entry.source}: part {r.part}" for r in reports
                                                   if r.action != "skipped"]),
@@ -98,25 +100,27 @@ def _pieces(entry: MeshTree):
     return read_pieces(entry.wood), (read_pieces(entry.leaves) if isinstance(entry.leaves, str) else [])
 
 
-def _stem_first(parts):
-    """The part reaching lowest (the stem, at the base) first, the others in file order."""
+def _stem_first(parts, names):
+    """The part reaching lowest (the stem, at the base) first, the others in the order read."""
     lowest = int(np.argmin([v[:, 2].min() for v, _ in parts]))
-    return [parts[lowest]] + parts[:lowest] + parts[lowest + 1:]
+    order = [lowest] + [i for i in range(len(parts)) if i != lowest]
+    return [parts[i] for i in order], [names[i] for i in order]
 
 
-def _repaired(entry: MeshTree, parts):
+def _repaired(entry: MeshTree, parts, names):
     """Each part closed and outward-facing (or skipped), with its :class:`PartRepair`."""
     fixed, reports = [], []
-    for number, (v, f) in enumerate(parts, start=1):
+    for number, ((v, f), name) in enumerate(zip(parts, names), start=1):
         try:
-            v2, f2, report = repair_part(v, f, number)
+            v2, f2, report = repair_part(v, f, number, name)
         except UnrepairablePart as e:
             centre = ", ".join(f"{c:.2f}" for c in (v.min(0) + v.max(0)) / 2)
-            reason = f"{e} (centre {centre} m from the stem base)"
+            reason = f"{e} (in {name!r}, centre {centre} m from the stem base)"
             if entry.repair != "skip":
                 raise ModelFileError(entry.source, f"part {number}", reason + "; fix the mesh, or give "
                                      "repair: skip to leave such parts out of the wood volume") from None
-            v2, f2, report = v, f, PartRepair(number, "skipped", len(f), len(f), 0, 0, 0, math.nan, math.nan, reason)
+            v2, f2, report = v, f, PartRepair(number, name, "skipped", len(f), len(f), boundary_loops(f), 0, 0,
+                                              math.nan, math.nan, reason)
         fixed.append((v2, f2))
         reports.append(report)
     return fixed, reports

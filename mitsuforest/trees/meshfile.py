@@ -70,18 +70,22 @@ def split_by_patterns(path, pieces: list[Piece], patterns) -> tuple[list[Piece],
     return ([p for p, leaf in zip(pieces, is_leaf) if not leaf], [p for p, leaf in zip(pieces, is_leaf) if leaf])
 
 
-def joined(pieces: list[Piece]) -> tuple[np.ndarray, np.ndarray]:
-    """One (vertices, faces) of pieces, vertices at the same position merged (to 10 nm)."""
+def joined(pieces: list[Piece]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One mesh of pieces, vertices at the same position merged (to 10 nm), degenerate faces dropped.
+
+    :returns: vertices (n, 3) float64, faces (m, 3) int64, and each face's piece (m,) (index into ``pieces``).
+    """
     import trimesh
     if not pieces:
-        return np.zeros((0, 3)), np.zeros((0, 3), np.int64)
+        return np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros(0, np.int64)
     base = np.cumsum([0] + [len(p.vertices) for p in pieces[:-1]])
     v = np.vstack([p.vertices for p in pieces])
     f = np.vstack([p.faces + b for p, b in zip(pieces, base)])
+    piece = np.repeat(np.arange(len(pieces)), [len(p.faces) for p in pieces])
     mesh = trimesh.Trimesh(v, f, process=False)
     mesh.merge_vertices(merge_tex=True, merge_norm=True)
-    keep = mesh.nondegenerate_faces() if hasattr(mesh, "nondegenerate_faces") else slice(None)
-    return np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int64)[keep]
+    keep = mesh.nondegenerate_faces()
+    return np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int64)[keep], piece[keep]
 
 
 def to_tree_frame(vertices: np.ndarray, units: str, up: str) -> np.ndarray:

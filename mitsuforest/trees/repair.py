@@ -23,6 +23,7 @@ class PartRepair:
     """What the repair did to one loose wood part (numbered from 1, the stem first)."""
 
     part: int
+    piece: str               # the file's object, group or material the part belongs to
     action: str              # ok, reoriented (faces turned outward), repaired (pymeshfix), skipped
     faces_before: int
     faces_after: int
@@ -41,12 +42,13 @@ class UnrepairablePart(Exception):
     """A part that is still not a closed manifold with positive volume after repair."""
 
 
-def loose_parts(vertices: np.ndarray, faces: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+def loose_parts(vertices: np.ndarray, faces: np.ndarray) -> tuple[list[tuple[np.ndarray, np.ndarray]], list[int]]:
     """Split a mesh into edge-connected parts, in the order of their first face.
 
     :param vertices: (n, 3) float64, duplicate positions already merged.
     :param faces: (m, 3) integer.
-    :returns: ``[(vertices (n_i, 3), faces (m_i, 3) int64), ...]``, each with its own vertex numbering.
+    :returns: ``[(vertices (n_i, 3), faces (m_i, 3) int64), ...]``, each with its own vertex numbering,
+        and the index of each part's first face in ``faces``.
     """
     mesh = trimesh.Trimesh(vertices, faces, process=False)
     groups = trimesh.graph.connected_components(mesh.face_adjacency, nodes=np.arange(len(faces)),
@@ -56,7 +58,7 @@ def loose_parts(vertices: np.ndarray, faces: np.ndarray) -> list[tuple[np.ndarra
     for g in groups:
         used, local = np.unique(faces[g], return_inverse=True)
         parts.append((vertices[used], local.reshape(-1, 3).astype(np.int64)))
-    return parts
+    return parts, [int(g[0]) for g in groups]
 
 
 def boundary_loops(faces: np.ndarray) -> int:
@@ -82,7 +84,7 @@ def closed_volume(vertices: np.ndarray, faces: np.ndarray) -> float | None:
     return float(part.volume())   # negative when the faces point inward
 
 
-def repair_part(vertices: np.ndarray, faces: np.ndarray, number: int):
+def repair_part(vertices: np.ndarray, faces: np.ndarray, number: int, piece: str = ""):
     """Make one loose part closed and outward-facing.
 
     :returns: ``(vertices, faces, PartRepair)``.
@@ -90,10 +92,10 @@ def repair_part(vertices: np.ndarray, faces: np.ndarray, number: int):
     """
     before = closed_volume(vertices, faces)
     if before is not None and before > 0:
-        return vertices, faces, PartRepair(number, "ok", len(faces), len(faces), 0, 0, 0, before, before)
+        return vertices, faces, PartRepair(number, piece, "ok", len(faces), len(faces), 0, 0, 0, before, before)
     if before is not None and before < 0:
         flipped = faces[:, ::-1].copy()
-        return vertices, flipped, PartRepair(number, "reoriented", len(faces), len(faces), 0, 0, 0, before, -before,
+        return vertices, flipped, PartRepair(number, piece, "reoriented", len(faces), len(faces), 0, 0, 0, before, -before,
                                              "faces pointed inward")
     holes = boundary_loops(faces)
     fixed_v, fixed_f = _meshfix(vertices, faces)
@@ -101,13 +103,17 @@ def repair_part(vertices: np.ndarray, faces: np.ndarray, number: int):
     if after is not None and after < 0:
         fixed_f, after = fixed_f[:, ::-1].copy(), -after
     if after is None or not after > 0:
-        raise UnrepairablePart(f"{len(faces)} faces, {holes} holes: pymeshfix could not make it a closed solid "
+        raise UnrepairablePart(f"{len(faces)} faces, {_holes(holes)}: pymeshfix could not make it a closed solid "
                                f"({'nothing left' if not len(fixed_f) else 'still open or empty'}); a flat "
                                "sheet such as a leaf has no volume")
     removed, added = _face_changes(vertices, faces, fixed_v, fixed_f)
-    reason = f"{holes} holes" if holes else "not a closed manifold (non-manifold edges or degenerate faces)"
-    return fixed_v, fixed_f, PartRepair(number, "repaired", len(faces), len(fixed_f), holes, removed, added,
+    reason = _holes(holes) if holes else "not a closed manifold (non-manifold edges or degenerate faces)"
+    return fixed_v, fixed_f, PartRepair(number, piece, "repaired", len(faces), len(fixed_f), holes, removed, added,
                                         float("nan"), after, reason)
+
+
+def _holes(n: int) -> str:
+    return f"{n} hole" + ("" if n == 1 else "s")
 
 
 def _meshfix(vertices, faces):
