@@ -273,3 +273,23 @@ def test_scene_edits_keep_the_models(tmp_path):
 def test_examples_data_qsm_reads(tmp_path):
     model = qsm_tree_model(QsmTree(qsm=str(ROOT / "examples" / "data" / "small_qsm.txt")), "q")
     assert 0 < model.volume.union <= model.volume.analytic
+
+
+def test_glb_pieces_split_by_material_name(tmp_path):
+    import trimesh
+    from trimesh.visual.material import PBRMaterial
+    stem = trimesh.creation.cylinder(radius=0.2, height=5.0, sections=32)
+    stem.apply_translation([3.0, -2.0, 7.5])
+    crown = trimesh.creation.box([2.0, 2.0, 0.01])
+    crown.apply_translation([3.0, -2.0, 9.0])
+    stem.visual = trimesh.visual.TextureVisuals(material=PBRMaterial(name="Bark"))
+    crown.visual = trimesh.visual.TextureVisuals(material=PBRMaterial(name="Leaf"))
+    scene = trimesh.Scene()
+    scene.add_geometry(stem, geom_name="trunk")
+    scene.add_geometry(crown, geom_name="crown")
+    scene.export(tmp_path / "t.glb")
+    model = mesh_tree_model(MeshTree(mesh=str(tmp_path / "t.glb"), leaves=("leaf",)), "g")
+    prism = 32 / 2 * 0.2 ** 2 * np.sin(2 * np.pi / 32) * 5.0
+    assert model.volume.union == pytest.approx(prism, rel=1e-6)   # glTF stores float32 positions
+    assert [c.kind for c in model.components] == ["stem", "leaves"]
+    assert model.parts[1].vertices[:, 2].min() == pytest.approx(9.0 - 0.005 - 5.0, abs=1e-6)

@@ -65,7 +65,7 @@ def mesh_tree_model(entry: MeshTree, name: str) -> Model:
     """A tree mesh: wood split into loose parts, each repaired and checked, leaves as given."""
     wood_pieces, leaf_pieces = _pieces(entry)
     wood_v, wood_f, wood_piece = joined(wood_pieces)
-    leaf_v, leaf_f, _ = joined(leaf_pieces)
+    leaf_v, leaf_f, _ = joined(leaf_pieces, merge=False)   # leaves are scanned, never closed
     if not len(wood_f):
         raise ModelFileError(entry.source, "", "no wood triangles")
     wood_v, leaf_v = (to_tree_frame(v, entry.units, entry.up) for v in (wood_v, leaf_v))

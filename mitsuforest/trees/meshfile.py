@@ -42,7 +42,9 @@ def read_pieces(path) -> list[Piece]:
         if not hasattr(mesh, "faces") or not len(mesh.faces):
             continue
         material = getattr(getattr(mesh.visual, "material", None), "name", None)
-        v = np.asarray(mesh.vertices, np.float64) @ transform[:3, :3].T + transform[:3, 3]
+        v = np.asarray(mesh.vertices, np.float64)
+        if not np.array_equal(transform, np.eye(4)):
+            v = v @ transform[:3, :3].T + transform[:3, 3]
         names = tuple(n for n in (str(node), str(geometry), material) if n)
         pieces.append(Piece(names, v, np.asarray(mesh.faces, np.int64)))
     if not pieces:
@@ -70,8 +72,9 @@ def split_by_patterns(path, pieces: list[Piece], patterns) -> tuple[list[Piece],
     return ([p for p, leaf in zip(pieces, is_leaf) if not leaf], [p for p, leaf in zip(pieces, is_leaf) if leaf])
 
 
-def joined(pieces: list[Piece]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """One mesh of pieces, vertices at the same position merged (to 10 nm), degenerate faces dropped.
+def joined(pieces: list[Piece], merge: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One mesh of pieces, degenerate faces dropped and, with ``merge``, vertices at the same position
+    merged (to 10 nm: exported meshes split vertices along UV and normal seams, which opens them).
 
     :returns: vertices (n, 3) float64, faces (m, 3) int64, and each face's piece (m,) (index into ``pieces``).
     """
@@ -83,7 +86,8 @@ def joined(pieces: list[Piece]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     f = np.vstack([p.faces + b for p, b in zip(pieces, base)])
     piece = np.repeat(np.arange(len(pieces)), [len(p.faces) for p in pieces])
     mesh = trimesh.Trimesh(v, f, process=False)
-    mesh.merge_vertices(merge_tex=True, merge_norm=True)
+    if merge:
+        mesh.merge_vertices(merge_tex=True, merge_norm=True)
     keep = mesh.nondegenerate_faces()
     return np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int64)[keep], piece[keep]
 
