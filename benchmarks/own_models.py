@@ -42,7 +42,7 @@ def write_big_tree(path: Path, triangles: int) -> dict:
     from mitsuforest.trees.tubes import tube
     a = DEFAULT_ARCHETYPES[4]
     branches = grow(a)
-    refine = next(k for k in range(1, 200) if _wood_triangles(branches, k + 1) > triangles / 2)
+    refine = min(range(1, 50), key=lambda k: abs(_wood_triangles(branches, k) - triangles / 2))
     wood = []
     for b in branches:
         s = np.linspace(0, 1, (len(b.points) - 1) * refine + 1)

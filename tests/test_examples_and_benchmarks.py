@@ -118,3 +118,8 @@ def test_helios_compare_runs_against_a_stand_in(tmp_path):
 def test_dataset_benchmark_quick(tmp_path):
     stdout = _run([str(ROOT / "benchmarks" / "dataset.py"), "--quick", "--out", str(tmp_path)], ROOT)
     assert "| 2 |" in stdout and "leg tasks" in stdout and "merge" in stdout
+
+
+def test_own_models_benchmark_quick():
+    stdout = _run([str(ROOT / "benchmarks" / "own_models.py"), "--quick"], ROOT)
+    assert "load + split + repair + union" in stdout and "scene with 3 placed copies" in stdout
