@@ -110,15 +110,23 @@ def _model_entry(item, ctx: Context, where: str):
     if given == ["qsm"]:
         return QsmTree(**parse_mapping(QSM_SPEC, item, ctx, where))
     entry = parse_mapping(MESH_SPEC, item, ctx, where)
-    leaves = item.get("leaves", DEFAULT_LEAF_PATTERNS if entry["mesh"] else None)
-    if entry["mesh"]:
-        leaves = [leaves] if isinstance(leaves, str) else leaves
-        entry["leaves"] = tuple(ListOf(Text()).parse(list(leaves) if isinstance(leaves, tuple) else leaves, ctx,
-                                                     where + ".leaves"))
-    elif leaves is not None:
-        entry["leaves"] = FilePath(REQUIRED).parse(leaves, ctx, where + ".leaves") if not isinstance(leaves, list) \
-            else ctx.fail(where + ".leaves", "with wood: give the leaves file (name patterns go with mesh:)")
+    entry["leaves"] = _mesh_leaves(item.get("leaves"), entry["mesh"], ctx, where + ".leaves")
     return MeshTree(**entry)
+
+
+def _mesh_leaves(value, mesh, ctx: Context, key: str):
+    """Name patterns with ``mesh:`` (default :data:`DEFAULT_LEAF_PATTERNS`; ``[]``: no leaves), or the
+    leaves file with ``wood:`` (none: a tree without leaves)."""
+    if mesh:
+        if value is None:
+            return DEFAULT_LEAF_PATTERNS
+        patterns = [value] if isinstance(value, str) else list(value) if isinstance(value, tuple) else value
+        return tuple(ListOf(Text()).parse(patterns, ctx, key))
+    if value is None:
+        return None
+    if not isinstance(value, str):
+        ctx.fail(key, "with wood: give the leaves file (name patterns go with mesh:)")
+    return FilePath(REQUIRED).parse(value, ctx, key)
 
 
 def _sensor(value, ctx: Context, key: str):

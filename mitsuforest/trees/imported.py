@@ -27,6 +27,8 @@ from .sources import UNITS, MeshTree, ModelFileError, QsmTree, content_hash, sou
 from .tubes import signed_volume, tube
 from .volume import WoodVolume, union_volume
 
+__all__ = ["imported_model", "summary", "import_report", "mesh_tree_model", "qsm_tree_model", "MeshTree", "QsmTree"]
+
 log = logging.getLogger(__name__)
 MAX_COMPONENTS = 65_535   # component indices are uint16 per triangle
 _warned: set = set()      # (file, part) skipped parts already reported in this process
@@ -188,6 +190,3 @@ def import_report(plan, models: dict) -> dict:
                          "volume_m3": model.volume.as_dict(), "triangles": model.triangles,
                          "parts_ok": model.meta.get("parts_ok"), "repair": model.meta.get("repair", [])}
     return out
-
-
-__all__ = ["imported_model", "summary", "mesh_tree_model", "qsm_tree_model", "MeshTree", "QsmTree"]
