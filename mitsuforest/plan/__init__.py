@@ -68,7 +68,7 @@ def _plan(scene) -> Plan:
     models = {name: spec for name, (_, spec) in models.items()}
     trees, cover = _place_trees(scene.forest, size, crowns, terrain, rng)
     understory, understory_models = _place_understory(scene, size, trees, terrain, rng,
-                                                      deadwood_treeid=deadwood_treeid(len(models)))
+                                                      deadwood_treeid=_deadwood_treeid(len(models)))
     models.update(understory_models)
     return Plan(
         scene=scene.name, seed=scene.seed, area=tuple(size), forest_type=scene.forest.type,
@@ -114,7 +114,7 @@ def plan_json(plan: Plan) -> str:
     return plan.to_json()
 
 
-def deadwood_treeid(tree_models: int) -> int:
+def _deadwood_treeid(tree_models: int) -> int:
     """Deadwood's treeid: 11, or one past the last tree model when there are more than ten."""
     return max(DEADWOOD_TREEID, tree_models + 1)
 
