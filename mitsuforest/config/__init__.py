@@ -188,7 +188,7 @@ SCENE_SPEC = {
     "area": {"size": Vector(2, Number(gt=0, le=MAX_PLOT_SIDE), [100.0, 100.0])},
     "origin": {"crs": Custom(_crs, None), "offset": Vector(3, Number(), [0.0, 0.0, 0.0])},
     "terrain": {
-        "type": Text("flat", choices=("flat", "noise", "mesh")),
+        "type": Text("flat", choices=("flat", "noise", "mesh", "dem")),
         "amplitude": Number(1.5, ge=0),
         "wavelength": Number(25.0, gt=0),
         "path": FilePath(None, nullable=True),
@@ -345,8 +345,8 @@ def _check_scene(scene: dict, ctx: Context):
         ctx.fail("forest.archetypes", "at least one archetype or model needs weight > 0")
     if len(forest["archetypes"]) + len(forest["models"]) > MAX_TREE_MODELS:
         ctx.fail("forest.models", f"at most {MAX_TREE_MODELS:,} archetypes and models together (treeid is 16 bits)")
-    if scene["terrain"]["type"] == "mesh" and not scene["terrain"]["path"]:
-        ctx.fail("terrain.path", "is required when terrain.type is mesh")
+    if scene["terrain"]["type"] in ("mesh", "dem") and not scene["terrain"]["path"]:
+        ctx.fail("terrain.path", f"is required when terrain.type is {scene['terrain']['type']}")
     freqs = sensor.pulse_frequencies
     if survey["pulse_frequency"] is not None and survey["pulse_frequency"] not in freqs:
         ctx.fail("survey.pulse_frequency", f"{survey['pulse_frequency']:g} Hz is not one of the sensor's "

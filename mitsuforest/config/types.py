@@ -111,7 +111,7 @@ class Origin:
 
 @dataclass(frozen=True)
 class TerrainSettings:
-    type: str                                 # flat | noise | mesh
+    type: str                                 # flat | noise | mesh | dem
     amplitude: float
     wavelength: float
     path: str | None

@@ -58,7 +58,7 @@ def _plan(scene) -> Plan:
     rng = np.random.default_rng(scene.seed)
     size = scene.area.size
     try:
-        terrain = make_terrain(scene.terrain, size, scene.seed)
+        terrain = make_terrain(scene.terrain, size, scene.seed, origin=scene.origin)
     except UserError as e:
         raise _Refusal("terrain.path", str(e)) from None
     legs = _checked_legs(scene, flight_legs(size, scene.survey, terrain.mean_height))   # before the slow part

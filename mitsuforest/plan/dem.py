@@ -1,0 +1,85 @@
+"""Reading a GeoTIFF DEM for ``terrain.type: dem``: the cells around the plot, in the local frame.
+
+I/O only (rasterio); :func:`~mitsuforest.plan.terrain.make_terrain` meshes what this returns. Each
+refusal is a :class:`~mitsuforest.errors.UserError` whose text the plan reports as
+``FILE: terrain.path: reason``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..errors import UserError
+
+
+def read_dem(path, size, offset=(0.0, 0.0, 0.0), crs: str | None = None):
+    """The DEM cells whose centres surround the plot, one extra cell beyond each edge where the DEM has it.
+
+    :param size: the plot's extent (m); the plot is ``[0, size[0]] x [0, size[1]]`` in the local frame.
+    :param offset: the scene's ``origin.offset``: local = DEM coordinates - offset (heights too).
+    :param crs: the scene's ``origin.crs``; when both it and the DEM name a CRS they must be the same.
+    :returns: ``x`` (nx,), ``y`` (ny,) cell centres ascending, local frame; ``z`` (ny, nx) heights.
+    """
+    import rasterio
+    from rasterio.windows import Window
+
+    try:
+        dataset = rasterio.open(path)
+    except rasterio.errors.RasterioIOError as e:
+        raise UserError(f"cannot read the DEM {path}: {e}") from None
+    with dataset:
+        t = dataset.transform
+        if t.b != 0 or t.d != 0:
+            raise UserError(f"{path}: the DEM's grid is rotated or sheared; warp it north-up first (gdalwarp)")
+        _check_crs(path, dataset.crs, crs)
+        ox, oy, oz = offset
+        cols = _cell_span(t.c - ox, t.a, size[0], dataset.width)
+        rows = _cell_span(t.f - oy, t.e, size[1], dataset.height)
+        if cols is None or rows is None:
+            raise UserError(f"{path}: the DEM does not cover the plot: it spans {_extent(t, dataset, ox, oy)} in the "
+                            f"local frame (origin.offset subtracted), the plot 0..{size[0]:g} x 0..{size[1]:g} m")
+        window = Window(cols[0], rows[0], cols[1] - cols[0], rows[1] - rows[0])
+        band = dataset.read(1, window=window, masked=True)
+    x = t.c - ox + (np.arange(cols[0], cols[1]) + 0.5) * t.a
+    y = t.f - oy + (np.arange(rows[0], rows[1]) + 0.5) * t.e
+    z = np.ma.filled(band.astype(np.float64), np.nan) - oz
+    holes = ~np.isfinite(z)
+    if holes.any():
+        j, i = np.argwhere(holes)[0]
+        raise UserError(f"{path}: the DEM has {int(holes.sum())} nodata cells over the plot (the first at local "
+                        f"x {x[i]:.2f}, y {y[j]:.2f}); fill them first (gdal_fillnodata)")
+    if t.a < 0:
+        x, z = x[::-1], z[:, ::-1]
+    if t.e < 0:                      # north-up: rows run south
+        y, z = y[::-1], z[::-1]
+    return x, y, np.ascontiguousarray(z)
+
+
+def _cell_span(start: float, step: float, length: float, count: int) -> tuple[int, int] | None:
+    """Cells ``[first, stop)`` of one axis that cover ``[0, length]``, with one more centre beyond each end
+    where the raster has it; ``None`` when the raster's cells do not reach both ends (1e-6 m tolerance)."""
+    lo, hi = sorted(((0.0 - start) / step, (length - start) / step))   # the plot's ends in cell units
+    tolerance = 1e-6 / abs(step)
+    if lo < -tolerance or hi > count + tolerance:
+        return None
+    first = max(math.floor(lo - 0.5), 0)
+    stop = min(math.ceil(hi - 0.5) + 1, count)
+    return first, max(stop, first + 1)
+
+
+def _extent(t, dataset, ox, oy) -> str:
+    xs = sorted((t.c - ox, t.c - ox + dataset.width * t.a))
+    ys = sorted((t.f - oy, t.f - oy + dataset.height * t.e))
+    return f"x {xs[0]:.2f}..{xs[1]:.2f}, y {ys[0]:.2f}..{ys[1]:.2f}"
+
+
+def _check_crs(path, dem_crs, scene_crs: str | None) -> None:
+    if scene_crs is None or dem_crs is None:
+        return
+    from pyproj import CRS
+    ours, theirs = CRS.from_user_input(scene_crs), CRS.from_user_input(dem_crs.to_wkt())
+    if not ours.equals(theirs, ignore_axis_order=True):
+        raise UserError(f"{path}: the DEM's CRS ({theirs.to_string()}) is not origin.crs ({ours.to_string()}); "
+                        "reproject it (gdalwarp -t_srs) or fix origin.crs")
