@@ -21,6 +21,7 @@ from .config import Scene, load_scene, scene_from_mapping
 from .errors import UserError
 from .interrupts import InterruptedAfterCommit, deferred_signals
 from .plan import Plan, make_plan
+from .realism import realism_table
 from .scan import scan
 from .scene import build_scene
 from .trees import build_models
@@ -29,7 +30,8 @@ from .write import (PointWriter, Staging, check_output_folder, existing_outputs,
                     write_render_outputs)
 from .write.background import Background
 
-DEPENDENCIES = ("mitsuba", "drjit", "numpy", "trimesh", "manifold3d", "laspy", "scipy", "pyyaml", "pyproj")
+DEPENDENCIES = ("mitsuba", "drjit", "numpy", "trimesh", "manifold3d", "laspy", "scipy", "pyyaml", "pyproj", "rasterio",
+                "matplotlib")
 
 
 @dataclass
@@ -117,7 +119,7 @@ def _scan_and_write(scene, plan, models, scan_scene, timings, run_scan, keep_poi
     place; on any failure or interrupt the staging folder is removed."""
     writer = None
     try:
-        writer = PointWriter(staging, scene, keep=keep_points)
+        writer = PointWriter(staging, scene, keep=keep_points, terrain=plan.terrain)
         sink = Background(writer.add)
         try:
             result = run_scan(sink)
@@ -127,6 +129,7 @@ def _scan_and_write(scene, plan, models, scan_scene, timings, run_scan, keep_poi
         timings.lap("scan")
         manifest = _manifest(scene, plan, scan_scene, result, writer.statistics(), timings)
         manifest["imported_trees"] = import_report(plan, models)
+        manifest["realism"] = realism_table(plan, models, writer.classes, writer.counts)
         files = []
         if staging:
             write_render_outputs(staging, scene=scene, plan=plan, models=models, writer=writer)

@@ -123,3 +123,14 @@ def test_dataset_benchmark_quick(tmp_path):
 def test_own_models_benchmark_quick():
     stdout = _run([str(ROOT / "benchmarks" / "own_models.py"), "--quick"], ROOT)
     assert "load + split + repair + union" in stdout and "scene with 3 placed copies" in stdout
+
+
+
+def test_terrain_benchmark_quick():
+    stdout = _run([str(ROOT / "benchmarks" / "terrain.py"), "--quick"], ROOT)
+    assert "dem: 200 x 200 cells" in stdout and "mesh: 20,000 triangles" in stdout
+
+
+def test_pictures_benchmark_quick():
+    stdout = _run([str(ROOT / "benchmarks" / "pictures.py"), "--quick"], ROOT)
+    assert "points: 2,000,000" in stdout and "pictures in all" in stdout

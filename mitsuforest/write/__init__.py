@@ -16,12 +16,14 @@ import tempfile
 from contextlib import contextmanager
 from pathlib import Path
 
+import numpy as np
+
 from ..errors import UserError
 
 from .atomic import owner_is_gone, owner_tag, write_text
 from .las import write_las
 from .pcd import read_pcd
-from .quicklook import write_png
+from .figures import write_profile_figure, write_returns_figure, write_tile_figure, write_top_figure
 from .stream import PointWriter, georeference
 from .tables import write_ids, write_trajectory, write_volumes
 
@@ -29,7 +31,7 @@ __all__ = ["Staging", "check_output_folder", "output_lock", "PointWriter", "geor
            "write_las", "write_render_outputs", "write_manifest"]
 
 SUFFIXES = (".pcd", ".las", ".laz", "_volumes.csv", "_ids.csv", "_plan.json", "_trajectory.csv",
-            "_manifest.json", "_top.png", "_side.png")
+            "_manifest.json", "_top.png", "_side.png", "_profile.png", "_returns.png")
 
 
 def output_files(name: str) -> list[str]:
@@ -136,8 +138,11 @@ def write_render_outputs(staging: Staging, *, scene, plan, models, writer) -> No
     write_ids(staging.file("_ids.csv"), plan, models, offset)
     write_text(staging.file("_plan.json"), plan.to_json())
     write_trajectory(staging.file("_trajectory.csv"), plan.legs, offset)
-    write_png(staging.file("_top.png"), writer.top.image())
-    write_png(staging.file("_side.png"), writer.side.image())
+    classes = [int(c) for c in np.flatnonzero(writer.classes)]
+    write_top_figure(staging.file("_top.png"), writer.top, writer.side, classes)
+    write_tile_figure(staging.file("_side.png"), writer.side)
+    write_profile_figure(staging.file("_profile.png"), writer.counts)
+    write_returns_figure(staging.file("_returns.png"), writer.returns, writer.counts)
 
 
 def write_manifest(staging: Staging, manifest: dict) -> None:

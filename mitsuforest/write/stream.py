@@ -10,15 +10,19 @@ import numpy as np
 
 from .las import LasStream
 from .pcd import COUNT_DIGITS, pcd_header
+from .profile import ReturnCounts
 from .quicklook import SideTile, TopView
 
 SPACING_TILE = 5.0  # m, side of the tiles in which the mean nearest-neighbour spacing is measured
 
 
 class PointWriter:
-    """Receives local-frame points batch by batch (:meth:`add`) and writes georeferenced files."""
+    """Receives local-frame points batch by batch (:meth:`add`) and writes georeferenced files.
 
-    def __init__(self, staging, scene: dict, keep: bool = False):
+    :param terrain: the plan's :class:`~mitsuforest.plan.terrain.Terrain`, for heights above the ground.
+    """
+
+    def __init__(self, staging, scene: dict, keep: bool = False, terrain=None):
         self.offset = np.asarray(scene.origin.offset, np.float64)
         self.area = scene.area.size
         formats = scene.output.formats if staging else []
@@ -31,6 +35,7 @@ class PointWriter:
         self.returns = np.zeros(256, np.int64)
         self.top = TopView(self.area)
         self.side = SideTile(self.area)
+        self.counts = ReturnCounts(terrain, self.area)      # profile and return charts, realism table
         rng = np.random.default_rng([scene.seed, 99])
         corner = [rng.uniform(0, max(s - SPACING_TILE, 0), 4) for s in self.area]
         self._tiles = np.column_stack(corner)
@@ -51,6 +56,7 @@ class PointWriter:
         self.returns += np.bincount(points["number_of_returns"][first], minlength=256)
         self.top.add(points)
         self.side.add(points)
+        self.counts.add(points)
         for (x0, y0), bucket in zip(self._tiles, self._tile_points):
             sel = ((points["x"] >= x0) & (points["x"] < x0 + SPACING_TILE)
                    & (points["y"] >= y0) & (points["y"] < y0 + SPACING_TILE))

@@ -1,0 +1,174 @@
+"""The render's pictures and charts, framed with matplotlib (axes in metres, legends of class names).
+
+The point rasters come from ``quicklook.py`` (numpy); matplotlib only frames them, so a picture costs
+the same for a thousand points or forty million. Figures are made with the object API
+(:class:`~matplotlib.figure.Figure`), never pyplot, so nothing global changes and threads are safe.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..classes import CLASS_NAMES, TREE_LEAVES, TREE_WOOD
+from .atomic import atomic_path
+from .quicklook import CLASS_COLOURS, WOODY_CLASSES, front_view, instance_palette
+
+DPI = 100
+NON_TREE_GREY = 200
+
+
+def class_name(code: int) -> str:
+    return CLASS_NAMES.get(int(code), f"class {int(code)}")
+
+
+def _figure(width_in: float, height_in: float):
+    from matplotlib.figure import Figure
+    return Figure(figsize=(width_in, height_in), dpi=DPI, layout="constrained")
+
+
+def _save(fig, path) -> None:
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", dpi=DPI)
+
+
+def _class_legend(ax, codes, **kwargs) -> None:
+    from matplotlib.patches import Patch
+    handles = [Patch(color=CLASS_COLOURS[c] / 255, label=class_name(c)) for c in codes]
+    ax.legend(handles=handles, fontsize=8, framealpha=0.9, **kwargs)
+
+
+def write_top_figure(path, top, tile=None, classes_present=()) -> None:
+    """The plot from above, each pixel the class of its highest point, metre axes, the tile outlined.
+
+    :param top: a :class:`~.quicklook.TopView`; ``tile`` a :class:`~.quicklook.SideTile`.
+    """
+    from matplotlib.patches import Rectangle
+    w, h = top.area
+    side = 7.0
+    fig = _figure(side * min(w / h, 1.6) + 1.8, side)
+    ax = fig.add_subplot()
+    ax.imshow(top.image(), extent=(0, w, 0, h), interpolation="nearest")
+    if tile is not None:
+        ax.add_patch(Rectangle((tile.x0, tile.y0), tile.tile, tile.tile, fill=False, lw=1.2, ec="black", ls="--"))
+        ax.annotate(f"{tile.tile:g} m tile", (tile.x0, tile.y0 + tile.tile), xytext=(2, 3),
+                    textcoords="offset points", fontsize=8)
+    ax.set(xlabel="x (m, local frame)", ylabel="y (m)", title="Top view by class (highest point per pixel)")
+    _class_legend(ax, classes_present, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
+    _save(fig, path)
+
+
+def write_tile_figure(path, tile) -> None:
+    """The tile seen from the south: by class, its woody parts only, and its trees by instance.
+
+    :param tile: a :class:`~.quicklook.SideTile`; the z axis spans the ground to the highest point.
+    """
+    pts = tile.points()
+    x_range, z_range = tile.x_range, tile_z_range(pts)
+    cls = pts["classification"]
+    woody = np.isin(cls, WOODY_CLASSES)
+    is_tree = np.isin(cls, (TREE_WOOD, TREE_LEAVES))
+    palette = instance_palette(int(pts["instance"].max(initial=0)))
+    by_instance = np.where(is_tree[:, None], palette[pts["instance"]], np.uint8(NON_TREE_GREY))
+    panels = [
+        ("by class", pts, CLASS_COLOURS[cls], _present(cls)),
+        ("woody parts only", pts[woody], CLASS_COLOURS[cls[woody]], _present(cls[woody])),
+        ("trees by instance", pts, by_instance, None),
+    ]
+    panel_in = 3.6                                   # width of one panel's tile, inches
+    height_in = panel_in * (z_range[1] - z_range[0]) / tile.tile
+    fig = _figure(3 * (panel_in + 0.45) + 0.4, height_in + 2.2)
+    axes = fig.subplots(1, 3, sharey=True)
+    for ax, (title, p, colours, codes) in zip(axes, panels):
+        ax.imshow(front_view(p, x_range, z_range, colours), extent=(*x_range, *z_range), interpolation="nearest")
+        ax.set(title=f"{tile.tile:g} m tile from the south: {title}", xlabel="x (m)")
+        ax.title.set_fontsize(9)
+        if codes is not None:
+            _class_legend(ax, codes, loc="upper center", bbox_to_anchor=(0.5, -0.12), ncol=2)
+        else:
+            _instance_legend(ax, pts[is_tree], palette)
+    axes[0].set_ylabel("z (m)")
+    _save(fig, path)
+
+
+def tile_z_range(points) -> tuple[float, float]:
+    """From below the lowest point to above the highest: the whole height of the tile's trees."""
+    if len(points) == 0:
+        return 0.0, 1.0
+    return float(points["z"].min()) - 0.5, float(points["z"].max()) + 1.0
+
+
+def _present(cls) -> list[int]:
+    return [int(c) for c in np.flatnonzero(np.bincount(cls, minlength=256))]
+
+
+def _instance_legend(ax, trees, palette, most: int = 8) -> None:
+    from matplotlib.patches import Patch
+    ids, counts = np.unique(trees["instance"], return_counts=True)
+    treeid = {int(i): int(t) for i, t in zip(trees["instance"], trees["treeid"])} if "treeid" in trees.dtype.names \
+        else {}
+    shown = ids[np.argsort(-counts)][:most]
+    handles = [Patch(color=palette[i] / 255, label=f"tree {i}" + (f" (archetype {treeid[int(i)]})"
+                                                                   if int(i) in treeid else "")) for i in shown]
+    if len(ids) > most:
+        handles.append(Patch(color="white", label=f"... {len(ids) - most} more trees"))
+    handles.append(Patch(color=np.full(3, NON_TREE_GREY / 255), label="not a tree"))
+    ax.legend(handles=handles, fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.12), ncol=2)
+
+
+def write_profile_figure(path, counts) -> None:
+    """Returns by height above the ground and class (log scale: the ground outnumbers the canopy).
+
+    :param counts: a :class:`~.profile.ReturnCounts`.
+    """
+    edges = counts.bin_edges
+    rows = np.flatnonzero(counts.by_height.sum(1))
+    fig = _figure(6.5, 5.5)
+    ax = fig.add_subplot()
+    if len(rows):
+        lo, hi = rows[0], rows[-1] + 1
+        for c in _present_counts(counts.by_height.sum(0)):
+            n = counts.by_height[lo:hi, c]
+            ax.stairs(n, edges[lo:hi + 1], orientation="horizontal", color=CLASS_COLOURS[c] / 255, lw=1.6,
+                      label=f"{class_name(c)} ({n.sum():,})", baseline=None)
+        ax.set_ylim(edges[lo], edges[hi])
+    ax.set_xscale("log")
+    ax.set(xlabel=f"returns per {edges[1] - edges[0]:g} m of height (log)", ylabel="height above the ground (m)",
+           title="Vertical profile: returns by height and class")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8, loc="upper right")
+    _save(fig, path)
+
+
+def _present_counts(by_class) -> list[int]:
+    return [int(c) for c in np.flatnonzero(by_class)]
+
+
+def write_returns_figure(path, pulses_by_returns: np.ndarray, counts) -> None:
+    """Left: pulses by their number of returns; right: each return number's points split by class.
+
+    :param pulses_by_returns: (k,) pulses with 0, 1, ... returns (entry 0 is not drawn).
+    """
+    fig = _figure(11, 4.8)
+    left, right = fig.subplots(1, 2)
+    n = np.flatnonzero(pulses_by_returns)
+    n = n[n > 0]
+    pulses = np.asarray(pulses_by_returns, float)[n]
+    if len(n):
+        bars = left.bar(n, pulses, color="#4a7bb7")
+        total = pulses.sum()
+        left.bar_label(bars, [f"{p / total:.1%}" if p / total >= 0.0005 else "" for p in pulses], fontsize=7)
+        left.set_yscale("log")
+        left.set_xticks(n)
+    left.set(xlabel="returns per pulse", ylabel="pulses (log)", title="Returns histogram")
+    by_return = counts.by_return[1:]
+    numbers = np.flatnonzero(by_return.sum(1)) + 1
+    bottom = np.zeros(len(numbers))
+    for c in _present_counts(by_return.sum(0)):
+        share = by_return[numbers - 1, c] / np.maximum(by_return[numbers - 1].sum(1), 1)
+        right.bar(numbers, share * 100, bottom=bottom, color=CLASS_COLOURS[c] / 255, label=class_name(c))
+        bottom += share * 100
+    right.set_xticks(numbers)
+    right.set(xlabel="return number", ylabel="share of the points (%)", ylim=(0, 100),
+              title="Classes by return number")
+    right.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
+    _save(fig, path)

@@ -1,0 +1,74 @@
+"""The render's pictures: rasters put each point in its pixel, the figures are written with the tile's
+whole height, and a render writes all four."""
+
+import numpy as np
+from PIL import Image
+
+from mitsuforest.classes import GROUND, TREE_LEAVES, TREE_WOOD
+from mitsuforest.scan import POINT_DTYPE
+from mitsuforest.write.figures import tile_z_range, write_tile_figure, write_top_figure
+from mitsuforest.write.profile import ReturnCounts
+from mitsuforest.write.quicklook import CLASS_COLOURS, SideTile, TopView, front_view
+
+
+def points(rows):
+    """Points from (x, y, z, classification, instance, return_number) rows."""
+    p = np.zeros(len(rows), POINT_DTYPE)
+    for name, column in zip(("x", "y", "z", "classification", "instance", "return_number"), np.array(rows).T):
+        p[name] = column
+    return p
+
+
+def test_top_view_keeps_the_highest_point_of_each_pixel_across_batches():
+    top = TopView((10, 10), pixels_per_m=1)
+    top.add(points([(2.5, 7.5, 1.0, GROUND, 0, 1), (2.5, 7.5, 9.0, TREE_LEAVES, 1, 1)]))
+    top.add(points([(2.5, 7.5, 5.0, TREE_WOOD, 1, 2), (8.5, 0.5, 0.0, GROUND, 0, 1)]))
+    img = top.image()
+    assert img.shape == (10, 10, 3)
+    assert (img[2, 2] == CLASS_COLOURS[TREE_LEAVES]).all()      # row 2 from the north is y 7..8
+    assert (img[9, 8] == CLASS_COLOURS[GROUND]).all()
+    assert (img[0, 0] == 255).all()
+
+
+def test_front_view_shows_the_nearest_point_of_each_pixel():
+    p = points([(1.5, 5.0, 2.5, GROUND, 0, 1), (1.5, 2.0, 2.5, TREE_WOOD, 1, 1), (1.5, 8.0, 2.5, GROUND, 0, 1)])
+    img = front_view(p, (0, 4), (0, 4), CLASS_COLOURS[p["classification"]], pixels_per_m=1)
+    assert img.shape == (4, 4, 3)
+    assert (img[1, 1] == CLASS_COLOURS[TREE_WOOD]).all()        # z 2.5 is row 1 from the top
+    assert (img[[0, 2, 3]] == 255).all()
+
+
+def test_tile_figure_spans_the_whole_height(tmp_path):
+    tile = SideTile((40, 40))
+    tile.add(points([(15, 15, -0.4, GROUND, 0, 1), (20, 20, 31.7, TREE_LEAVES, 3, 1), (1, 1, 50, TREE_LEAVES, 4, 1)]))
+    z0, z1 = tile_z_range(tile.points())
+    assert z0 < -0.4 and 31.7 < z1 < 33        # the tree outside the tile (z 50) does not count
+    write_tile_figure(tmp_path / "side.png", tile)
+    top = TopView((40, 40))
+    write_top_figure(tmp_path / "top.png", top, tile, [GROUND])
+    for name in ("side.png", "top.png"):
+        with Image.open(tmp_path / name) as im:
+            assert im.format == "PNG" and min(im.size) > 300
+
+
+def test_return_counts_by_height_class_and_return_number():
+    counts = ReturnCounts()
+    counts.add(points([(1, 1, 0.1, GROUND, 0, 1), (1, 1, 12.2, TREE_LEAVES, 1, 1), (1, 1, 11.0, TREE_WOOD, 1, 2)]))
+    edges = counts.bin_edges
+    assert counts.by_height.sum() == 3
+    row = np.searchsorted(edges, 12.2, "right") - 1
+    assert counts.by_height[row, TREE_LEAVES] == 1 and edges[row] <= 12.2 < edges[row + 1]
+    assert counts.first[GROUND] == 1 and counts.first[TREE_LEAVES] == 1 and counts.by_return[2, TREE_WOOD] == 1
+
+
+def test_a_render_writes_every_picture(tmp_path):
+    from mitsuforest.pipeline import render
+    from helpers import scene_file
+    path = scene_file(tmp_path, survey={"altitude": 30, "pulse_frequency": 100000, "scan_frequency": 50,
+                                        "speed": 20, "lines": [[[20.0, 0.0], [20.0, 40.0]]]})
+    result = render(path, progress=False, log=lambda *_: None)
+    names = {f.name for f in result.files}
+    for suffix in ("_top.png", "_side.png", "_profile.png", "_returns.png"):
+        assert "test" + suffix in names
+        with Image.open(tmp_path / "out" / ("test" + suffix)) as im:
+            assert im.format == "PNG"
