@@ -28,7 +28,7 @@ def _figure(width_in: float, height_in: float):
 
 def _save(fig, path) -> None:
     with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png", dpi=DPI)
+        fig.savefig(tmp, format="png", dpi=DPI, bbox_inches="tight", pad_inches=0.1)   # legends outside axes too
 
 
 def _class_legend(ax, codes, **kwargs) -> None:
@@ -76,11 +76,12 @@ def write_tile_figure(path, tile) -> None:
     ]
     panel_in = 3.6                                   # width of one panel's tile, inches
     height_in = panel_in * (z_range[1] - z_range[0]) / tile.tile
-    fig = _figure(3 * (panel_in + 0.45) + 0.4, height_in + 2.2)
+    fig = _figure(3 * (panel_in + 0.45) + 0.4, height_in + 1.2)
     axes = fig.subplots(1, 3, sharey=True)
     for ax, (title, p, colours, codes) in zip(axes, panels):
         ax.imshow(front_view(p, x_range, z_range, colours), extent=(*x_range, *z_range), interpolation="nearest")
-        ax.set(title=f"{tile.tile:g} m tile from the south: {title}", xlabel="x (m)")
+        ax.set(title=f"{tile.tile:g} m tile from the south: {title}", xlabel="x (m)",
+               xticks=np.arange(np.ceil(x_range[0] / 5) * 5, x_range[1] - 1, 5))   # no label at the shared edges
         ax.title.set_fontsize(9)
         if codes is not None:
             _class_legend(ax, codes, loc="upper center", bbox_to_anchor=(0.5, -0.12), ncol=2)
@@ -98,7 +99,13 @@ def tile_z_range(points) -> tuple[float, float]:
 
 
 def _present(cls) -> list[int]:
-    return [int(c) for c in np.flatnonzero(np.bincount(cls, minlength=256))]
+    """The class codes among points of classes ``cls``."""
+    return _codes(np.bincount(cls, minlength=256))
+
+
+def _codes(by_class) -> list[int]:
+    """The class codes with a non-zero count in ``by_class`` (256,)."""
+    return [int(c) for c in np.flatnonzero(by_class)]
 
 
 def _instance_legend(ax, trees, palette, most: int = 8) -> None:
@@ -126,7 +133,7 @@ def write_profile_figure(path, counts) -> None:
     ax = fig.add_subplot()
     if len(rows):
         lo, hi = rows[0], rows[-1] + 1
-        for c in _present_counts(counts.by_height.sum(0)):
+        for c in _codes(counts.by_height.sum(0)):
             n = counts.by_height[lo:hi, c]
             ax.stairs(n, edges[lo:hi + 1], orientation="horizontal", color=CLASS_COLOURS[c] / 255, lw=1.6,
                       label=f"{class_name(c)} ({n.sum():,})", baseline=None)
@@ -137,10 +144,6 @@ def write_profile_figure(path, counts) -> None:
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="upper right")
     _save(fig, path)
-
-
-def _present_counts(by_class) -> list[int]:
-    return [int(c) for c in np.flatnonzero(by_class)]
 
 
 def write_returns_figure(path, pulses_by_returns: np.ndarray, counts) -> None:
@@ -163,7 +166,7 @@ def write_returns_figure(path, pulses_by_returns: np.ndarray, counts) -> None:
     by_return = counts.by_return[1:]
     numbers = np.flatnonzero(by_return.sum(1)) + 1
     bottom = np.zeros(len(numbers))
-    for c in _present_counts(by_return.sum(0)):
+    for c in _codes(by_return.sum(0)):
         share = by_return[numbers - 1, c] / np.maximum(by_return[numbers - 1].sum(1), 1)
         right.bar(numbers, share * 100, bottom=bottom, color=CLASS_COLOURS[c] / 255, label=class_name(c))
         bottom += share * 100
