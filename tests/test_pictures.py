@@ -72,3 +72,12 @@ def test_a_render_writes_every_picture(tmp_path):
         assert "test" + suffix in names
         with Image.open(tmp_path / "out" / ("test" + suffix)) as im:
             assert im.format == "PNG"
+
+
+def test_heights_above_a_ground_given_only_as_a_mesh():
+    """A HELIOS++ scene's ground has triangles and no height field: heights come from the triangles."""
+    from types import SimpleNamespace
+    vertices = np.array([[-1, -1, 2.0], [11, -1, 2.0], [11, 11, 8.0], [-1, 11, 8.0]])   # z = 2.5 + 0.5 y
+    ground = SimpleNamespace(mesh=lambda: (vertices, np.array([[0, 1, 2], [0, 2, 3]])), mean_height=5.0)
+    counts = ReturnCounts(ground, (10, 10))
+    assert np.allclose(counts.ground(np.array([3.0, 7.0]), np.array([4.0, 9.5])), [4.5, 7.25])

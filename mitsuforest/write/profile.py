@@ -19,11 +19,8 @@ class GroundHeight:
         w, h = area
         self.nx, self.ny = (max(int(np.ceil(s / cell)), 1) + 1 for s in (w, h))
         self.dx, self.dy = w / (self.nx - 1), h / (self.ny - 1)
-        if terrain is None or not np.any(terrain.z):
-            self.z = None           # flat at 0
-            return
-        gx, gy = np.meshgrid(np.linspace(0, w, self.nx), np.linspace(0, h, self.ny))
-        self.z = terrain.height(gx, gy)
+        z = None if terrain is None else _grid_heights(terrain, np.linspace(0, w, self.nx), np.linspace(0, h, self.ny))
+        self.z = z if z is not None and np.any(z) else None     # None: flat at 0
 
     def __call__(self, x, y) -> np.ndarray:
         if self.z is None:
@@ -34,6 +31,17 @@ class GroundHeight:
         u, v = fx - i, fy - j
         z = self.z
         return ((1 - v) * ((1 - u) * z[j, i] + u * z[j, i + 1]) + v * ((1 - u) * z[j + 1, i] + u * z[j + 1, i + 1]))
+
+
+def _grid_heights(terrain, x, y) -> np.ndarray:
+    """(ny, nx) ground heights at the grid points: from the terrain's height field, or, for a ground
+    that is only a mesh (a HELIOS++ scene's), from its triangles (their mean height where none is)."""
+    if hasattr(terrain, "height"):
+        return terrain.height(*np.meshgrid(x, y))
+    from ..plan.terrain import heights_under
+    vertices, faces = terrain.mesh()
+    z = heights_under(np.asarray(vertices, np.float64)[np.asarray(faces)], x, y)
+    return np.where(np.isnan(z), terrain.mean_height, z)
 
 
 class ReturnCounts:
