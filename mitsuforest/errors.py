@@ -2,6 +2,17 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
+
+def display_path(path) -> Path:
+    """A path as a user would write it: relative to the working folder when inside it."""
+    path = Path(path)
+    try:
+        return path.resolve().relative_to(Path.cwd())
+    except ValueError:
+        return path
+
 
 class UserError(Exception):
     """A problem with the user's input or environment, reported without a traceback."""

@@ -23,8 +23,8 @@ import dataclasses
 import math
 import typing
 from dataclasses import dataclass, field
-from pathlib import Path
 
+from ..errors import display_path  # noqa: F401 (re-exported: config and dataset use it from here)
 from ..trees.archetypes import Archetype
 from ..trees.sources import MeshTree, QsmTree
 
@@ -297,12 +297,3 @@ def _frozen(value):
     if isinstance(value, list):
         return tuple(_frozen(v) for v in value)
     return value
-
-
-def display_path(path) -> Path:
-    """A path as a user would write it: relative to the working folder when inside it."""
-    path = Path(path)
-    try:
-        return path.resolve().relative_to(Path.cwd())
-    except ValueError:
-        return path

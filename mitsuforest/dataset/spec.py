@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from ..config import SCENE_SPEC, load_scene, read_yaml
-from ..config.schema import REQUIRED, Context, Custom, FilePath, ListOf, Number, Text, parse_mapping
+from ..config.schema import REQUIRED, Context, Custom, FilePath, Number, Text, parse_mapping
 from ..config.types import Scene, display_path
 from ..errors import ConfigError
 

@@ -12,7 +12,7 @@ import hashlib
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..errors import ConfigError
+from ..errors import ConfigError, display_path
 
 UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
 UP_AXES = ("z", "y")
@@ -87,12 +87,4 @@ class ModelFileError(ConfigError):
     """A tree file that cannot be used, reported as ``FILE: where: reason`` (``where`` may be empty)."""
 
     def __init__(self, path, where: str, reason: str):
-        super().__init__(_shown(path), where, reason)
-
-
-def _shown(path) -> Path:
-    path = Path(path)
-    try:
-        return path.resolve().relative_to(Path.cwd())
-    except ValueError:
-        return path
+        super().__init__(display_path(path), where, reason)
