@@ -88,9 +88,9 @@ def main(argv=None) -> int:
         print(f"mitsuforest: {e}", file=sys.stderr)
         return e.exit_code
     except InterruptedAfterCommit as e:
-        print(f"mitsuforest: {_stopped(e.signum == signal.SIGTERM)} as the finished files were being moved "
+        print(f"mitsuforest: {_stopped(e.terminated)} as the finished files were being moved "
               "into place; they are all there and complete.", file=sys.stderr)
-        return 143 if e.signum == signal.SIGTERM else 130
+        return 143 if e.terminated else 130
     except KeyboardInterrupt as e:
         print(f"mitsuforest: {_stopped(isinstance(e, Terminated))}; no finished output was written (partial "
               "files removed). Run the same command again to redo it.", file=sys.stderr)

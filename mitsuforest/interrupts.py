@@ -19,9 +19,9 @@ class Terminated(KeyboardInterrupt):
 class InterruptedAfterCommit(KeyboardInterrupt):
     """A signal that arrived while finished files were moved into place: they are all there."""
 
-    def __init__(self, signum: int):
+    def __init__(self, terminated: bool):
         super().__init__()
-        self.signum = signum
+        self.terminated = terminated   # SIGTERM rather than SIGINT
 
 
 def raise_terminated(signum, frame):
@@ -34,11 +34,9 @@ def in_main_thread() -> bool:
 
 
 @contextmanager
-def deferred_signals(after=None):
-    """Hold SIGINT and SIGTERM while a block runs, then act on them.
-
-    :param after: called with the signal number instead of raising :class:`KeyboardInterrupt` or
-        :class:`Terminated`, when the block has to say more (it may raise).
+def deferred_signals():
+    """Hold SIGINT and SIGTERM while a block runs, then act on them (raise :class:`KeyboardInterrupt`
+    or :class:`Terminated`).
 
     The signals are only noted during the block (Python runs handlers in the main thread, whichever
     thread the OS delivers them to); off the main thread the block runs as it is.
@@ -55,7 +53,4 @@ def deferred_signals(after=None):
         for sig, handler in previous.items():
             signal.signal(sig, handler)
     if pending:
-        signum = signal.SIGTERM if signal.SIGTERM in pending else signal.SIGINT
-        if after is not None:
-            after(signum)
-        raise Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
+        raise Terminated() if signal.SIGTERM in pending else KeyboardInterrupt()

@@ -19,7 +19,7 @@ import numpy as np
 from . import __version__
 from .config import Scene, load_scene, scene_from_mapping
 from .errors import UserError
-from .interrupts import InterruptedAfterCommit, deferred_signals
+from .interrupts import InterruptedAfterCommit, Terminated, deferred_signals
 from .plan import Plan, make_plan
 from .realism import realism_table
 from .scan import scan
@@ -137,8 +137,11 @@ def _scan_and_write(scene, plan, models, scan_scene, timings, run_scan, keep_poi
             manifest["timings_s"] = dict(timings)
             write_manifest(staging, manifest)
             _refuse_existing(staging.folder, scene.name, overwrite)   # results that appeared meanwhile
-            with deferred_signals(after=_raise_after_commit):   # never half the files in place
-                files = staging.commit()
+            try:
+                with deferred_signals():   # never half the files in place
+                    files = staging.commit()
+            except KeyboardInterrupt as e:
+                raise InterruptedAfterCommit(isinstance(e, Terminated)) from None
     except BaseException:
         if writer:
             writer.abort()
@@ -146,10 +149,6 @@ def _scan_and_write(scene, plan, models, scan_scene, timings, run_scan, keep_poi
             staging.discard()
         raise
     return result, manifest, writer, files
-
-
-def _raise_after_commit(signum: int):
-    raise InterruptedAfterCommit(signum)
 
 
 def _as_scene(scene, seed, variant, output_dir) -> Scene:
