@@ -24,7 +24,7 @@ import math
 import typing
 from dataclasses import dataclass, field
 
-from ..errors import display_path  # noqa: F401 (re-exported: config and dataset use it from here)
+from ..errors import display_path  # noqa: F401 (re-exported: config uses it from here)
 from ..trees.archetypes import Archetype
 from ..trees.sources import MeshTree, QsmTree
 

@@ -18,7 +18,7 @@ import numpy as np
 
 from ..config import SCENE_SPEC, load_scene, read_yaml
 from ..config.schema import REQUIRED, Context, Custom, FilePath, Number, Text, parse_mapping
-from ..config.types import Scene, display_path
+from ..config.types import Scene
 from ..errors import ConfigError
 
 MAX_PLOTS = 100_000
@@ -247,7 +247,3 @@ def _plot_scene(base: Scene, values: dict, ctx: Context, i: int) -> Scene:
     except ConfigError as e:
         drawn = ", ".join(f"{k}={v!r}" for k, v in values.items() if k not in ("seed", "name"))
         raise ConfigError(ctx.file, f"plot {i}", f"{drawn}: {e}") from None
-
-
-def display(path) -> str:
-    return str(display_path(path))
