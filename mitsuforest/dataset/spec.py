@@ -20,6 +20,7 @@ from ..config import SCENE_SPEC, load_scene, read_yaml
 from ..config.schema import REQUIRED, Context, Custom, FilePath, Number, Text, parse_mapping
 from ..config.types import Scene
 from ..errors import ConfigError
+from .tiles import tile_grid
 
 MAX_PLOTS = 100_000
 MAX_TILES_PER_PLOT = 10_000          # each tile is two files and an index row
@@ -229,7 +230,7 @@ def _check_tile_count(tiles: Tiles, base: Scene, count: int, ranges: dict, choic
 
 
 def tile_count(area_size, tile_size: float) -> int:
-    nx, ny = (max(1, int(np.ceil(s / tile_size - 1e-9))) for s in area_size)
+    nx, ny = tile_grid(area_size, tile_size)
     return nx * ny
 
 
