@@ -128,7 +128,7 @@ def _submit_split_plots(client, dataset: Dataset, root: str, threads):
         if record is not None:
             kept.append(record)
             continue
-        legs = _leg_count(plot.scene)
+        legs = len(_legs(plot.scene))
         parts = [client.submit(tasks.scan_legs, root, plot.name, first, min(first + dataset.legs_per_task, legs),
                                threads, key=f"legs-{plot.name}-{first}", retries=RETRIES, pure=False)
                  for first in range(0, legs, dataset.legs_per_task)]
@@ -171,15 +171,15 @@ def _with_values(record: dict, dataset: Dataset) -> dict:
     return {**record, "values": dataset.values_of(record["plot"])}
 
 
-def _leg_count(scene) -> int:
+def _legs(scene) -> list:
+    """A plot's flight legs (their number and durations do not depend on their height)."""
     from ..plan.flight import flight_legs
-    return len(flight_legs(scene.area.size, scene.survey, 0.0))
+    return flight_legs(scene.area.size, scene.survey, 0.0)
 
 
 def _pulses(scene) -> int:
-    """Time slots of a plot's survey (the legs' durations do not depend on their height)."""
-    from ..plan.flight import flight_legs
-    return sum(leg.pulse_count(scene.pulse_frequency) for leg in flight_legs(scene.area.size, scene.survey, 0.0))
+    """Time slots of a plot's survey."""
+    return sum(leg.pulse_count(scene.pulse_frequency) for leg in _legs(scene))
 
 
 class _Bars:
