@@ -84,8 +84,8 @@ def many_plots(folder: Path, plots: int, worker_counts, quick: bool) -> list[dic
     return rows
 
 
-def large_plot(folder: Path, size: float, beam: int, workers: int, legs_per_task: int, quick: bool,
-               pulse_frequency: float, speed: float) -> dict:
+def large_plot(folder: Path, size: float, beam: int, workers: int, legs_per_task: int, pulse_frequency: float,
+               speed: float) -> dict:
     base = yaml.safe_load((ROOT / "scenes" / "open.yaml").read_text())
     base["sensor"] = str(ROOT / "sensors" / "riegl_vux-1uav22.yaml")
     base.pop("output", None)
@@ -139,7 +139,7 @@ def main() -> None:
         if not args.skip_plots:
             plots_table(folder, args)
         if not args.skip_large:
-            r = large_plot(folder, args.large_size, args.large_beam, max(args.workers), args.legs_per_task, args.quick,
+            r = large_plot(folder, args.large_size, args.large_beam, max(args.workers), args.legs_per_task,
                            args.large_pulse_frequency, args.large_speed)
             print(f"\nlarge plot: {r['area_ha']} ha, {r['beam_samples']} sub-rays, {r['survey']}, {r['workers']} workers, "
                   f"{r['leg_tasks']} leg tasks: wall {r['wall_s']} s; {r['pulses']:,} pulses, {r['points']:,} points; "
