@@ -143,7 +143,7 @@ def _placed_parts(survey: HeliosSurvey, fail):
     """Every part's meshes by class as models placed by the part's rotation and translation (the scale is
     in the model); the ground parts' triangles as one mesh in place."""
     all_meshes, objects, models, notes = [], [], {}, []
-    ground_v, ground_f, ground_ids = [], [], []
+    ground_meshes, ground_ids = [], []
     keys = {}
     for part in survey.parts:
         m = np.eye(4)
@@ -155,10 +155,8 @@ def _placed_parts(survey: HeliosSurvey, fail):
                 by_class.setdefault(mesh.classification, []).append((path, mesh))
         for code, group in sorted(by_class.items()):
             if code == GROUND:
-                for _, mesh in group:
-                    base = sum(len(v) for v in ground_v)
-                    ground_v.append((mesh.vertices * part.scale) @ part.rotation.T + part.offset)
-                    ground_f.append(mesh.faces + base)
+                ground_meshes += [((mesh.vertices * part.scale) @ part.rotation.T + part.offset, mesh.faces)
+                                  for _, mesh in group]
                 ground_ids.append(part.part_id)
                 continue
             key = (tuple(str(p) for p, _ in group), part.y_up, part.scale, code)
@@ -172,11 +170,12 @@ def _placed_parts(survey: HeliosSurvey, fail):
                                       position=tuple(map(float, part.offset)), rotation=0.0, tilt=(0.0, 0.0),
                                       instance=len(objects) + 1, object_id=part.part_id, components=1,
                                       transform=tuple(map(tuple, m.tolist()))))
-    if not ground_v:
+    if not ground_meshes:
         raise fail("scene", "no part is ground (a material with helios_isGround true or helios_classification 1); "
                             "the ground is needed")
     if len(set(ground_ids)) > 1:
         notes.append(f"ground parts {', '.join(map(str, ground_ids))} form one terrain; its points carry "
                      f"object_id {ground_ids[0]}")
-    ground = (np.vstack(ground_v), np.vstack(ground_f).astype(np.uint32), ground_ids[0])
+    ground_v, ground_f, _ = merge(ground_meshes, [0] * len(ground_meshes))
+    ground = (ground_v, ground_f, ground_ids[0])
     return all_meshes, objects, models, ground, notes
