@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ConfigError
-from .documents import sub_rays
+from .documents import OPTICS, sub_rays
 
 # Attributes read elsewhere than in the element itself, or that change no hit: recorded, not used.
 IGNORED = {
@@ -34,7 +34,6 @@ IGNORED = {
                 "atmosphericVisibility_km", "scanAngleEffectiveMax_deg", "refrIndex_air", "scanProduct"},
 }
 PLATFORM_TYPES = ("linearpath", "multicopter")
-OPTICS = {"rotating": "rotating", "oscillating": "oscillating"}
 
 
 @dataclass(frozen=True)
