@@ -54,14 +54,19 @@ SENSOR_SPEC = {
 }
 
 
+def _field_spec(f):
+    """The schema of one archetype field, from its metadata (choices, integer, lo, hi)."""
+    if f.metadata["choices"]:
+        return Text(f.default, choices=f.metadata["choices"])
+    return Number(f.default, integer=f.metadata["integer"], ge=f.metadata["lo"], le=f.metadata["hi"])
+
+
 def _archetypes(value, ctx: Context, key: str):
     if value == "default":
         return list(DEFAULT_ARCHETYPES)
     if not isinstance(value, (list, tuple)):
         ctx.fail(key, "must be 'default' or a list of archetype mappings ([] for none, beside forest.models)")
-    spec = {name: Text(f.default, choices=f.metadata["choices"]) if f.metadata["choices"] else
-            Number(f.default, integer=f.metadata["integer"], ge=f.metadata["lo"], le=f.metadata["hi"])
-            for name, f in ARCHETYPE_FIELDS.items()}
+    spec = {name: _field_spec(f) for name, f in ARCHETYPE_FIELDS.items()}
     spec["base"] = Number(None, integer=True, ge=1, nullable=True)
     out = []
     for i, item in enumerate(value):
@@ -83,8 +88,7 @@ _MODEL_COMMON = {"units": Text("m", choices=tuple(UNITS)), "up": Text("z", choic
 MESH_SPEC = {"mesh": FilePath(None, nullable=True), "wood": FilePath(None, nullable=True),
              "leaves": Custom(lambda v, c, k: v, None), "repair": Text("fix", choices=REPAIR_MODES), **_MODEL_COMMON}
 QSM_SPEC = {"qsm": FilePath(REQUIRED), **_MODEL_COMMON, "seed": Number(0, integer=True, ge=0, le=2**31 - 1),
-            **{k: Number(ARCHETYPE_FIELDS[k].default, ge=ARCHETYPE_FIELDS[k].metadata["lo"],
-                         le=ARCHETYPE_FIELDS[k].metadata["hi"])
+            **{k: _field_spec(ARCHETYPE_FIELDS[k])
                for k in ("leaf_area", "leaf_length", "leaf_width", "leaf_inclination", "leaf_clumping")}}
 
 
