@@ -24,11 +24,11 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from ..classes import CLASS_NAMES, GROUND, TREE_LEAVES, TREE_WOOD
+from ..classes import CLASS_NAMES, GROUND
 from ..helios.documents import (PartFile, helios_path, materials_mtl, platform_xml, scanner_xml, scene_xml,
                                 survey_xml)
 from .atomic import atomic_path, write_text
-from .tables import csv_text
+from .tables import component_treeid, csv_text
 
 MATERIALS = "materials.mtl"
 
@@ -114,9 +114,8 @@ def _parts(plan, models, files, ground) -> tuple[list[PartFile], list[list]]:
             if path is None:
                 continue
             object_id = obj.object_id + k
-            treeid = obj.treeid if comp.classification in (TREE_WOOD, TREE_LEAVES) or obj.kind == "deadwood" else 0
             parts.append(PartFile(object_id, path, rotations, tuple(obj.position)))
-            rows.append([object_id, object_id, obj.instance, treeid, comp.classification,
+            rows.append([object_id, object_id, obj.instance, component_treeid(obj, comp), comp.classification,
                          CLASS_NAMES[comp.classification], comp.kind, obj.model, _rel(path)])
     return parts, rows
 

@@ -64,6 +64,12 @@ def write_volumes(path, plan, models, offset) -> None:
     write_text(path, csv_text(header, volume_rows(plan, models, offset)))
 
 
+def component_treeid(obj, comp) -> int:
+    """The treeid of one component of a placed object: the object's for tree wood and leaves and for
+    deadwood, else 0 (a tree's other components, rocks, bushes ...)."""
+    return obj.treeid if comp.classification in (TREE_WOOD, TREE_LEAVES) or obj.kind == "deadwood" else 0
+
+
 def write_ids(path, plan, models, offset) -> None:
     """Every object and component: object_id, instance, treeid, classification, kind, model, position,
     species (the name; its code is the points' ``species`` field, classes.SPECIES_CODES), source (the file
@@ -73,8 +79,7 @@ def write_ids(path, plan, models, offset) -> None:
         x, y, z = (f"{p + o:.4f}" for p, o in zip(obj.position, offset))
         species = model_species(plan.models[obj.model])
         for k, comp in enumerate(models[obj.model].components):
-            treeid = obj.treeid if comp.classification in (TREE_WOOD, TREE_LEAVES) or obj.kind == "deadwood" else 0
-            rows.append([obj.object_id + k, obj.instance, treeid, comp.classification, comp.kind,
+            rows.append([obj.object_id + k, obj.instance, component_treeid(obj, comp), comp.classification, comp.kind,
                          obj.model, x, y, z, species, _source(models[obj.model])])
     write_text(path, csv_text(["object_id", "instance", "treeid", "classification", "kind", "model", "x", "y", "z",
                                "species", "source"], rows))
