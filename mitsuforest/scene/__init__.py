@@ -105,7 +105,8 @@ def build_scene(plan, models: dict, sensor, variant: str) -> ScanScene:
 def _build(mi, dr, plan, models, sensor, variant) -> ScanScene:
     ground_v, ground_f = plan.terrain.mesh()
     keep, culled = [], 0
-    extremes = {name: _extreme_points(models[name]) for name in {obj.model for obj in plan.objects}}
+    # hull corners: a large model (an imported 2 M-triangle mesh) is not transformed whole per placed copy
+    extremes = {name: models[name].hull_corners() for name in {obj.model for obj in plan.objects}}
     for obj in plan.objects:
         m = obj.matrix
         v = apply(m, extremes[obj.model])
@@ -131,17 +132,6 @@ def _build(mi, dr, plan, models, sensor, variant) -> ScanScene:
     bbox = np.array([np.min([b[0] for b in all_bounds], 0), np.max([b[1] for b in all_bounds], 0)])
     triangles = sum(models[n].triangles for n in used) + len(ground_f)
     return ScanScene(mi_scene, table, bbox, variant, len(keep), culled, triangles)
-
-
-def _extreme_points(model) -> np.ndarray:
-    """The corners of a model's convex hull: a rotated and moved copy has the bounds of its moved corners,
-    so a large model (an imported 2 M-triangle mesh) is not transformed whole for every placed copy."""
-    from scipy.spatial import ConvexHull, QhullError
-    v = model.vertices()
-    try:
-        return v[ConvexHull(v).vertices]
-    except (QhullError, ValueError):   # flat or tiny models: all their points
-        return v
 
 
 def _registry_ids(dr, mi, shapes) -> np.ndarray:

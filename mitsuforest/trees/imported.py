@@ -14,7 +14,6 @@ import logging
 import math
 
 import numpy as np
-from scipy.spatial import ConvexHull, QhullError
 
 from ..classes import TREE_LEAVES, TREE_WOOD
 from .cache import cached
@@ -55,12 +54,7 @@ def imported_model(entry, name: str) -> Model:
 def summary(entry) -> tuple[np.ndarray, int]:
     """(k, 3) crown points (the model's convex hull corners) and the component count, for the plan."""
     model = imported_model(entry, "summary")
-    points = model.vertices()
-    try:
-        points = points[ConvexHull(points).vertices]
-    except (QhullError, ValueError):
-        pass
-    return points, len(model.components)
+    return model.hull_corners(), len(model.components)
 
 
 def mesh_tree_model(entry: MeshTree, name: str) -> Model:

@@ -48,6 +48,16 @@ class Model:
     def vertices(self) -> np.ndarray:
         return np.vstack([p.vertices for p in self.parts])
 
+    def hull_corners(self) -> np.ndarray:
+        """(k, 3) the corners of the model's convex hull (all its vertices when it is flat or tiny): a
+        rotated and moved copy has the bounds of its moved corners."""
+        from scipy.spatial import ConvexHull, QhullError
+        v = self.vertices()
+        try:
+            return v[ConvexHull(v).vertices]
+        except (QhullError, ValueError):
+            return v
+
 
 def merge(meshes, components) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Concatenate ``[(vertices, faces), ...]`` with one component index per mesh."""
