@@ -61,6 +61,11 @@ class ModelSpec:
     radius: float | None = None
     form: int | None = None              # bush: index into understory.SHRUB_FORMS
 
+    @property
+    def species(self) -> str:
+        """The species name (classes.SPECIES_CODES): a procedural tree's family, ``none`` for everything else."""
+        return self.archetype.species if self.kind == "tree" and self.archetype is not None else "none"
+
     def parameters(self) -> dict:
         """The understory builder's keyword arguments (seed, a log's length and radius, a shrub's form)."""
         return {k: getattr(self, k) for k in ("seed", "length", "radius", "form") if getattr(self, k) is not None}

@@ -196,6 +196,6 @@ def instance_species(plan) -> np.ndarray:
     everything else (the ground at 0, understory, deadwood) ``none``."""
     codes = np.zeros(max((o.instance for o in plan.objects), default=0) + 1, np.uint8)
     for o in plan.objects:
-        if o.kind == "tree" and plan.models[o.model].archetype is not None:
-            codes[o.instance] = SPECIES_CODES[plan.models[o.model].archetype.species]
+        if o.kind == "tree":
+            codes[o.instance] = SPECIES_CODES[plan.models[o.model].species]
     return codes

@@ -32,11 +32,6 @@ def _source(model) -> str:
 WOODY_KINDS = ("tree", "deadwood", "stump")   # the kinds whose wood volume is tabled
 
 
-def model_species(spec) -> str:
-    """The species name of a model: a tree's family, ``none`` for everything else."""
-    return spec.archetype.species if spec.kind == "tree" and spec.archetype is not None else "none"
-
-
 def volume_rows(plan, models: dict, offset) -> list[list]:
     """One row per tree archetype, deadwood piece and stump model, then one per placed tree, deadwood
     piece and stump."""
@@ -45,14 +40,14 @@ def volume_rows(plan, models: dict, offset) -> list[list]:
         if spec.kind in WOODY_KINDS and name in models and models[name].volume:
             v = models[name].volume
             rows.append([spec.kind + "_model", name, "", _f(v.union), _f(v.analytic), _f(v.naive), v.parts,
-                         "", "", "", "", model_species(spec), _source(models[name]), v.repaired, v.skipped])
+                         "", "", "", "", spec.species, _source(models[name]), v.repaired, v.skipped])
     for obj in plan.objects:
         if obj.kind in WOODY_KINDS and models[obj.model].volume:
             v = models[obj.model].volume
             x, y, z = (p + o for p, o in zip(obj.position, offset))
             rows.append([obj.kind, obj.model, obj.instance, _f(v.union), _f(v.analytic), _f(v.naive),
                          v.parts, obj.treeid, f"{x:.4f}", f"{y:.4f}", f"{z:.4f}",
-                         model_species(plan.models[obj.model]), _source(models[obj.model]), v.repaired, v.skipped])
+                         plan.models[obj.model].species, _source(models[obj.model]), v.repaired, v.skipped])
     return rows
 
 
@@ -77,7 +72,7 @@ def write_ids(path, plan, models, offset) -> None:
     rows = [[plan.ground_object_id, 0, 0, GROUND, "ground", "", "", "", "", "none", ""]]
     for obj in plan.objects:
         x, y, z = (f"{p + o:.4f}" for p, o in zip(obj.position, offset))
-        species = model_species(plan.models[obj.model])
+        species = plan.models[obj.model].species
         for k, comp in enumerate(models[obj.model].components):
             rows.append([obj.object_id + k, obj.instance, component_treeid(obj, comp), comp.classification, comp.kind,
                          obj.model, x, y, z, species, _source(models[obj.model])])
