@@ -5,6 +5,11 @@ GROUND, TREE_WOOD, TREE_LEAVES, DEADWOOD, ROCK, STUMP, BUSH = 1, 2, 3, 4, 5, 6, 
 CLASS_NAMES = {GROUND: "ground", TREE_WOOD: "tree_wood", TREE_LEAVES: "tree_leaves", DEADWOOD: "deadwood",
                ROCK: "rock", STUMP: "stump", BUSH: "bush"}
 
+
+def class_name(code: int) -> str:
+    """A class code's name (CLASS_NAMES), or ``class N`` for a code without one."""
+    return CLASS_NAMES.get(int(code), f"class {int(code)}")
+
 DEADWOOD_TREEID = 11   # treeid of deadwood points (one past the last tree model when there are more than ten);
                        # trees carry their model number: archetypes 1.., then forest.models; others 0
 GROUND_OBJECT_ID = 1   # object ids start at 1 with the ground; 0 never labels a point

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .classes import CLASS_NAMES, GROUND, TREE_LEAVES, TREE_WOOD
+from .classes import GROUND, TREE_LEAVES, TREE_WOOD, class_name
 
 # Published ranges: (low, high, source). None: no published figure was found (see README).
 _WOODLAND_PFC = ("NVIS Major Vegetation Group 5, Eucalypt Woodlands fact sheet: crown cover 20-50 %, "
@@ -71,12 +71,12 @@ def realism_table(plan, models, classes: np.ndarray, counts) -> dict:
     edges = counts.bin_edges
     rows = np.flatnonzero(counts.by_height.sum(1))
     lo, hi = (int(rows[0]), int(rows[-1]) + 1) if len(rows) else (0, 0)
-    profile = {CLASS_NAMES.get(c, f"class {c}"): counts.by_height[lo:hi, c].tolist()
+    profile = {class_name(c): counts.by_height[lo:hi, c].tolist()
                for c in np.flatnonzero(counts.by_height.sum(0))}
     return {
         **area_indices(plan, models),
         "first_return_ground_share": float(first[GROUND] / first.sum()) if first.sum() else None,
-        "class_shares": {CLASS_NAMES.get(int(c), f"class {c}"): float(classes[c] / total)
+        "class_shares": {class_name(c): float(classes[c] / total)
                          for c in np.flatnonzero(classes)} if total else {},
         "vertical_profile": {"height_above_ground_m": edges[lo:hi + 1].tolist() if hi else [], "returns": profile},
         "reference": {"forest_type": plan.forest_type, **_reference(plan.forest_type)},

@@ -9,16 +9,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..classes import CLASS_NAMES, TREE_LEAVES, TREE_WOOD
+from ..classes import TREE_LEAVES, TREE_WOOD, class_name
 from .atomic import atomic_path
 from .quicklook import CLASS_COLOURS, WOODY_CLASSES, front_view, instance_palette
 
 DPI = 100
 NON_TREE_GREY = 200
-
-
-def class_name(code: int) -> str:
-    return CLASS_NAMES.get(int(code), f"class {int(code)}")
 
 
 def _figure(width_in: float, height_in: float):
