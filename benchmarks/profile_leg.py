@@ -29,17 +29,19 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 class Stopwatch:
-    """Accumulates the time of wrapped calls, each ended by a device sync."""
+    """Accumulates the wall and CPU time (all threads of the process) of wrapped calls, each ended by
+    a device sync. CPU time is the steadier figure on a shared machine."""
 
     def __init__(self, dr):
-        self.dr, self.seconds = dr, defaultdict(float)
+        self.dr, self.seconds, self.cpu = dr, defaultdict(float), defaultdict(float)
 
     def wrap(self, name, fn):
         def timed(*args, **kwargs):
-            start = time.perf_counter()
+            start, cpu = time.perf_counter(), time.process_time()
             out = fn(*args, **kwargs)
             self.dr.sync_thread()
             self.seconds[name] += time.perf_counter() - start
+            self.cpu[name] += time.process_time() - cpu
             return out
         return timed
 
@@ -62,9 +64,10 @@ def profile(scene, leg_index: int, batch: int, folder: Path) -> tuple[dict, int,
     points = 0
     for run in range(2):                                  # the first run compiles
         watch.seconds.clear()
+        watch.cpu.clear()
         writer = PointWriter(Staging(folder / str(run), scene.name), scene)
         add = watch.wrap("writer (PCD, LAS, statistics)", writer.add)
-        start = time.perf_counter()
+        start, cpu = time.perf_counter(), time.process_time()
         with variant_scope(scan_scene.variant):
             for first in range(0, total, batch):
                 pts, _, _ = tracer.trace_slots(leg, scene.pulse_frequency, scene.scan_frequency, first,
@@ -73,7 +76,8 @@ def profile(scene, leg_index: int, batch: int, folder: Path) -> tuple[dict, int,
                 points += len(pts) if run else 0
         writer.close()
         watch.seconds["total"] = time.perf_counter() - start
-    return dict(watch.seconds), total, points
+        watch.cpu["total"] = time.process_time() - cpu
+    return dict(watch.seconds), dict(watch.cpu), total, points
 
 
 def main(argv=None):
@@ -93,13 +97,15 @@ def main(argv=None):
     variant = select_variant(scene.simulation.variant)
     batch = args.batch or scene.simulation.pulses_per_batch or BATCH_SLOTS[variant.split("_")[0]]
     with tempfile.TemporaryDirectory() as tmp:
-        seconds, slots, points = profile(scene.with_({"simulation.variant": variant}), args.leg, batch, Path(tmp))
+        seconds, cpu, slots, points = profile(scene.with_({"simulation.variant": variant}), args.leg, batch, Path(tmp))
     total = seconds.pop("total")
     print(f"{args.scene.name}, leg {args.leg}: {slots:,} time slots, {points:,} points, {variant}, "
           f"{scene.simulation.beam_samples} {scene.simulation.beam_pattern} sub-rays, batch {batch:,}")
+    print(f"  {'stage':32s} {'wall':>9s}  {'share':>6s}  {'CPU':>9s}")
     for name, s in seconds.items():
-        print(f"  {name:32s} {s:7.2f} s  {s / total:6.1%}")
-    print(f"  {'total (with syncs)':32s} {total:7.2f} s  -> {points / total:,.0f} points/s")
+        print(f"  {name:32s} {s:7.2f} s  {s / total:6.1%}  {cpu[name]:7.2f} s")
+    print(f"  {'total (with syncs)':32s} {total:7.2f} s  {'':6s}  {cpu['total']:7.2f} s  -> {points / total:,.0f} "
+          f"points/s wall, {points / cpu['total']:,.0f} points per CPU-second")
 
 
 if __name__ == "__main__":

@@ -170,6 +170,47 @@ def _device_waveform_matches_the_numpy_reference(samples):
     assert samples == 1 or (ref.number_of_returns == max_returns).any()
 
 
+def test_single_chain_shortcut_gives_the_sorted_rule_s_echo(variant):
+    """echoes.single_chain (no sort) on pulses whose returns lie within ΔR: the same echo as the numpy
+    reference, strongest sub-ray included when powers tie (the lowest sub-ray wins, as in the twin);
+    pulses with a gap wider than ΔR are left to the sorting path."""
+    with variant_scope(variant):
+        import drjit as dr
+        import mitsuba as mi
+
+        from mitsuforest.scan.echoes import single_chain
+        rng = np.random.default_rng(5)
+        n, samples, resolving = 6000, 19, 0.6
+        ranges = 20.0 + rng.choice([0.0, 0.25, 0.5, 0.59], (n, samples)) + rng.choice([0.0, 0.003], (n, samples))
+        ranges[n // 2:, 0] += rng.choice([0.0, 0.7, 3.0], n - n // 2)              # a second chain in some
+        ranges[rng.random((n, samples)) < 0.2] = np.inf
+        ranges[: n // 20] = np.inf                                                 # pulses that return nothing
+        power = rng.choice([1e-4, 2e-4, 5e-4], (n, samples))                        # many exact ties
+        power[n // 20: n // 10] = 0.0                                              # grazing: plain means
+        ref = detect_echoes(ranges, power, resolving, 1e-5, 0)
+        col = [mi.Float(np.ascontiguousarray(ranges[:, k].astype(np.float32))) for k in range(samples)]
+        pcol = [mi.Float(np.ascontiguousarray(power[:, k].astype(np.float32))) for k in range(samples)]
+        off = [[mi.Float(np.full(n, k + a, np.float32)) for a in range(3)] for k in range(samples)]
+        one, slot = single_chain(dr, col, pcol, off, resolving, 1e-5)
+        one, kept = np.array(one), np.array(slot["kept"])
+        finite = np.isfinite(ranges)
+        spread = np.where(finite, ranges, -np.inf).max(axis=1) - np.where(finite, ranges, np.inf).min(axis=1)
+        assert np.array_equal(one, ~(spread > resolving + 1e-6))
+        assert 0.3 < one.mean() < 0.8
+        first = ref.return_number == 1
+        single = one[ref.pulse[first]]
+        pulses = ref.pulse[first][single]
+        assert np.array_equal(np.flatnonzero(kept & one), pulses)
+        assert np.array_equal(ref.number_of_returns[first][single], np.ones(len(pulses)))
+        assert np.allclose(np.array(slot["range"])[pulses], ref.range[first][single], atol=1e-5)
+        assert np.allclose(np.array(slot["amplitude"])[pulses], ref.amplitude[first][single], rtol=1e-4)
+        assert np.array_equal(np.array(slot["dominant"])[pulses], ref.dominant[first][single] % samples)
+        assert (np.array(slot["kept"])[n // 20: n // 10] == 0).all()              # zero amplitude: no echo
+        w = np.where(finite, power, 0.0)[pulses]
+        assert np.allclose(np.array(slot["offset"][1])[pulses], (w * (np.arange(samples) + 1)).sum(1) / w.sum(1),
+                           rtol=1e-5)
+
+
 @pytest.mark.parametrize("deflector", ["rotating", "oscillating", "risley"])
 def test_device_pulses_match_the_numpy_reference(deflector, variant):
     """scan/pulses.py against its numpy twin: same fired and cast pulses, times and angles within

@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..labels.device import DeviceHitTable
-from .echoes import pulse_echoes
+from .echoes import pulse_echoes, single_chain
 from .kernel import RayCaster
 from .noise import noise_key, standard_normal
 
@@ -90,24 +90,44 @@ class EchoKernel(RayCaster):
         return lane, hit_id
 
     def _ranked_echoes(self, lane: dict, n: int):
-        """The waveform per pulse (echoes.py), its echoes scattered to slots pulse*S + rank."""
+        """The waveform per pulse (echoes.py), its echoes scattered to slots pulse*S + rank.
+
+        Pulses whose returns are one chain take :func:`~mitsuforest.scan.echoes.single_chain`; only the
+        others (a few in ten in a forest) are gathered again and sorted."""
         dr, mi, S = self.dr, self.mi, self.samples
-        base = dr.arange(mi.UInt32, n) * S
-        per_sample = {k: [dr.gather(mi.Float, v, base + s) for s in range(S)] for k, v in lane.items()}
-        offsets = [[per_sample[a][s] for a in "xyz"] for s in range(S)]
-        slots, returns = pulse_echoes(dr, per_sample["t"], per_sample["power"], offsets, self.resolving,
-                                      self.threshold, self.max_returns)
         flat = {k: dr.zeros(mi.Float, n * S) for k in ("range", "amplitude", "x", "y", "z")}
         flat["dominant"] = dr.zeros(mi.UInt32, n * S)
         flat["kept"] = dr.zeros(mi.UInt32, n * S)
+        pulse = dr.arange(mi.UInt32, n)
+        one, slot = single_chain(dr, *self._per_sample(lane, pulse), self.resolving, self.threshold)
+        self._scatter(flat, [slot], pulse * S, one)
+        returns = dr.select(one & slot["kept"], 1, 0)
+        returns = mi.UInt32(dr.minimum(returns, self.max_returns)) if self.max_returns else mi.UInt32(returns)
+        dr.eval(flat, returns, one)
+        several = dr.compress(~one)
+        if dr.width(several):
+            slots, chained = pulse_echoes(dr, *self._per_sample(lane, several), self.resolving, self.threshold,
+                                          self.max_returns)
+            self._scatter(flat, slots, several * S, True)
+            dr.scatter(returns, chained, several)
+            dr.eval(flat, returns)
+        return flat, returns
+
+    def _per_sample(self, lane: dict, pulse):
+        """Ranges, powers and hit offsets of ``pulse``'s sub-rays, as S arrays (echoes.py's layout)."""
+        dr, mi, S = self.dr, self.mi, self.samples
+        base = pulse * S
+        per_sample = {k: [dr.gather(mi.Float, v, base + s) for s in range(S)] for k, v in lane.items()}
+        return per_sample["t"], per_sample["power"], [[per_sample[a][s] for a in "xyz"] for s in range(S)]
+
+    def _scatter(self, flat: dict, slots: list, base, active):
+        mi, dr = self.mi, self.dr
         for slot in slots:
-            at, kept = base + slot["rank"], slot["kept"]
+            at, kept = base + slot["rank"], slot["kept"] & active
             for key, value in (("range", slot["range"]), ("amplitude", slot["amplitude"]),
                                ("x", slot["offset"][0]), ("y", slot["offset"][1]), ("z", slot["offset"][2]),
                                ("dominant", slot["dominant"]), ("kept", mi.UInt32(1))):
                 dr.scatter(flat[key], value, at, kept)
-        dr.eval(flat, returns)
-        return flat, returns
 
     def _echo_records(self, flat: dict, returns, hit_id: dict, pulses) -> dict:
         """The kept slots, compacted, with their points, noise, pulse data and their strongest sub-ray's

@@ -12,6 +12,8 @@ of W but one echo; ``scan/reference/echoes.py`` derives ``a_min`` and tabulates 
 A pulse's S sub-ray returns are held in registers (Python lists of S arrays), sorted by range with a
 sorting network, then chained, summed and detected in unrolled passes, so no sub-ray data leaves
 the device and every sum is taken in a fixed order (results do not depend on thread scheduling).
+Most pulses need no sort: when all their returns lie within ΔR of the nearest one they are one chain,
+whose sums :func:`single_chain` takes in sub-ray order (the same echo, up to float rounding).
 The numpy twin is the reference; tests check the two agree.
 """
 
@@ -64,6 +66,49 @@ def pulse_echoes(dr, t: list, power: list, offset: list, resolving: float, thres
     amplitude = _chain_amplitudes(dr, rows, valid, start, mean, resolving / FWHM_PER_SIGMA)
     detected = [end[k] & (amplitude[k] > 0) & (amplitude[k] >= threshold) for k in range(len(rows))]
     return _ranked(dr, totals, mean, amplitude, detected, max_returns)
+
+
+def single_chain(dr, t: list, power: list, offset: list, resolving: float, threshold: float):
+    """The echo of each pulse whose returns are one chain, found without sorting them.
+
+    A pulse's returns are one chain when the farthest lies within ΔR of the nearest (then every gap
+    between neighbours in range order does too). Its echo is :func:`pulse_echoes`' first slot, but
+    for the strongest return: among returns of equal largest power, the first sub-ray wins (as in the
+    numpy twin's one-chain pulses), not the nearest.
+
+    :param t, power, offset: as for :func:`pulse_echoes`.
+    :returns: ``one`` (P,) Bool, whether the pulse has at most one chain (no return at all included);
+        ``slot``, its echo in :func:`pulse_echoes`' slot layout (``rank`` 0).
+    """
+    Float = type(t[0])
+    UInt32 = dr.uint32_array_t(Float)
+    valid = [dr.isfinite(x) for x in t]
+    nearest, farthest = t[0], dr.select(valid[0], t[0], -dr.inf)
+    for k in range(1, len(t)):
+        nearest, farthest = dr.minimum(nearest, t[k]), dr.maximum(farthest, dr.select(valid[k], t[k], -dr.inf))
+    any_return = dr.isfinite(nearest)
+    one = ~any_return | (farthest - nearest <= resolving)
+    total = {key: Float(0.0) for key in ("energy", "weighted", "count", "plain", "x", "y", "z", "px", "py", "pz")}
+    best, dominant = Float(-1.0), UInt32(0)
+    for k in range(len(t)):
+        p = power[k]
+        here = {"energy": p, "weighted": p * t[k], "count": 1.0, "plain": t[k],
+                **{a: offset[k][i] for i, a in enumerate("xyz")}, **{f"p{a}": p * offset[k][i] for i, a in enumerate("xyz")}}
+        total = {key: dr.select(valid[k], total[key] + here[key], total[key]) for key in total}
+        stronger = valid[k] & (p > best)
+        best = dr.select(stronger, p, best)
+        dominant = dr.select(stronger, UInt32(k), dominant)
+    uniform, scale = _uniform(dr, total)
+    mean = dr.select(uniform, total["plain"], total["weighted"]) * scale
+    sigma = resolving / FWHM_PER_SIGMA
+    amplitude = Float(0.0)
+    for k in range(len(t)):
+        shape = dr.exp(-0.5 * dr.square((t[k] - mean) / sigma)) if sigma > 0 else dr.select(t[k] == mean, 1.0, 0.0)
+        amplitude = amplitude + dr.select(valid[k], power[k] * shape, 0.0)
+    kept = any_return & (amplitude > 0) & (amplitude >= threshold)
+    slot = {"kept": kept, "rank": UInt32(0), "range": mean, "amplitude": amplitude,
+            "offset": [dr.select(uniform, total[a], total[f"p{a}"]) * scale for a in "xyz"], "dominant": dominant}
+    return one, slot
 
 
 def _sorted_by_range(dr, t, power, offset) -> list[dict]:

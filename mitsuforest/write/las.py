@@ -63,6 +63,7 @@ def las_header(offset, crs: str | None = None) -> laspy.LasHeader:
         laspy.ExtraBytesParams("amplitude", np.float32, "echo amplitude (white at 1 m=1)"),
         laspy.ExtraBytesParams("species", np.uint8, "tree family code, 0 none"),
     ])
+    _without_extra_statistics(header)
     header.vlrs.append(laspy.VLR("mitsuforest", 1, "intensity and classes", json.dumps(
         {"intensity_scale": INTENSITY_SCALE, "classification": {str(k): v for k, v in ASPRS_CODE.items()},
          "species": {str(v): k for k, v in SPECIES_CODES.items()}, "crs": crs}).encode()))
@@ -70,6 +71,13 @@ def las_header(offset, crs: str | None = None) -> laspy.LasHeader:
     if crs:
         header.vlrs.append(WktCoordinateSystemVlr(crs_wkt(crs)))
     return header
+
+
+def _without_extra_statistics(header: laspy.LasHeader) -> None:
+    """Clear the optional min/max of each extra dimension: laspy fills them from the first batch only
+    (a LAZ file's VLRs are written before its points), which is wrong and depends on the batch size."""
+    for struct in header.vlrs.get("ExtraBytesVlr")[0].extra_bytes_structs:
+        struct.options &= ~(struct.MIN_BIT_MASK | struct.MAX_BIT_MASK)
 
 
 def las_points(header: laspy.LasHeader, points: np.ndarray) -> laspy.LasData:
