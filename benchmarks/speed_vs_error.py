@@ -35,6 +35,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
+from mitsuforest.classes import CLASS_NAMES
 from mitsuforest.config import load_scene
 from mitsuforest.plan import make_plan
 from mitsuforest.scan import PulseTracer
@@ -128,8 +129,9 @@ def returns_histogram(points, pulses_cast):
 def compare(points, ref, truth, pulses_cast):
     xyz = np.column_stack([points["x"], points["y"], points["z"]])
     d, _ = truth.query(xyz)
-    classes = [np.mean(p["classification"] == c) for p in (points, ref) for c in range(1, 8)]
-    a, b = np.array(classes[:7]), np.array(classes[7:])
+    codes = sorted(CLASS_NAMES)
+    classes = [np.mean(p["classification"] == c) for p in (points, ref) for c in codes]
+    a, b = np.array(classes[:len(codes)]), np.array(classes[len(codes):])
     fa = points[points["return_number"] == 1]
     fb = ref[ref["return_number"] == 1]
     common, ia, ib = np.intersect1d(fa["pulse_id"], fb["pulse_id"], return_indices=True)

@@ -1,9 +1,11 @@
 """Point classes and tree ids shared by every stage (Synthetic Forest paper's codes)."""
 
 GROUND, TREE_WOOD, TREE_LEAVES, DEADWOOD, ROCK, STUMP, BUSH = 1, 2, 3, 4, 5, 6, 7
+GROUND_VEGETATION = 8   # the ground layer: grass tufts and leaf litter (understory.grass, understory.litter)
 
 CLASS_NAMES = {GROUND: "ground", TREE_WOOD: "tree_wood", TREE_LEAVES: "tree_leaves", DEADWOOD: "deadwood",
-               ROCK: "rock", STUMP: "stump", BUSH: "bush"}
+               ROCK: "rock", STUMP: "stump", BUSH: "bush",
+               GROUND_VEGETATION: "ground_vegetation"}
 
 
 def class_name(code: int) -> str:

@@ -206,8 +206,10 @@ SCENE_SPEC = {
         "archetypes": Custom(_archetypes, "default"),
         "models": Custom(_models, None),
     },
-    "understory": {k: Number(d, integer=True, ge=0) for k, d in
-                   (("bushes", 120), ("rocks", 40), ("deadwood", 25), ("stumps", 15))},
+    "understory": {**{k: Number(d, integer=True, ge=0) for k, d in
+                      (("bushes", 120), ("rocks", 40), ("deadwood", 25), ("stumps", 15))},
+                   "grass": {"cover": Number(0.0, ge=0, le=1), "height": Number(0.3, gt=0, le=1.0)},
+                   "litter": {"cover": Number(0.0, ge=0, le=1)}},
     "sensor": Custom(_sensor, REQUIRED),
     "survey": {
         "altitude": Number(30.0, gt=0),
@@ -333,6 +335,10 @@ def _parsed_scene(data, ctx: Context) -> dict:
 
 def _check_scene(scene: dict, ctx: Context):
     forest, survey, sensor = scene["forest"], scene["survey"], scene["sensor"]
+    ground_layer = scene["understory"]["grass"]["cover"] + scene["understory"]["litter"]["cover"]
+    if ground_layer > 1:
+        ctx.fail("understory.litter.cover", f"grass and litter patches do not overlap: their covers add up to "
+                 f"{ground_layer:g}, more than 1")
     if forest["canopy_cover"] is not None and forest["trees"] is not None:
         ctx.fail("forest.trees", "give either forest.canopy_cover or forest.trees, not both")
     if forest["trees"] and forest["min_spacing"] > 0:

@@ -137,11 +137,24 @@ class Forest:
 
 
 @dataclass(frozen=True)
+class Grass:
+    cover: float                              # share of the plot under grass patches (0: none)
+    height: float                             # mean blade length (m)
+
+
+@dataclass(frozen=True)
+class Litter:
+    cover: float                              # share of the plot under leaf-litter patches (0: none)
+
+
+@dataclass(frozen=True)
 class Understory:
     bushes: int
     rocks: int
     deadwood: int
     stumps: int
+    grass: Grass
+    litter: Litter
 
 
 @dataclass(frozen=True)
@@ -244,7 +257,7 @@ class Scene:
         return d
 
 
-SECTIONS = (Risley, Sensor, Area, Origin, TerrainSettings, Forest, Understory, Survey, Simulation, Output, Scene)
+SECTIONS = (Risley, Sensor, Area, Origin, TerrainSettings, Forest, Grass, Litter, Understory, Survey, Simulation, Output, Scene)
 
 
 def _as_value(value):

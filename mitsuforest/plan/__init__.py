@@ -22,6 +22,7 @@ from ..trees.skeleton import grow
 from ..trees.understory import SHRUB_FORMS, UNDERSTORY_COMPONENTS
 from .cover import CoverGrid, crown_outline
 from .flight import flight_legs
+from .ground_layer import ground_layer_refusal, place_ground_layer
 from .terrain import Terrain, make_terrain
 from .transforms import apply
 from .types import Leg, ModelSpec, PlacedObject, Plan
@@ -70,10 +71,12 @@ def _plan(scene) -> Plan:
     understory, understory_models = _place_understory(scene, size, trees, terrain, rng,
                                                       deadwood_treeid=_deadwood_treeid(len(models)))
     models.update(understory_models)
+    ground_layer, ground_layer_models = place_ground_layer(scene.understory, size, terrain, scene.seed)
+    models.update(ground_layer_models)
     return Plan(
         scene=scene.name, seed=scene.seed, area=tuple(size), forest_type=scene.forest.type,
         canopy_cover=round(cover, 6), terrain=terrain, models=models,
-        objects=tuple(_with_ids(trees + understory, models)),
+        objects=tuple(_with_ids(trees + understory + ground_layer, models)),
         legs=tuple(legs),
     )
 
@@ -232,6 +235,9 @@ def _check_understory_fits(scene) -> None:
     fills at most a share RSA_JAMMING of the plane); the placement loop stays the exact test."""
     counts = scene.understory
     (w, h), used = scene.area.size, 0.0
+    refusal = ground_layer_refusal(counts, scene.area.size)
+    if refusal:
+        raise _Refusal(*refusal)
     for kind, key in UNDERSTORY_KEYS.items():
         if getattr(counts, key) and min(w, h) <= 2 * CLEARANCE[kind]:
             raise _Refusal(f"understory.{key}", f"a {w:g} x {h:g} m plot is too small for {key} (each needs "

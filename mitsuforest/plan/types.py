@@ -52,7 +52,7 @@ class Leg:
 class ModelSpec:
     """What to build for one model: a tree archetype, or an understory kind and its parameters."""
 
-    kind: str                            # tree, bush, rock, deadwood, stump (or custom, in tests)
+    kind: str                            # tree, bush, rock, deadwood, stump, grass, litter (or custom, in tests)
     components: int                      # labelled components (object ids per placed copy)
     archetype: Archetype | None = None   # procedural trees
     source: MeshTree | QsmTree | None = None   # imported trees (forest.models)
@@ -60,6 +60,7 @@ class ModelSpec:
     length: float | None = None          # deadwood
     radius: float | None = None
     form: int | None = None              # bush: index into understory.SHRUB_FORMS
+    height: float | None = None          # grass: mean blade length (trees/ground_layer.py)
 
     @property
     def species(self) -> str:
@@ -67,8 +68,9 @@ class ModelSpec:
         return self.archetype.species if self.kind == "tree" and self.archetype is not None else "none"
 
     def parameters(self) -> dict:
-        """The understory builder's keyword arguments (seed, a log's length and radius, a shrub's form)."""
-        return {k: getattr(self, k) for k in ("seed", "length", "radius", "form") if getattr(self, k) is not None}
+        """The understory builder's keyword arguments (seed, a log's length and radius, a shrub's form, a
+        grass patch's blade height)."""
+        return {k: getattr(self, k) for k in ("seed", "length", "radius", "form", "height") if getattr(self, k) is not None}
 
 
 @dataclass(frozen=True)

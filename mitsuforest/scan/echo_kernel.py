@@ -28,7 +28,7 @@ class EchoKernel(RayCaster):
 
     :param sample_tangents, beam: the beam pattern (see :class:`~mitsuforest.scan.kernel.RayCaster`).
     :param weights: (S,) beam energy of each sub-ray.
-    :param reflectance: (8,) reflectance by class code.
+    :param reflectance: (max class code + 1,) reflectance by class code.
     :param sensor: the :class:`~mitsuforest.config.types.Sensor` (range limits, detection threshold,
         max returns, resolving distance, ranging noise).
     :param seed: the scene's seed (keys the ranging noise; see noise.py).

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..classes import BUSH, DEADWOOD, GROUND, ROCK, STUMP, TREE_LEAVES, TREE_WOOD
+from ..classes import BUSH, CLASS_NAMES, DEADWOOD, GROUND, GROUND_VEGETATION, ROCK, STUMP, TREE_LEAVES, TREE_WOOD
 
 REFLECTANCE = {
     #                 905-1064 nm   1550 nm
@@ -26,13 +26,14 @@ REFLECTANCE = {
     ROCK:        (0.30, 0.35),
     STUMP:       (0.40, 0.45),
     BUSH:        (0.45, 0.25),
+    GROUND_VEGETATION: (0.40, 0.33),   # green and cured grass blades with dry leaf litter: between leaves and litter
 }
 
 
 def reflectance_table(wavelength: float) -> np.ndarray:
-    """(8,) reflectance indexed by class code at ``wavelength`` (m): the nearer of the two bands."""
+    """(max class code + 1,) reflectance indexed by class code at ``wavelength`` (m): the nearer of the two bands."""
     band = 1 if wavelength > 1.3e-6 else 0
-    table = np.zeros(8)
+    table = np.zeros(max(CLASS_NAMES) + 1)
     for code, values in REFLECTANCE.items():
         table[code] = values[band]
     return table

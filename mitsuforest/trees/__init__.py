@@ -11,11 +11,13 @@ from .archetypes import DEFAULT_ARCHETYPES, Archetype
 from .cache import cached
 from .imported import imported_model
 from .models import Component, Model, Part, tree_model
+from .ground_layer import grass_patch_model, litter_patch_model
 from .understory import bush_model, deadwood_model, rock_model, stump_model
 
 __all__ = ["Archetype", "DEFAULT_ARCHETYPES", "Model", "Part", "Component", "build_model", "build_models"]
 
-_BUILDERS = {"bush": bush_model, "rock": rock_model, "stump": stump_model, "deadwood": deadwood_model}
+_BUILDERS = {"bush": bush_model, "rock": rock_model, "stump": stump_model, "deadwood": deadwood_model,
+             "grass": grass_patch_model, "litter": litter_patch_model}
 
 
 def build_model(name: str, spec) -> Model:

@@ -1,8 +1,8 @@
 """LAS 1.4 / LAZ (point format 6) through laspy.
 
-Classification uses ASPRS codes where they fit — ground 2, bush 4 (medium vegetation), tree wood and
-leaves 5 (high vegetation) — and the user range for the rest: deadwood 64, rock 65, stump 66. Our own
-classes (1-7, as in the PCD) are in the extra dimension ``label``; ``treeid``, ``instance``,
+Classification uses ASPRS codes where they fit — ground 2, ground vegetation 3 (low vegetation), bush 4
+(medium vegetation), tree wood and leaves 5 (high vegetation) — and the user range for the rest: deadwood 64, rock 65, stump 66. Our own
+classes (1-8, as in the PCD) are in the extra dimension ``label``; ``treeid``, ``instance``,
 ``object_id`` and ``species`` (classes.SPECIES_CODES, also in the VLR) are extra dimensions too. Intensity is scaled to 16 bits by a fixed factor
 (INTENSITY_SCALE, also written in the header's VLR and the file description): the float amplitude
 is kept exact in the extra dimension ``amplitude``. Coordinates are stored at 0.1 mm with the
@@ -19,11 +19,11 @@ import laspy
 import numpy as np
 from laspy.vlrs.known import WktCoordinateSystemVlr
 
-from ..classes import BUSH, DEADWOOD, GROUND, ROCK, SPECIES_CODES, STUMP, TREE_LEAVES, TREE_WOOD
+from ..classes import BUSH, DEADWOOD, GROUND, GROUND_VEGETATION, ROCK, SPECIES_CODES, STUMP, TREE_LEAVES, TREE_WOOD
 from ..errors import UserError
 from .atomic import atomic_path
 
-ASPRS_CODE = {GROUND: 2, TREE_WOOD: 5, TREE_LEAVES: 5, BUSH: 4, DEADWOOD: 64, ROCK: 65, STUMP: 66}
+ASPRS_CODE = {GROUND: 2, TREE_WOOD: 5, TREE_LEAVES: 5, BUSH: 4, GROUND_VEGETATION: 3, DEADWOOD: 64, ROCK: 65, STUMP: 66}
 INTENSITY_SCALE = 1e-6   # amplitude units per LAS intensity count (65535 ≙ a 6.5 % full-beam target at 1 m)
 COORDINATE_SCALE = 1e-4  # m
 
@@ -56,7 +56,7 @@ def las_header(offset, crs: str | None = None) -> laspy.LasHeader:
     header.offsets = np.asarray(offset, float)
     header.scales = np.full(3, COORDINATE_SCALE)
     header.add_extra_dims([
-        laspy.ExtraBytesParams("label", np.uint8, "mitsuforest class 1-7"),
+        laspy.ExtraBytesParams("label", np.uint8, "mitsuforest class 1-8"),
         laspy.ExtraBytesParams("treeid", np.uint16, "archetype 1-10, deadwood 11"),
         laspy.ExtraBytesParams("instance", np.uint32, "object instance id"),
         laspy.ExtraBytesParams("object_id", np.uint32, "component id"),

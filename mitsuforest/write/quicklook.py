@@ -11,11 +11,12 @@ from __future__ import annotations
 import numpy as np
 from PIL import Image
 
-from ..classes import BUSH, DEADWOOD, GROUND, ROCK, STUMP, TREE_LEAVES, TREE_WOOD
+from ..classes import BUSH, DEADWOOD, GROUND, GROUND_VEGETATION, ROCK, STUMP, TREE_LEAVES, TREE_WOOD
 from .atomic import atomic_path
 
 CLASS_RGB = {GROUND: (196, 178, 140), TREE_WOOD: (120, 72, 40), TREE_LEAVES: (60, 160, 60),
-             DEADWOOD: (200, 60, 200), ROCK: (110, 110, 120), STUMP: (230, 150, 40), BUSH: (150, 210, 90)}
+             DEADWOOD: (200, 60, 200), ROCK: (110, 110, 120), STUMP: (230, 150, 40), BUSH: (150, 210, 90),
+             GROUND_VEGETATION: (205, 215, 60)}
 OTHER_RGB = (60, 60, 200)      # a class without a colour of its own
 CLASS_COLOURS = np.array([CLASS_RGB.get(c, OTHER_RGB) for c in range(256)], np.uint8)   # index = class code
 WOODY_CLASSES = (TREE_WOOD, DEADWOOD, STUMP)

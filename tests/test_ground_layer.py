@@ -1,0 +1,141 @@
+"""The ground layer (understory.grass, understory.litter): instanced patches on the terrain, scanned as
+class ground_vegetation at the share their cover and the patches' covered area imply."""
+
+import numpy as np
+import pytest
+from helpers import ROOT, scene_file
+
+from mitsuforest.classes import GROUND, GROUND_VEGETATION
+from mitsuforest.config import ConfigError, load_scene
+from mitsuforest.pipeline import render
+from mitsuforest.plan import make_plan
+from mitsuforest.plan.transforms import apply
+from mitsuforest.trees import build_model
+from mitsuforest.trees.ground_layer import PATCH_SIZE, covered_share, grass_patch_model, litter_patch_model
+from test_terrain import OFFSET, dem_scene, hill, write_dem
+
+SIDE = 20.0
+
+
+def _ground_scene(tmp_path, grass: float, litter: float, **sections):
+    return load_scene(scene_file(tmp_path, area={"size": [SIDE, SIDE]},
+                                 understory={"bushes": 0, "rocks": 0, "deadwood": 0, "stumps": 0,
+                                             "grass": {"cover": grass}, "litter": {"cover": litter}},
+                                 **sections))
+
+
+def _patches(plan, kind=None):
+    return [o for o in plan.objects if o.kind in ((kind,) if kind else ("grass", "litter"))]
+
+
+def test_patches_are_instances_of_a_few_models_whatever_the_cover(tmp_path):
+    plans = {c: make_plan(_ground_scene(tmp_path / str(c), c, c / 2)) for c in (0.1, 0.6)}
+    for cover, plan in plans.items():
+        cells = SIDE * SIDE / PATCH_SIZE ** 2
+        assert len(_patches(plan, "grass")) == round(cover * cells)
+        assert len(_patches(plan, "litter")) == round(cover / 2 * cells)
+        assert sorted(n for n, s in plan.models.items() if s.kind in ("grass", "litter")) == \
+            [f"grass{i:02d}" for i in range(1, 5)] + [f"litter{i:02d}" for i in range(1, 5)]
+    # Six times the patches, the same distinct meshes: memory follows the models, not the cover.
+    assert len(_patches(plans[0.6])) == 6 * len(_patches(plans[0.1]))
+    # Cells are whole and not shared: no two patches at one centre (flat ground: centres are the cells').
+    centres = {o.position[:2] for o in _patches(plans[0.6])}
+    assert len(centres) == len(_patches(plans[0.6]))
+
+
+def test_no_ground_layer_leaves_the_plan_as_it_was(tmp_path):
+    scene = load_scene(ROOT / "scenes" / "demo.yaml")
+    before = make_plan(scene)
+    after = make_plan(scene.with_({"understory.grass.cover": 0.2}))
+    assert after.objects[:len(before.objects)] == before.objects
+    assert {o.kind for o in after.objects[len(before.objects):]} == {"grass"}
+
+
+def test_patches_sit_on_a_dem_hill_and_stay_in_the_plot(tmp_path):
+    """On a 3 m Gaussian hill (sigma 6 m), each patch's ground plane, moved by its placement, lies on
+    the analytic surface within 1.5 cm over its whole square; grass roots are at most 2.5 cm off it,
+    litter lies on it (never more than 1 cm below, at most 3 cm above); every vertex is in the plot."""
+    dem = write_dem(tmp_path / "dem.tif", hill)
+    scene = load_scene(dem_scene(tmp_path, dem)).with_(
+        {"understory.grass.cover": 0.4, "understory.litter.cover": 0.3})
+    plan = make_plan(scene)
+    size = scene.area.size
+    s = np.linspace(-PATCH_SIZE / 2, PATCH_SIZE / 2, 9)
+    square = np.column_stack([*(a.ravel() for a in np.meshgrid(s, s)), np.zeros(81)])
+    models = {n: build_model(n, spec) for n, spec in plan.models.items() if spec.kind in ("grass", "litter")}
+    worst, tilted = 0.0, 0
+    for obj in _patches(plan):
+        ground = lambda p: hill(p[:, 0] + OFFSET[0], p[:, 1] + OFFSET[1]) - OFFSET[2]   # noqa: E731
+        plane = apply(obj.matrix, square)
+        worst = max(worst, float(np.abs(plane[:, 2] - ground(plane)).max()))
+        tilted += max(map(abs, obj.tilt)) > 2
+        v = apply(obj.matrix, models[obj.model].vertices())
+        assert v[:, 0].min() >= 0 and v[:, 1].min() >= 0 and v[:, 0].max() <= size[0] and v[:, 1].max() <= size[1]
+        above = v[:, 2] - ground(v)
+        if obj.kind == "litter":
+            assert -0.01 < above.min() and above.max() < 0.03, (obj, above.min(), above.max())
+        else:
+            roots = models[obj.model].vertices()[:, 2] < 0
+            assert np.abs(above[roots] + 0.01).max() < 0.025, obj
+    assert worst < 0.015, worst
+    assert tilted > 50          # the hill's slopes (up to 17°) really tilt the patches
+    assert len(_patches(plan)) == round(0.7 * size[0] * size[1])
+
+
+def test_covers_that_do_not_fit_are_refused(tmp_path):
+    with pytest.raises(ConfigError, match="understory.litter.cover: grass and litter patches do not overlap: their "
+                                          "covers add up to 1.2"):
+        _ground_scene(tmp_path, 0.7, 0.5)
+    with pytest.raises(ConfigError, match="understory.grass.cover: must be <= 1, got 1.5"):
+        _ground_scene(tmp_path, 1.5, 0.0)
+    scene = load_scene(scene_file(tmp_path, area={"size": [10.5, 10.5]},
+                                  understory={"bushes": 0, "rocks": 0, "deadwood": 0, "stumps": 0,
+                                              "grass": {"cover": 1.0}}))
+    with pytest.raises(ConfigError, match=r"understory.grass.cover: 110 ground-layer patches of 1 m do not fit in "
+                                          r"the 100 whole 1 m cells"):
+        make_plan(scene)
+
+
+def test_patch_models_are_what_their_docstrings_say():
+    grass, litter = grass_patch_model(3, "g", 0.3), litter_patch_model(3, "l")
+    for model in (grass, litter):
+        v = model.vertices()
+        assert np.abs(v[:, :2]).max() <= PATCH_SIZE / 2 + 1e-12
+        assert model.components[0].classification == GROUND_VEGETATION
+    assert grass.vertices()[:, 2].min() == pytest.approx(-0.01) and 0.3 < grass.vertices()[:, 2].max() < 0.42
+    assert grass.meta["blades"] >= 36 * 14
+    z = litter.vertices()[:, 2]
+    assert z.min() >= 0.001 and z.max() < 0.02
+    # Seen from above, grass covers a fifth of its square and litter two fifths (rasterised at 0.25 mm).
+    assert 0.15 < covered_share(grass) < 0.25 and 0.35 < covered_share(litter) < 0.45
+
+
+def test_ground_vegetation_points_at_the_share_the_patches_cover(tmp_path):
+    """A bare flat 20 m plot with grass on 30 % and litter on 30 % of it, one leg, thin ideal beam.
+    Each first return is put in its patch (the plan's cells) or on bare ground: none of the bare ground's
+    returns is ground vegetation; in litter cells the share is the litter models' covered area (flat
+    leaves: the same from any angle; measured 0.396 for 0.396), in grass cells near nadir the grass models'
+    covered area (0.161 for 0.187: the raster's edge pixels count whole)."""
+    scene = _ground_scene(tmp_path, 0.3, 0.3, simulation={"beam_samples": 1, "beam_pattern": "fixed"},
+                          survey={"altitude": 30, "pulse_frequency": 100000, "scan_frequency": 50, "speed": 4,
+                                  "lines": [[[10.0, -5.0], [10.0, 25.0]]]})
+    result = render(scene, write=False, progress=False, log=lambda *_: None)
+    p = result.points[result.points["return_number"] == 1]
+    p = p[(p["x"] > 0) & (p["x"] < SIDE) & (p["y"] > 0) & (p["y"] < SIDE)]
+    plan = result.plan
+    models = {n: build_model(n, s) for n, s in plan.models.items()}
+    cell_of = {}
+    for obj in _patches(plan):
+        cell_of[int(obj.position[0]), int(obj.position[1])] = obj
+    where = [cell_of.get((int(x), int(y))) for x, y in zip(p["x"], p["y"])]
+    kind = np.array([o.kind if o else "bare" for o in where])
+    veg = p["classification"] == GROUND_VEGETATION
+    assert set(np.unique(p["classification"])) == {GROUND, GROUND_VEGETATION}
+    assert not veg[kind == "bare"].any() and (kind == "bare").sum() > 10_000
+    share = {n: covered_share(models[n]) for n in plan.models if plan.models[n].kind in ("grass", "litter")}
+    litter = kind == "litter"
+    expected = np.mean([share[o.model] for o in where if o and o.kind == "litter"])
+    assert litter.sum() > 10_000 and veg[litter].mean() == pytest.approx(expected, abs=0.03)
+    nadir = (kind == "grass") & (np.abs(p["scan_angle"]) < 10)
+    expected = np.mean([share[o.model] for o, n in zip(where, nadir) if n])
+    assert nadir.sum() > 2_000 and veg[nadir].mean() == pytest.approx(expected, rel=0.25)
