@@ -133,7 +133,7 @@ def test_understory_lies_wholly_inside_the_plot():
     from mitsuforest.plan.transforms import apply
     from mitsuforest.trees import build_model
     scene = load_scene(ROOT / "scenes" / "demo.yaml").with_(
-        forest={"trees": 2}, understory={"bushes": 6, "rocks": 12, "deadwood": 6, "stumps": 12})
+        forest={"trees": 2}, understory={"bushes": 4, "rocks": 12, "deadwood": 6, "stumps": 12})
     plan = make_plan(scene)
     (w, h), kinds = scene.area.size, {}
     models = {name: build_model(name, spec) for name, spec in plan.models.items() if spec.kind != "tree"}
@@ -144,4 +144,4 @@ def test_understory_lies_wholly_inside_the_plot():
         assert xyz[:, 0].min() >= 0 and xyz[:, 1].min() >= 0, (obj.model, xyz[:, :2].min(0))
         assert xyz[:, 0].max() <= w and xyz[:, 1].max() <= h, (obj.model, xyz[:, :2].max(0))
         kinds[obj.kind] = kinds.get(obj.kind, 0) + 1
-    assert kinds == {"bush": 6, "rock": 12, "deadwood": 6, "stump": 12}
+    assert kinds == {"bush": 4, "rock": 12, "deadwood": 6, "stump": 12}

@@ -207,7 +207,7 @@ SCENE_SPEC = {
         "models": Custom(_models, None),
     },
     "understory": {**{k: Number(d, integer=True, ge=0) for k, d in
-                      (("bushes", 120), ("rocks", 40), ("deadwood", 25), ("stumps", 15))},
+                      (("bushes", 200), ("rocks", 40), ("deadwood", 25), ("stumps", 15))},
                    "grass": {"cover": Number(0.0, ge=0, le=1), "height": Number(0.3, gt=0, le=1.0)},
                    "litter": {"cover": Number(0.0, ge=0, le=1)}},
     "sensor": Custom(_sensor, REQUIRED),

@@ -191,7 +191,7 @@ def _place_trees(forest, size, crowns, terrain, rng) -> tuple[list[PlacedObject]
 # Half-widths (m) kept clear around each kind's axis: the largest model of the kind (understory.py)
 # plus a margin. Stems keep 0.6 m (flared base, and 5° tilt over the first 3 m).
 STEM_CLEARANCE = 0.6
-CLEARANCE = {"bush": 1.35, "rock": 1.0, "stump": 1.0, "deadwood": 1.5}  # logs: side branches reach 1.3 m, bow 0.1 m; stump roots 0.9 m
+CLEARANCE = {"bush": 1.7, "rock": 1.0, "stump": 1.0, "deadwood": 1.5}  # logs: side branches reach 1.3 m, bow 0.1 m; stump roots 0.9 m
 MIN_LOG = 1.5  # m, the shortest log drawn
 
 

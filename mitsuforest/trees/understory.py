@@ -23,7 +23,7 @@ from .volume import to_manifold, wood_volume
 
 
 UNDERSTORY_COMPONENTS = 1   # every understory model is one labelled component
-MAX_SHRUB_REACH = 1.25      # m from the base: the plan keeps CLEARANCE["bush"] beyond it
+MAX_SHRUB_REACH = 1.6       # m from the base (crowns up to 3 m across, leaves beyond the shoots): the plan keeps CLEARANCE["bush"] beyond it
 
 
 def _single(name, kind, classification, meshes, volume=None, meta=None) -> Model:
@@ -37,6 +37,7 @@ class ShrubForm:
     """One shrub archetype: ranges drawn per model from its seed (lengths m, angles degrees)."""
 
     height: tuple[float, float]
+    crown: tuple[float, float]         # crown diameter: the stems and shoots are spread to it
     stems: tuple[int, int]             # stems from the root collar
     spread: float                      # largest stem angle from vertical
     shoots: int                        # side shoots per stem
@@ -48,16 +49,18 @@ class ShrubForm:
 
 
 # Heath (dense, low, many fine stems), an upright tea-tree-like shrub, a spreading wattle-like shrub and an
-# open, tall sapling-like shrub: different sizes and densities, so bushes do not all look alike.
+# open, tall sapling-like shrub: different sizes and densities, so bushes do not all look alike. Heights
+# and crowns span the shrub layers of Australian eucalypt woodland and open forest, 0.5-3 m tall and
+# 0.5-3 m across (README, "Understory", gives the sources).
 SHRUB_FORMS: tuple[ShrubForm, ...] = (
-    ShrubForm(height=(0.4, 0.8), stems=(9, 14), spread=40, shoots=3, shoot_angle=40, leaf_length=0.025,
-              leaf_width=0.008, leaf_area_density=3.0, leaf_inclination=30),
-    ShrubForm(height=(1.4, 2.2), stems=(3, 5), spread=15, shoots=5, shoot_angle=35, leaf_length=0.04,
-              leaf_width=0.01, leaf_area_density=1.6, leaf_inclination=45),
-    ShrubForm(height=(0.8, 1.3), stems=(5, 8), spread=55, shoots=4, shoot_angle=50, leaf_length=0.07,
-              leaf_width=0.012, leaf_area_density=1.2, leaf_inclination=40),
-    ShrubForm(height=(1.8, 2.6), stems=(2, 3), spread=10, shoots=6, shoot_angle=55, leaf_length=0.08,
-              leaf_width=0.025, leaf_area_density=0.5, leaf_inclination=55),
+    ShrubForm(height=(0.5, 0.9), crown=(0.6, 1.2), stems=(9, 14), spread=40, shoots=3, shoot_angle=40,
+              leaf_length=0.025, leaf_width=0.008, leaf_area_density=3.0, leaf_inclination=30),
+    ShrubForm(height=(1.5, 2.5), crown=(1.0, 1.8), stems=(3, 5), spread=15, shoots=5, shoot_angle=35,
+              leaf_length=0.04, leaf_width=0.01, leaf_area_density=1.6, leaf_inclination=45),
+    ShrubForm(height=(1.0, 1.8), crown=(1.8, 3.0), stems=(5, 8), spread=55, shoots=4, shoot_angle=50,
+              leaf_length=0.07, leaf_width=0.012, leaf_area_density=1.2, leaf_inclination=40),
+    ShrubForm(height=(2.2, 3.0), crown=(1.5, 2.5), stems=(2, 3), spread=10, shoots=6, shoot_angle=55,
+              leaf_length=0.08, leaf_width=0.025, leaf_area_density=0.5, leaf_inclination=55),
 )
 
 
@@ -65,9 +68,12 @@ def shrub_skeleton(form: ShrubForm, rng) -> tuple[list[tuple[np.ndarray, np.ndar
     """Centrelines and radii of a shrub's stems and side shoots, and its stem count.
 
     Stems leave the root collar at up to ``spread`` from vertical and bend upward; side shoots leave
-    the outer two thirds of each stem. Horizontal reach is capped at :data:`MAX_SHRUB_REACH`.
+    the outer two thirds of each stem. The whole is then spread or drawn in horizontally to a crown
+    diameter drawn from ``form.crown`` (less 0.2 m: the leaves reach past the shoots), at most
+    :data:`MAX_SHRUB_REACH` from the base.
     """
     height = rng.uniform(*form.height)
+    crown = rng.uniform(*form.crown)
     stems = int(rng.integers(form.stems[0], form.stems[1] + 1))
     pieces = []
     for k in range(stems):
@@ -88,9 +94,9 @@ def shrub_skeleton(form: ShrubForm, rng) -> tuple[list[tuple[np.ndarray, np.ndar
             sr = max(radii[i] * 0.5, 0.0015)
             pieces.append(_curve(base, sd, sl, sr, 0.0015, 3, np.deg2rad(15), rng, 0.1))
     reach = max(float(np.hypot(p[:, 0], p[:, 1]).max()) for p, _ in pieces)
-    if reach > MAX_SHRUB_REACH - 0.1:   # leaves add up to a leaf length and a clump beyond the shoots
-        for p, _ in pieces:
-            p[:, :2] *= (MAX_SHRUB_REACH - 0.1) / reach
+    target = min(crown / 2 - 0.1, MAX_SHRUB_REACH - 0.1)   # leaves add up to a leaf length and a clump beyond the shoots
+    for p, _ in pieces:
+        p[:, :2] *= target / reach
     return pieces, stems
 
 
