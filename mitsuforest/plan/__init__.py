@@ -62,7 +62,7 @@ def _plan(scene) -> Plan:
         terrain = make_terrain(scene.terrain, size, scene.seed, origin=scene.origin)
     except UserError as e:
         raise _Refusal("terrain.path", str(e)) from None
-    legs = _checked_legs(scene, flight_legs(size, scene.survey, terrain.mean_height))   # before the slow part
+    legs = _checked_legs(scene, flight_legs(size, scene.survey, terrain.mean_height), terrain)   # before the slow part
     _check_understory_fits(scene)
     models = _tree_models(scene.forest)
     crowns = [crown for crown, _ in models.values()]
@@ -84,7 +84,7 @@ def _plan(scene) -> Plan:
 MAX_LEG_PULSES = 2 ** 32     # time slots are numbered in 32 bits within a leg
 
 
-def _checked_legs(scene, legs: list[Leg]) -> list[Leg]:
+def _checked_legs(scene, legs: list[Leg], terrain: Terrain) -> list[Leg]:
     """Refuse legs that overflow the per-leg pulse counter or never come within reach of the plot."""
     for i, leg in enumerate(legs):
         key = f"survey.lines[{i}]" if scene.survey.lines else "survey"
@@ -92,7 +92,7 @@ def _checked_legs(scene, legs: list[Leg]) -> list[Leg]:
         if count >= MAX_LEG_PULSES:
             raise _Refusal("survey.speed", f"leg {i + 1} lasts {leg.t1 - leg.t0:,.0f} s: {count:,} pulses, more "
                            f"than the {MAX_LEG_PULSES:,} a leg can number; fly faster or split the leg")
-        gap, reach = _leg_gap(leg, scene.area.size), _reach(scene)
+        gap, reach = _leg_gap(leg, scene.area.size), _reach(scene, leg, terrain)
         if gap > reach:
             raise _Refusal(key, f"the leg passes {gap:,.1f} m from the plot, beyond the sensor's reach of "
                            f"{reach:,.1f} m at this altitude")
@@ -107,9 +107,10 @@ def _leg_gap(leg: Leg, size) -> float:
     return float(np.hypot(outside[:, 0], outside[:, 1]).min())
 
 
-def _reach(scene) -> float:
-    """How far from the track (m) a pulse can reach the ground, down to the terrain's lowest point."""
-    return scene.sensor.reach(scene.survey.altitude + scene.terrain.amplitude)
+def _reach(scene, leg: Leg, terrain: Terrain) -> float:
+    """How far from the track (m) a pulse of ``leg`` can reach the ground, down to the terrain's lowest
+    point in the plot (the terrain's own heights: a DEM's or a mesh's range, not ``terrain.amplitude``)."""
+    return scene.sensor.reach(min(leg.start[2], leg.end[2]) - float(terrain.z.min()))
 
 
 def plan_json(plan: Plan) -> str:

@@ -40,7 +40,7 @@ class Archetype:
     curvature: float = _p(20.0, "upward bend along a first-order branch (deg)", -60.0, 90.0)
     children: int = _p(5, "second-order branches per first-order branch", 0, 50, True)
     twigs: int = _p(4, "third-order twigs per second-order branch (0 = two branching orders)", 0, 50, True)
-    leaf_area: float = _p(35.0, "one-sided leaf area of the tree (m2)", 0.0, 2000.0)
+    leaf_area: float = _p(77.0, "one-sided leaf area of the tree (m2)", 0.0, 2000.0)
     leaf_length: float = _p(0.13, "leaf blade length (m); Eucalyptus lanceolate 0.10-0.15", 0.01, 0.5)
     leaf_width: float = _p(0.025, "leaf blade width (m)", 0.002, 0.2)
     leaf_inclination: float = _p(75.0, "mean leaf blade angle from horizontal (deg); 90 = hanging", 0.0, 90.0)
@@ -58,16 +58,16 @@ FIELDS = {f.name: f for f in dataclasses.fields(Archetype)}
 # heights 14-29 m). Spotted gum / manna gum / stringybark-like forms: tall straight stems, a crown in
 # the upper third to half, forking leaders and clumped pendulous foliage.
 DEFAULT_ARCHETYPES: tuple[Archetype, ...] = (
-    Archetype(height=21.0, dbh=0.30, crown_diameter=9.0, crown_ratio=0.45, branches=14, leaf_area=34, seed=1),
-    Archetype(height=24.0, dbh=0.33, crown_diameter=10.0, crown_ratio=0.40, branches=15, forks=3, leaf_area=40, seed=2),
-    Archetype(height=25.0, dbh=0.34, crown_diameter=9.5, crown_ratio=0.50, branches=16, taper=0.85, leaf_area=42, seed=3),
-    Archetype(height=15.0, dbh=0.235, crown_diameter=7.5, crown_ratio=0.55, branches=12, fork_height=0.55, leaf_area=24, seed=4),
-    Archetype(height=28.0, dbh=0.38, crown_diameter=11.0, crown_ratio=0.42, branches=18, taper=0.85, leaf_area=50, seed=5),
-    Archetype(height=26.0, dbh=0.36, crown_diameter=10.5, crown_ratio=0.38, branches=16, forks=3, leaf_area=46, seed=6),
-    Archetype(height=22.0, dbh=0.29, crown_diameter=8.5, crown_ratio=0.48, branches=14, branch_angle=38, leaf_area=32, seed=7),
-    Archetype(height=20.0, dbh=0.32, crown_diameter=9.5, crown_ratio=0.55, branches=15, branch_angle=50, leaf_area=36, seed=8),
-    Archetype(height=17.0, dbh=0.25, crown_diameter=8.0, crown_ratio=0.50, branches=12, fork_height=0.5, leaf_area=26, seed=9),
-    Archetype(height=23.0, dbh=0.32, crown_diameter=9.5, crown_ratio=0.44, branches=15, curvature=30, leaf_area=38, seed=10),
+    Archetype(height=21.0, dbh=0.30, crown_diameter=9.0, crown_ratio=0.45, branches=14, leaf_area=75, seed=1),
+    Archetype(height=24.0, dbh=0.33, crown_diameter=10.0, crown_ratio=0.40, branches=15, forks=3, leaf_area=88, seed=2),
+    Archetype(height=25.0, dbh=0.34, crown_diameter=9.5, crown_ratio=0.50, branches=16, taper=0.85, leaf_area=92, seed=3),
+    Archetype(height=15.0, dbh=0.235, crown_diameter=7.5, crown_ratio=0.55, branches=12, fork_height=0.55, leaf_area=53, seed=4),
+    Archetype(height=28.0, dbh=0.38, crown_diameter=11.0, crown_ratio=0.42, branches=18, taper=0.85, leaf_area=110, seed=5),
+    Archetype(height=26.0, dbh=0.36, crown_diameter=10.5, crown_ratio=0.38, branches=16, forks=3, leaf_area=101, seed=6),
+    Archetype(height=22.0, dbh=0.29, crown_diameter=8.5, crown_ratio=0.48, branches=14, branch_angle=38, leaf_area=70, seed=7),
+    Archetype(height=20.0, dbh=0.32, crown_diameter=9.5, crown_ratio=0.55, branches=15, branch_angle=50, leaf_area=79, seed=8),
+    Archetype(height=17.0, dbh=0.25, crown_diameter=8.0, crown_ratio=0.50, branches=12, fork_height=0.5, leaf_area=57, seed=9),
+    Archetype(height=23.0, dbh=0.32, crown_diameter=9.5, crown_ratio=0.44, branches=15, curvature=30, leaf_area=84, seed=10),
 )
 
 
@@ -77,9 +77,9 @@ ACACIA_ARCHETYPES: tuple[Archetype, ...] = tuple(Archetype(**{**dict(species="ac
                                                            branch_angle=55, curvature=10, children=5, twigs=4,
                                                            leaf_length=0.10, leaf_width=0.018, leaf_inclination=40,
                                                            leaf_clumping=0.5, lean=6), **k}) for k in (
-    dict(height=12.0, dbh=0.26, crown_diameter=8.0, crown_ratio=0.65, branches=14, leaf_area=26, seed=101),
-    dict(height=9.0, dbh=0.20, crown_diameter=6.5, crown_ratio=0.70, branches=12, forks=4, leaf_area=18, seed=102),
-    dict(height=15.0, dbh=0.32, crown_diameter=9.0, crown_ratio=0.60, branches=16, leaf_area=34, seed=103),
+    dict(height=12.0, dbh=0.26, crown_diameter=8.0, crown_ratio=0.65, branches=14, leaf_area=57, seed=101),
+    dict(height=9.0, dbh=0.20, crown_diameter=6.5, crown_ratio=0.70, branches=12, forks=4, leaf_area=40, seed=102),
+    dict(height=15.0, dbh=0.32, crown_diameter=9.0, crown_ratio=0.60, branches=16, leaf_area=75, seed=103),
 ))
 
 # Plantation Pinus radiata: one straight leader, whorls of near-horizontal branches that droop and turn
@@ -89,9 +89,9 @@ PINUS_ARCHETYPES: tuple[Archetype, ...] = tuple(Archetype(**{**dict(species="pin
                                                           curvature=-20, children=4, twigs=2, leaf_length=0.15,
                                                           leaf_width=0.015, leaf_inclination=30, leaf_clumping=0.6,
                                                           lean=1.5), **k}) for k in (
-    dict(height=22.0, dbh=0.34, crown_diameter=5.5, crown_ratio=0.50, branches=40, leaf_area=30, seed=201),
-    dict(height=28.0, dbh=0.42, crown_diameter=6.5, crown_ratio=0.45, branches=48, leaf_area=40, seed=202),
-    dict(height=16.0, dbh=0.25, crown_diameter=4.5, crown_ratio=0.60, branches=36, leaf_area=22, seed=203),
+    dict(height=22.0, dbh=0.34, crown_diameter=5.5, crown_ratio=0.50, branches=40, leaf_area=66, seed=201),
+    dict(height=28.0, dbh=0.42, crown_diameter=6.5, crown_ratio=0.45, branches=48, leaf_area=88, seed=202),
+    dict(height=16.0, dbh=0.25, crown_diameter=4.5, crown_ratio=0.60, branches=36, leaf_area=48, seed=203),
 ))
 
 FAMILY_ARCHETYPES = {"eucalyptus": DEFAULT_ARCHETYPES, "acacia": ACACIA_ARCHETYPES, "pinus_radiata": PINUS_ARCHETYPES}
