@@ -57,7 +57,7 @@ def test_ids_spacing_tilt_and_terrain():
     assert {o.treeid for o in objs if o.kind == "deadwood"} == {11}
     assert {o.treeid for o in objs if o.kind in ("bush", "rock", "stump")} == {0}
     counts = {k: sum(o.kind == k for o in objs) for k in ("bush", "rock", "deadwood", "stump")}
-    assert counts == {"bush": 120, "rock": 40, "deadwood": 25, "stump": 15}
+    assert counts == {"bush": 200, "rock": 40, "deadwood": 25, "stump": 15}
     for o in objs:  # understory keeps clear of stems
         if o.kind != "tree":
             assert np.hypot(*(xy - o.position[:2]).T).min() >= 0.6

@@ -101,7 +101,9 @@ def test_default_trees_are_reproducible_and_in_the_paper_range():
         assert v.union < v.naive  # joints overlap: the paper's sum of parts overcounts
         assert (v.naive - v.union) / v.naive < 0.02
         assert m.components[0].kind == "stem" and m.components[-1].kind == "leaves"
-        assert 30_000 < m.triangles < 150_000
+        leaves = m.parts[-1]
+        assert len(leaves.faces) == 2 * round(a.leaf_area / (0.5 * a.leaf_length * a.leaf_width))   # 2 per blade
+        assert 60_000 < m.triangles < 300_000
     again = tree_model(DEFAULT_ARCHETYPES[0], "x").volume.union
     assert again == volumes[0]  # to the last digit
 
@@ -236,4 +238,6 @@ def test_species_families_have_their_own_form(family):
             assert len(leaders) >= a.forks - 1 >= 2
         m = tree_model(a, "t")
         assert m.meta["species"] == family and 0.1 < m.volume.union < m.volume.naive
-        assert 30_000 < m.triangles < 150_000
+        leaves = m.parts[-1]
+        assert len(leaves.faces) == 2 * round(a.leaf_area / (0.5 * a.leaf_length * a.leaf_width))   # 2 per blade
+        assert 60_000 < m.triangles < 300_000
