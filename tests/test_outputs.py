@@ -255,3 +255,18 @@ def test_background_writer_keeps_order_and_raises_the_workers_error():
             sink(i)
         sink.close()
     assert seen == [0, 1, 2]
+
+
+def test_every_class_has_its_asprs_code_and_extra_dimensions_carry_no_partial_statistics():
+    """Class codes 1-8 map to ASPRS 2, 5, 5, 64, 65, 66, 4 and 3 (ground vegetation = low vegetation);
+    the extra dimensions' optional min/max are left unset, since laspy would fill them from the first
+    batch written only."""
+    from mitsuforest.scan import POINT_DTYPE
+    from mitsuforest.write.las import las_header, las_points
+    points = np.zeros(8, POINT_DTYPE)
+    points["classification"] = np.arange(1, 9)
+    header = las_header([0.0, 0.0, 0.0])
+    las = las_points(header, points)
+    assert np.asarray(las.classification).tolist() == [2, 5, 5, 64, 65, 66, 4, 3]
+    structs = header.vlrs.get("ExtraBytesVlr")[0].extra_bytes_structs
+    assert len(structs) == 6 and all(s.options == 0 for s in structs)
