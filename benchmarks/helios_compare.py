@@ -7,8 +7,9 @@ points, returns per pulse, class shares and the offset between each tree's point
 deadwood too).
 HELIOS++'s ``hitObjectId`` is our object_id (see README, "HELIOS++"), which gives its points' trees.
 
-Without ``helios++`` on PATH (or ``--helios``) it says so and exits 0. See README, "HELIOS++",
-for building HELIOS++ from source.
+Without ``helios++`` (the binary) or ``helios`` (the command pip installs, which runs the binary with
+``--assets`` the working folder and ``--legacyEnergyModel``) on PATH, or ``--helios``, it says so and
+exits 0. See README, "HELIOS++", for building HELIOS++ from source.
 
     python benchmarks/helios_compare.py                                  # demo scene, its middle leg
     python benchmarks/helios_compare.py --scene scenes/open.yaml --leg 5 --helios ~/helios/build/helios++
@@ -38,11 +39,11 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--scene", type=Path, default=ROOT / "scenes" / "demo.yaml")
     p.add_argument("--leg", type=int, help="leg number, 1-based (default: the middle one)")
-    p.add_argument("--helios", help="the helios++ executable (default: helios++ on PATH)")
+    p.add_argument("--helios", help="the helios++ executable (default: helios++, else helios, on PATH)")
     p.add_argument("--work", type=Path, help="working folder (default: a temporary one)")
     p.add_argument("--quick", action="store_true", help="100 kHz and 7 sub-rays (a smoke test)")
     args = p.parse_args(argv)
-    helios = args.helios or shutil.which("helios++")
+    helios = args.helios or shutil.which("helios++") or shutil.which("helios")
     if not helios or not Path(helios).exists():
         print("helios++ not found (not on PATH and no --helios): nothing to compare. "
               "See README, 'HELIOS++', to build it from source.")

@@ -4,8 +4,9 @@
 
 HELIOS++ facts these modules rely on (HELIOS++ 2.x source, ``src/assetloading``):
 
-- the assets folders are the ``--assets`` given, then ``assets/``; the ``helios++`` command that
-  HELIOS++ 2.x installs (pyhelios) passes the working folder and its data folders as ``--assets`` too;
+- the assets folders are the ``--assets`` given, then ``assets/``; the ``helios`` command that pip
+  installs with HELIOS++ 2.x (pyhelios) runs the ``helios++`` binary with the working folder and its
+  data folders as ``--assets`` too (and ``--legacyEnergyModel``); the binary alone adds neither;
 - the survey's ``platform``, ``scanner`` and ``scene`` attributes are ``PATH#id``; a relative PATH is
   looked up in each assets folder, then the working folder (first match);
 - an ``objloader`` ``filepath`` that is absolute is loaded as it is; a relative one only from the first
