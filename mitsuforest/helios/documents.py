@@ -118,7 +118,11 @@ def platform_xml() -> str:
 
 def scanner_xml(sensor, pulse_frequency: float) -> str:
     """Our sensor as a HELIOS++ scanner: optics, pulse frequencies, scan frequencies, half field of
-    view, divergence, pulse length, wavelength, ranges, ranging noise and returns per pulse."""
+    view, divergence, pulse length, wavelength, ranges, ranging noise and returns per pulse.
+
+    ``beamDivergence_rad`` is our full angle, as in HELIOS++'s own scanner files; HELIOS++'s energy
+    model takes it as the 1/e² half angle, so its footprint is wider than ours (README, "Comparing
+    with HELIOS++", has the echo counts this gives)."""
     if sensor.deflector not in OPTICS:
         raise UserError(f"sensor.deflector: {sensor.deflector} is not exported to HELIOS++ (its Risley model takes "
                         "prism angles and refractive indices, not deflections); only rotating and oscillating are")
