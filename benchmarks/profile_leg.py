@@ -92,10 +92,10 @@ def main(argv=None):
     scene = load_scene(args.scene, variant=args.variant)
     changes = {"simulation.beam_samples": args.samples, "simulation.beam_pattern": args.pattern}
     scene = scene.with_({k: v for k, v in changes.items() if v is not None})
-    from mitsuforest.scan import BATCH_SLOTS
+    from mitsuforest.scan import default_batch
     from mitsuforest.scene import select_variant
     variant = select_variant(scene.simulation.variant)
-    batch = args.batch or scene.simulation.pulses_per_batch or BATCH_SLOTS[variant.split("_")[0]]
+    batch = args.batch or scene.simulation.pulses_per_batch or default_batch(variant, scene.simulation.beam_samples)
     with tempfile.TemporaryDirectory() as tmp:
         seconds, cpu, slots, points = profile(scene.with_({"simulation.variant": variant}), args.leg, batch, Path(tmp))
     total = seconds.pop("total")
