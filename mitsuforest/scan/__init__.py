@@ -22,13 +22,13 @@ from .tracer import POINT_DTYPE, PulseTracer
 __all__ = ["POINT_DTYPE", "PulseTracer", "ScanResult", "default_batch", "scan"]
 
 BATCH_SUB_RAYS = {"llvm": 2_000_000, "cuda": 20_000_000}   # default sub-rays per launch, by Dr.Jit backend
-MAX_BATCH_SLOTS = {"llvm": 1_000_000, "cuda": 1_000_000}   # ... and at most this many time slots
+MAX_BATCH_SLOTS = {"llvm": 400_000, "cuda": 1_000_000}     # ... and at most this many time slots
 
 
 def default_batch(variant: str, beam_samples: int) -> int:
     """Time slots per launch when ``simulation.pulses_per_batch`` is not set: 105,263 at 19 sub-rays
-    on a CPU, 1,000,000 for a thin beam (measured on one leg of the open scene: the thin beam's scan
-    stages take 1.6 s instead of 2.9 s with 1 M slots rather than 100k)."""
+    on a CPU, 400,000 for a thin beam. Measured on the open scene's thin beam: 26–27 s end to end at
+    400k slots, 31 s at 100k (each launch's fixed cost), 27 s at 1 M but 914 MB instead of 755 MB."""
     backend = variant.split("_")[0]
     return max(1000, min(BATCH_SUB_RAYS[backend] // beam_samples, MAX_BATCH_SLOTS[backend]))
 
