@@ -27,8 +27,9 @@ MAX_BATCH_SLOTS = {"llvm": 400_000, "cuda": 1_000_000}     # ... and at most thi
 
 def default_batch(variant: str, beam_samples: int) -> int:
     """Time slots per launch when ``simulation.pulses_per_batch`` is not set: 105,263 at 19 sub-rays
-    on a CPU, 400,000 for a thin beam. Measured on the open scene's thin beam: 26–27 s end to end at
-    400k slots, 31 s at 100k (each launch's fixed cost), 27 s at 1 M but 914 MB instead of 755 MB."""
+    on a CPU, 400,000 for a thin beam. Measured on the open scene's thin beam: 26–28 s end to end and
+    750–790 MB at 400k slots; 29–31 s and 682 MB at 100k (each launch has a fixed cost); 27 s but
+    914 MB at 1 M."""
     backend = variant.split("_")[0]
     return max(1000, min(BATCH_SUB_RAYS[backend] // beam_samples, MAX_BATCH_SLOTS[backend]))
 
