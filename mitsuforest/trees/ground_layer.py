@@ -13,7 +13,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..classes import GROUND_VEGETATION
-from .models import Component, Model, Part
+from .models import Model
+from .understory import single_part_model
 
 PATCH_SIZE = 1.0          # m, side of a patch (and of a plan cell)
 PATCH_MODELS = 4          # distinct models of each kind (grass, litter) whatever the cover
@@ -26,11 +27,6 @@ LITTER_LEAVES = 450       # leaves per litter patch
 LITTER_LENGTH = (0.07, 0.15)   # m, eucalypt-like lanceolate leaves
 LITTER_WIDTH = (0.015, 0.03)
 LITTER_HEIGHT = (0.003, 0.008)  # m above the ground: a few millimetres
-
-
-def _single(name: str, kind: str, vertices: np.ndarray, faces: np.ndarray, meta: dict) -> Model:
-    part = Part(kind, vertices, faces.astype(np.uint32), np.zeros(len(faces), np.uint16))
-    return Model(name, [part], [Component(kind, GROUND_VEGETATION)], None, meta)
 
 
 def blade_strips(roots: np.ndarray, azimuth: np.ndarray, lean: np.ndarray, length: np.ndarray,
@@ -77,7 +73,8 @@ def grass_patch_model(seed: int, name: str, height: float = 0.3) -> Model:
     roots = np.column_stack([centres[tuft] + rng.normal(0, 0.01, (k, 2)).clip(-0.025, 0.025), np.full(k, -ROOT_DEPTH)])
     vertices, faces = blade_strips(roots, rng.uniform(0, 2 * np.pi, k), np.deg2rad(rng.uniform(5, 40, k)),
                                    height * rng.uniform(0.6, 1.4, k), np.deg2rad(rng.uniform(10, 50, k)))
-    return _single(name, "grass", _kept_in_square(vertices, roots), faces, {"tufts": TUFTS, "blades": k, "height": height})
+    return single_part_model(name, "grass", GROUND_VEGETATION, [(_kept_in_square(vertices, roots), faces)],
+                             meta={"tufts": TUFTS, "blades": k, "height": height})
 
 
 def _kept_in_square(vertices: np.ndarray, roots: np.ndarray) -> np.ndarray:
@@ -119,7 +116,7 @@ def litter_patch_model(seed: int, name: str) -> Model:
     vertices = np.stack([base, left, tip, right], 1).reshape(-1, 3)
     i = 4 * np.arange(k)[:, None]
     faces = np.concatenate([i + [0, 1, 3], i + [1, 2, 3]], 1).reshape(-1, 3)
-    return _single(name, "litter", vertices, faces, {"leaves": k})
+    return single_part_model(name, "litter", GROUND_VEGETATION, [(vertices, faces)], meta={"leaves": k})
 
 
 def covered_share(model: Model, pixels: int = 4000) -> float:

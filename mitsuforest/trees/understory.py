@@ -26,7 +26,8 @@ UNDERSTORY_COMPONENTS = 1   # every understory model is one labelled component
 MAX_SHRUB_REACH = 1.6       # m from the base (crowns up to 3 m across, leaves beyond the shoots): the plan keeps CLEARANCE["bush"] beyond it
 
 
-def _single(name, kind, classification, meshes, volume=None, meta=None) -> Model:
+def single_part_model(name, kind, classification, meshes, volume=None, meta=None) -> Model:
+    """A model of one part and one labelled component: ``meshes`` ``[(vertices, faces), ...]`` merged."""
     v, f, _ = merge(meshes, [0] * len(meshes))
     part = Part(kind, v, f, np.zeros(len(f), np.uint16))
     return Model(name, [part], [Component(kind, classification)], volume, meta or {})
@@ -155,7 +156,7 @@ def rock_model(seed: int, name: str) -> Model:
     faces = np.asarray(mesh.tri_verts, np.int64)
     v[:, 2] -= v[:, 2].min() + 0.3 * np.ptp(v[:, 2])
     to_manifold(v, faces, name)  # a rock is a closed part too
-    return _single(name, "rock", ROCK, [(v, faces)], meta={"size": size, "lumps": len(lumps)})
+    return single_part_model(name, "rock", ROCK, [(v, faces)], meta={"size": size, "lumps": len(lumps)})
 
 
 def stump_model(seed: int, name: str) -> Model:
@@ -178,7 +179,7 @@ def stump_model(seed: int, name: str) -> Model:
     meshes = [tube(p, q) for p, q in pieces]
     volume = wood_volume(meshes, sum(frustum_volume(p, q) for p, q in pieces),
                          names=[f"{name} piece {i}" for i in range(len(meshes))])
-    return _single(name, "stump", STUMP, meshes, volume=volume,
+    return single_part_model(name, "stump", STUMP, meshes, volume=volume,
                    meta={"height": h, "radius": r, "roots": len(pieces) - 1})
 
 
@@ -209,5 +210,5 @@ def deadwood_model(seed: int, name: str, length: float = 4.0, radius: float = 0.
     meshes = [tube(p, q) for p, q in pieces]
     volume = wood_volume(meshes, sum(frustum_volume(p, q) for p, q in pieces),
                          names=[f"{name} piece {i}" for i in range(len(meshes))])
-    return _single(name, "deadwood", DEADWOOD, meshes, volume=volume,
+    return single_part_model(name, "deadwood", DEADWOOD, meshes, volume=volume,
                    meta={"length": length, "radius": r})
