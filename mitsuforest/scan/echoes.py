@@ -23,6 +23,7 @@ import math
 from functools import cache
 
 FWHM_PER_SIGMA = 2.0 * math.sqrt(2.0 * math.log(2.0))
+CHAIN_SUMS = ("energy", "weighted", "count", "plain", "px", "py", "pz", "x", "y", "z")   # _chain_terms' keys
 
 
 @cache
@@ -88,26 +89,22 @@ def single_chain(dr, t: list, power: list, offset: list, resolving: float, thres
         nearest, farthest = dr.minimum(nearest, t[k]), dr.maximum(farthest, dr.select(valid[k], t[k], -dr.inf))
     any_return = dr.isfinite(nearest)
     one = ~any_return | (farthest - nearest <= resolving)
-    total = {key: Float(0.0) for key in ("energy", "weighted", "count", "plain", "x", "y", "z", "px", "py", "pz")}
+    total = {key: Float(0.0) for key in CHAIN_SUMS}
     best, dominant = Float(-1.0), UInt32(0)
     for k in range(len(t)):
-        p = power[k]
-        here = {"energy": p, "weighted": p * t[k], "count": 1.0, "plain": t[k],
-                **{a: offset[k][i] for i, a in enumerate("xyz")}, **{f"p{a}": p * offset[k][i] for i, a in enumerate("xyz")}}
-        total = {key: dr.select(valid[k], total[key] + here[key], total[key]) for key in total}
-        stronger = valid[k] & (p > best)
-        best = dr.select(stronger, p, best)
+        here = _chain_terms(dr, {"t": t[k], "p": power[k], **dict(zip("xyz", offset[k]))})
+        total = {key: dr.select(valid[k], total[key] + here[key], total[key]) for key in CHAIN_SUMS}
+        stronger = valid[k] & (power[k] > best)
+        best = dr.select(stronger, power[k], best)
         dominant = dr.select(stronger, UInt32(k), dominant)
-    uniform, scale = _uniform(dr, total)
-    mean = dr.select(uniform, total["plain"], total["weighted"]) * scale
+    mean = _chain_mean(dr, total)
     sigma = resolving / FWHM_PER_SIGMA
     amplitude = Float(0.0)
     for k in range(len(t)):
-        shape = dr.exp(-0.5 * dr.square((t[k] - mean) / sigma)) if sigma > 0 else dr.select(t[k] == mean, 1.0, 0.0)
-        amplitude = amplitude + dr.select(valid[k], power[k] * shape, 0.0)
+        amplitude = amplitude + dr.select(valid[k], power[k] * _pulse_shape(dr, t[k], mean, sigma), 0.0)
     kept = any_return & (amplitude > 0) & (amplitude >= threshold)
     slot = {"kept": kept, "rank": UInt32(0), "range": mean, "amplitude": amplitude,
-            "offset": [dr.select(uniform, total[a], total[f"p{a}"]) * scale for a in "xyz"], "dominant": dominant}
+            "offset": _chain_offset(dr, total), "dominant": dominant}
     return one, slot
 
 
@@ -129,8 +126,7 @@ def _chain_totals(dr, rows, start) -> list[dict]:
     """Forward pass: at each position, the sums over its chain so far and its strongest member."""
     totals, acc = [], None
     for k, r in enumerate(rows):
-        here = {"energy": r["p"], "weighted": r["p"] * r["t"], "count": dr.full(type(r["t"]), 1.0, dr.width(r["t"])),
-                "plain": r["t"], **{f"p{a}": r["p"] * r[a] for a in "xyz"}, **{a: r[a] for a in "xyz"}}
+        here = _chain_terms(dr, r)
         if acc is None:
             acc = {**here, "best": r["p"], "dominant": r["sample"]}
         else:
@@ -142,6 +138,12 @@ def _chain_totals(dr, rows, start) -> list[dict]:
     return totals
 
 
+def _chain_terms(dr, r: dict) -> dict:
+    """One return's terms of its chain's sums (``r``: its ``t``, ``p`` and ``x``, ``y``, ``z`` offset)."""
+    return {"energy": r["p"], "weighted": r["p"] * r["t"], "count": dr.full(type(r["t"]), 1.0, dr.width(r["t"])),
+            "plain": r["t"], **{f"p{a}": r["p"] * r[a] for a in "xyz"}, **{a: r[a] for a in "xyz"}}
+
+
 def _uniform(dr, total):
     """Chains of zero energy (all grazing) are averaged plainly; others are weighted by energy."""
     uniform = total["energy"] <= 0
@@ -150,13 +152,30 @@ def _uniform(dr, total):
 
 def _chain_means(dr, totals, end) -> list:
     """Each position's chain mean range: known at the chain's end, passed back to its members."""
-    means = []
-    for total in totals:
-        uniform, scale = _uniform(dr, total)
-        means.append(dr.select(uniform, total["plain"], total["weighted"]) * scale)
+    means = [_chain_mean(dr, total) for total in totals]
     for k in range(len(totals) - 2, -1, -1):
         means[k] = dr.select(end[k], means[k], means[k + 1])
     return means
+
+
+def _chain_mean(dr, total):
+    """A chain's mean range from its sums."""
+    uniform, scale = _uniform(dr, total)
+    return dr.select(uniform, total["plain"], total["weighted"]) * scale
+
+
+def _chain_offset(dr, total) -> list:
+    """A chain's hit point minus the origin (3 arrays) from its sums, weighted as its mean range."""
+    uniform, scale = _uniform(dr, total)
+    return [dr.select(uniform, total[a], total[f"p{a}"]) * scale for a in "xyz"]
+
+
+def _pulse_shape(dr, t, mean, sigma: float):
+    """The emitted pulse's shape on the range axis at ``t`` for a chain at ``mean`` (Gaussian of σ; a
+    spike at ``mean`` when σ = 0)."""
+    if sigma > 0:
+        return dr.exp(-0.5 * dr.square((t - mean) / sigma))
+    return dr.select(t == mean, 1.0, 0.0)
 
 
 def _chain_amplitudes(dr, rows, valid, start, mean, sigma: float) -> list:
@@ -164,11 +183,7 @@ def _chain_amplitudes(dr, rows, valid, start, mean, sigma: float) -> list:
     other chains' returns are not included)."""
     amplitude, running = [], None
     for k, r in enumerate(rows):
-        if sigma > 0:
-            shape = dr.exp(-0.5 * dr.square((r["t"] - mean[k]) / sigma))
-        else:
-            shape = dr.select(r["t"] == mean[k], 1.0, 0.0)
-        term = dr.select(valid[k], r["p"] * shape, 0.0)
+        term = dr.select(valid[k], r["p"] * _pulse_shape(dr, r["t"], mean[k], sigma), 0.0)
         running = term if running is None else dr.select(start[k], term, running + term)
         amplitude.append(running)
     return amplitude
@@ -180,8 +195,7 @@ def _ranked(dr, totals, mean, amplitude, detected, max_returns: int):
     rank = dr.zeros(UInt32, dr.width(mean[0]))
     slots = []
     for k, total in enumerate(totals):
-        uniform, scale = _uniform(dr, total)
-        offset = [dr.select(uniform, total[a], total[f"p{a}"]) * scale for a in "xyz"]
+        offset = _chain_offset(dr, total)
         kept = detected[k] & ((rank < max_returns) if max_returns else True)
         slots.append({"kept": kept, "rank": rank, "range": mean[k], "amplitude": amplitude[k],
                       "offset": offset, "dominant": total["dominant"]})
