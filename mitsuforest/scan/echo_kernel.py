@@ -101,8 +101,7 @@ class EchoKernel(RayCaster):
         pulse = dr.arange(mi.UInt32, n)
         one, slot = single_chain(dr, *self._per_sample(lane, pulse), self.resolving, self.threshold)
         self._scatter(flat, [slot], pulse * S, one)
-        returns = dr.select(one & slot["kept"], 1, 0)
-        returns = mi.UInt32(dr.minimum(returns, self.max_returns)) if self.max_returns else mi.UInt32(returns)
+        returns = mi.UInt32(dr.select(one & slot["kept"], 1, 0))   # one echo at most: within any max_returns
         dr.eval(flat, returns, one)
         several = dr.compress(~one)
         if dr.width(several):
