@@ -64,9 +64,9 @@ def _plan(scene) -> Plan:
         raise _Refusal("terrain.path", str(e)) from None
     legs = _checked_legs(scene, flight_legs(size, scene.survey, terrain.mean_height), terrain)   # before the slow part
     _check_understory_fits(scene)
-    models = _tree_models(scene.forest)
-    crowns = [crown for crown, _ in models.values()]
-    models = {name: spec for name, (_, spec) in models.items()}
+    tree_models = _tree_models(scene.forest)
+    crowns = [crown for crown, _ in tree_models.values()]
+    models = {name: spec for name, (_, spec) in tree_models.items()}
     trees, cover = _place_trees(scene.forest, size, crowns, terrain, rng)
     understory, understory_models = _place_understory(scene, size, trees, terrain, rng,
                                                       deadwood_treeid=_deadwood_treeid(len(models)))
