@@ -204,7 +204,7 @@ def _place_understory(scene: dict, size, trees, terrain, rng, deadwood_treeid: i
     length); a new object is placed only where its corridor meets no other and stays in the plot.
     """
     counts = scene.understory
-    taken = [_Footprint(np.array(t.position[:2]), 0.0, 0.0, STEM_CLEARANCE) for t in trees]
+    taken = _Occupied([_Footprint(np.array(t.position[:2]), 0.0, 0.0, STEM_CLEARANCE) for t in trees])
     objects, models = [], {}
     for i in range(BUSH_MODELS if counts.bushes else 0):   # every shrub form, in turn
         models[f"bush{i + 1:02d}"] = ModelSpec("bush", UNDERSTORY_COMPONENTS, seed=int(scene.seed) * 1000 + i,
@@ -223,7 +223,7 @@ def _place_understory(scene: dict, size, trees, terrain, rng, deadwood_treeid: i
             else:
                 model = f"{kind}{i + 1:03d}"
                 models[model] = spec
-            taken.append(spot)
+            taken.add(spot)
             x, y = spot.centre
             objects.append(PlacedObject(
                 kind=kind, model=model, treeid=deadwood_treeid if kind == "deadwood" else 0,
@@ -262,13 +262,29 @@ class _Footprint:
         """Whether the axis lies within the box ``low``-``high``, shape (2,) each."""
         return bool(np.all((self.samples >= low) & (self.samples <= high)))
 
-    def clear_of(self, other: "_Footprint") -> bool:
-        gap = self.clearance + other.clearance
-        d = self.samples[:, None, :] - other.samples[None, :, :]
-        return bool(np.einsum("ijk,ijk->ij", d, d).min() >= gap * gap)
 
 
-def _free_spot(size, taken, length, clearance, rng, kind) -> _Footprint:
+class _Occupied:
+    """The footprints placed so far, as one array of axis samples (M, 2) with each one's clearance (M,),
+    so that a candidate is tested against all of them at once."""
+
+    def __init__(self, footprints=()):
+        self.samples, self.clearance = np.zeros((0, 2)), np.zeros(0)
+        for footprint in footprints:
+            self.add(footprint)
+
+    def add(self, footprint: _Footprint) -> None:
+        self.samples = np.vstack([self.samples, footprint.samples])
+        self.clearance = np.append(self.clearance, np.full(len(footprint.samples), footprint.clearance))
+
+    def admit(self, footprint: _Footprint) -> bool:
+        """Whether ``footprint`` keeps the sum of the two clearances from every placed footprint."""
+        d = footprint.samples[:, None, :] - self.samples[None, :, :]
+        gap = footprint.clearance + self.clearance
+        return bool(np.all(d[..., 0] * d[..., 0] + d[..., 1] * d[..., 1] >= gap * gap))
+
+
+def _free_spot(size, taken: _Occupied, length, clearance, rng, kind) -> _Footprint:
     """A random place for an object clear of ``taken``; a log that finds none is shortened by steps
     (down to MIN_LOG, as a crowded or small plot needs) rather than refused."""
     low, high = np.full(2, clearance), np.asarray(size, float) - clearance
@@ -277,7 +293,7 @@ def _free_spot(size, taken, length, clearance, rng, kind) -> _Footprint:
         if drawn > MIN_LOG:
             length = MIN_LOG + (1 - i / tries) * (drawn - MIN_LOG)
         spot = _Footprint(rng.uniform(low, high), rng.uniform(0, 360), length, clearance)
-        if spot.inside(low, high) and all(spot.clear_of(other) for other in taken):
+        if spot.inside(low, high) and taken.admit(spot):
             return spot
     raise _Refusal(f"understory.{UNDERSTORY_KEYS[kind]}", f"no free place left for another {kind}; lower the understory counts")
 
