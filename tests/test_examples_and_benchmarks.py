@@ -134,3 +134,13 @@ def test_terrain_benchmark_quick():
 def test_pictures_benchmark_quick():
     stdout = _run([str(ROOT / "benchmarks" / "pictures.py"), "--quick"], ROOT)
     assert "points: 2,000,000" in stdout and "pictures in all" in stdout
+
+
+def test_readme_python_block_runs():
+    """README's "From Python" block, run as written (from the repository root), gives the values its
+    comments state and points with labels."""
+    text = (ROOT / "README.md").read_text()
+    block = text.split("From Python:\n\n```python\n", 1)[1].split("```", 1)[0]
+    script = block + ("assert scene.pulse_frequency == 100000 and abs(scene.sensor.detection_threshold - 9.6e-06) < 1e-12\n"
+                      "assert len(result.points) > 10000 and set(result.points['classification']) >= {1, 2, 3}\n")
+    _run(["-c", script], ROOT)
