@@ -188,6 +188,19 @@ def test_las_carries_a_standard_wkt_crs(tmp_path, suffix):
     assert header.parse_crs().name == "GDA2020 / MGA zone 55"
 
 
+@pytest.mark.parametrize("suffix", [".las", ".laz"])
+def test_more_than_15_returns_are_written_as_15(tmp_path, suffix):
+    """Point format 6 has 4 bits per return field: a pulse of 20 echoes (61 sub-rays, max_returns 0)
+    is written with its return numbers and count capped at 15 instead of failing mid-render."""
+    points = _points(20)
+    points["return_number"], points["number_of_returns"] = np.arange(1, 21), 20
+    write_las(tmp_path / ("t" + suffix), points, [500000.0, 6000000.0, 0.0])
+    las = laspy.read(str(tmp_path / ("t" + suffix)))
+    assert np.asarray(las.return_number).tolist() == list(range(1, 16)) + [15] * 5
+    assert set(np.asarray(las.number_of_returns).tolist()) == {15}
+    assert np.allclose(las.x, points["x"])
+
+
 def test_las_without_crs_has_no_crs_vlr_but_the_wkt_bit(tmp_path):
     write_las(tmp_path / "t.las", _points(), [500000.0, 6000000.0, 0.0])
     header = laspy.read(str(tmp_path / "t.las")).header

@@ -5,7 +5,9 @@ Classification uses ASPRS codes where they fit — ground 2, ground vegetation 3
 classes (1-8, as in the PCD) are in the extra dimension ``label``; ``treeid``, ``instance``,
 ``object_id`` and ``species`` (classes.SPECIES_CODES, also in the VLR) are extra dimensions too. Intensity is scaled to 16 bits by a fixed factor
 (INTENSITY_SCALE, also written in the header's VLR and the file description): the float amplitude
-is kept exact in the extra dimension ``amplitude``. Coordinates are stored at 0.1 mm with the
+is kept exact in the extra dimension ``amplitude``. Return numbers and counts above 15, which point format 6 cannot hold
+(a pulse with more echoes than that needs over 15 sub-rays and ``max_returns`` 0 or above 15), are
+written as 15; the PCD keeps them. Coordinates are stored at 0.1 mm with the
 georeference in the header offsets. The scene's ``origin.crs`` is written as the standard OGC WKT
 coordinate system VLR, which PDAL, QGIS and lidR read; the WKT bit of the global encoding is set,
 as LAS 1.4 requires for point format 6 (with or without a CRS).
@@ -26,6 +28,7 @@ from .atomic import atomic_path
 ASPRS_CODE = {GROUND: 2, TREE_WOOD: 5, TREE_LEAVES: 5, BUSH: 4, GROUND_VEGETATION: 3, DEADWOOD: 64, ROCK: 65, STUMP: 66}
 INTENSITY_SCALE = 1e-6   # amplitude units per LAS intensity count (65535 ≙ a 6.5 % full-beam target at 1 m)
 COORDINATE_SCALE = 1e-4  # m
+LAS_MAX_RETURNS = 15     # point format 6 has 4 bits for each return field; the PCD keeps larger counts
 
 
 def crs_wkt(text: str) -> str:
@@ -85,8 +88,8 @@ def las_points(header: laspy.LasHeader, points: np.ndarray) -> laspy.LasData:
     las = laspy.LasData(header, points=laspy.ScaleAwarePointRecord.zeros(len(points), header=header))
     las.x, las.y, las.z = points["x"], points["y"], points["z"]
     las.classification = _ASPRS_LOOKUP[points["classification"]]
-    las.return_number = points["return_number"]
-    las.number_of_returns = points["number_of_returns"]
+    las.return_number = np.minimum(points["return_number"], LAS_MAX_RETURNS)
+    las.number_of_returns = np.minimum(points["number_of_returns"], LAS_MAX_RETURNS)
     las.intensity = np.clip(np.round(points["intensity"] / INTENSITY_SCALE), 0, 65535).astype(np.uint16)
     las.gps_time = points["gps_time"]
     las.scan_angle = np.round(points["scan_angle"] / 0.006).astype(np.int16)
