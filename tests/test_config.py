@@ -123,6 +123,7 @@ BAD_EDITS = {
     "variant": ({"simulation.variant": "scalar_rgb"}, "simulation.variant: must be auto or a Mitsuba llvm_*"),
     "nan": ({"forest.trees": float("nan")}, "forest.trees: must be finite, got nan"),
     "crs": ({"origin.crs": "EPSG:999999"}, "scene.yaml: origin.crs: 'EPSG:999999' is not a coordinate reference system"),
+    "crs in degrees": ({"origin.crs": "EPSG:4326"}, "scene.yaml: origin.crs: 'EPSG:4326' (WGS 84) is geographic, in degrees"),
 }
 
 

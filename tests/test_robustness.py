@@ -217,6 +217,19 @@ def test_invalid_crs_is_a_user_error(tmp_path, text, reason):
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.parametrize("text, problem", [("EPSG:4326", "is geographic, in degrees"),
+                                           ("EPSG:4978", "is not a projected CRS"),
+                                           ("EPSG:2263", "has its axes in US survey foot")])
+def test_crs_not_in_projected_metres_is_refused(text, problem):
+    """Offsets in metres added to degrees (or feet) would put every point in the wrong place."""
+    with pytest.raises(UserError, match=rf"^origin\.crs: '{text}' \(.*\) {problem}; .*metres"):
+        crs_wkt(text)
+
+
+def test_compound_crs_with_a_metric_projection_is_accepted():
+    assert crs_wkt("EPSG:7855+5711").startswith('COMPD_CS["GDA2020 / MGA zone 55 + AHD height"')
+
+
 def test_crs_wkt_is_wkt1_with_the_epsg_authority():
     wkt = crs_wkt("EPSG:7855")
     assert wkt.startswith('PROJCS["GDA2020 / MGA zone 55"') and wkt.endswith('AUTHORITY["EPSG","7855"]]')
