@@ -38,6 +38,7 @@ CASES = {
                       "forest.archetypes[0].hieght: unknown key (did you mean 'height'?)"),
     "scan frequency": (GOOD.replace("altitude: 30", "scan_frequency: 500"),
                        "survey.scan_frequency: 500 Hz is outside the sensor's range 10-200 Hz"),
+    "fractional seed": ("seed: 1.5\n" + GOOD, "seed: must be an integer, got 1.5"),
 }
 
 
@@ -53,6 +54,15 @@ def test_bad_scene_gives_one_line_and_exit_2(case, tmp_path, monkeypatch, capsys
     assert err.startswith("mitsuforest: scene.yaml: ")
     assert message in err
     assert not (tmp_path / "out").exists()
+
+
+def test_a_seed_of_any_size_is_an_integer(tmp_path):
+    """Seeds are hashed (keys) or given to numpy whole: one beyond float64's 2**53 must stay exact."""
+    big = 99999999999999999999999
+    path = tmp_path / "scene.yaml"
+    path.write_text(f"seed: {big}\n" + GOOD)
+    assert load_scene(path).seed == big
+    assert load_scene(path, seed=2**53 + 1).seed == 2**53 + 1
 
 
 def test_missing_scene_file(tmp_path, monkeypatch, capsys):

@@ -62,7 +62,7 @@ class Number:
         if not math.isfinite(value):
             ctx.fail(key, f"must be finite, got {value}")
         if self.integer:
-            if float(value) != int(value):
+            if isinstance(value, float) and not value.is_integer():   # not float(int): exact for ints of any size
                 ctx.fail(key, f"must be an integer, got {value}")
             value = int(value)
         for bound, ok, word in ((self.gt, lambda b: value > b, ">"), (self.ge, lambda b: value >= b, ">="),
