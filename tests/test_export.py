@@ -80,13 +80,13 @@ def test_every_part_is_one_component_in_place_with_its_object_id(exported):
 def test_materials_carry_our_reflectance_and_class(exported):
     folder, scene, plan, models = exported
     table = reflectance_table(scene.sensor.wavelength)
-    mtl = trimesh.exchange.obj.parse_mtl((folder / "models" / "materials.mtl").read_bytes())
+    mtl = trimesh.exchange.obj.parse_mtl((folder / "demo_models" / "materials.mtl").read_bytes())
     for code, name in CLASS_NAMES.items():
         assert float(mtl[name]["helios_reflectance"][0]) == pytest.approx(table[code])
         assert int(mtl[name]["helios_classification"][0]) == code
         assert (mtl[name]["helios_isground"][0] == "true") == (code == GROUND)
     assert float(mtl["tree_leaves"]["helios_reflectance"][0]) == 0.25   # leaves at 1550 nm (radiometry.py)
-    for obj_path in (folder / "models").glob("*.obj"):
+    for obj_path in (folder / "demo_models").glob("*.obj"):
         head = obj_path.read_text().splitlines()[:2]
         assert head[0] == "mtllib materials.mtl" and head[1].removeprefix("usemtl ") in mtl
 
@@ -162,3 +162,22 @@ def test_a_folder_helios_cannot_name_is_refused_before_anything_is_written(tmp_p
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "HELIOS++ cannot name a file whose path holds '#'" in err
     assert not out.exists()
+
+
+def test_two_scenes_exported_into_one_folder_keep_their_own_meshes(tmp_path):
+    """Both scenes have a deadwood001 (drawn from the scene's seed) and a ground: each survey must
+    fly its own, so each scene's meshes go into its own folder."""
+    import yaml
+    data = yaml.safe_load((ROOT / "scenes" / "demo.yaml").read_text())
+    data.update(name="other", seed=data["seed"] + 1, sensor=str(ROOT / "scenes" / data["sensor"]))
+    data["terrain"] = {"type": "noise"}
+    (tmp_path / "other.yaml").write_text(yaml.safe_dump(data))
+    for path in (ROOT / "scenes" / "demo.yaml", tmp_path / "other.yaml"):
+        assert main(["export", str(path), "-o", str(tmp_path / "out")]) == 0
+    for name in ("demo", "other"):
+        doc = ET.parse(tmp_path / "out" / f"{name}_helios_scene.xml").getroot()
+        files = {Path(f.get("value")).parent for f in doc.iter("param") if f.get("key") == "filepath"}
+        assert files == {tmp_path / "out" / f"{name}_models"}
+    for mesh in ("deadwood001_c000_deadwood.obj", "ground.obj"):
+        assert ((tmp_path / "out" / "demo_models" / mesh).read_bytes()
+                != (tmp_path / "out" / "other_models" / mesh).read_bytes())

@@ -2,9 +2,10 @@
 
 Writes, in the local frame (the georeference offset is listed in the tables' first line):
 
-- ``models/<model>_c<k>_<kind>.obj``: each model's components once, one OBJ each (a tree's stem, each
-  first-order branch, its leaves; a rock ...), with ``models/materials.mtl`` (one material per class);
-- ``models/ground.obj``;
+- ``<name>_models/<model>_c<k>_<kind>.obj``: each model's components once, one OBJ each (a tree's
+  stem, each first-order branch, its leaves; a rock ...), with ``<name>_models/materials.mtl`` (one
+  material per class at the sensor's wavelength);
+- ``<name>_models/ground.obj``;
 - ``<name>_transforms.csv``: one row per placed object: ids and its 3×4 model-to-local matrix;
 - ``<name>_helios_parts.csv``: one row per HELIOS++ part: its id (= our ``object_id``), instance,
   treeid, class, kind, model and OBJ file;
@@ -12,7 +13,9 @@ Writes, in the local frame (the georeference offset is listed in the tables' fir
   ``<name>_helios_scanner.xml``: ``helios++ <name>_helios_survey.xml`` flies our survey over the scene.
 
 A HELIOS++ part is one component of one placed object, its id our object_id, so HELIOS++'s
-``hitObjectId`` is our object_id and its classification ours (from the materials). Paths in the
+``hitObjectId`` is our object_id and its classification ours (from the materials). The meshes'
+folder is named after the scene: two scenes exported into one folder share model names (``tree01``,
+``bush01``, ``ground``) but not their meshes. Paths in the
 documents are absolute (HELIOS++ then finds each file once, from any working folder, with or
 without ``--assets``): export again after moving the folder.
 """
@@ -38,18 +41,19 @@ def export_scene(scene, plan, models: dict, folder, log=print) -> list[Path]:
     folder = Path(folder).absolute()
     helios_path(folder / f"{scene.name}_helios_scene.xml")       # refusals first: nothing half-written
     scanner = scanner_xml(scene.sensor, scene.pulse_frequency)
-    (folder / "models").mkdir(parents=True, exist_ok=True)
-    write_text(folder / "models" / MATERIALS, materials_mtl(scene.sensor.wavelength))
-    written = [folder / "models" / MATERIALS]
+    meshes = folder / f"{scene.name}_models"
+    meshes.mkdir(parents=True, exist_ok=True)
+    write_text(meshes / MATERIALS, materials_mtl(scene.sensor.wavelength))
+    written = [meshes / MATERIALS]
     files = {}   # (model, component) -> OBJ path
     for name in sorted({o.model for o in plan.objects}):
         model = models[name]
         for k, (vertices, faces) in component_meshes(model).items():
             comp = model.components[k]
-            files[name, k] = folder / "models" / f"{name}_c{k:03d}_{comp.kind}.obj"
+            files[name, k] = meshes / f"{name}_c{k:03d}_{comp.kind}.obj"
             write_obj(files[name, k], vertices, faces, CLASS_NAMES[comp.classification])
             written.append(files[name, k])
-    ground = folder / "models" / "ground.obj"
+    ground = meshes / "ground.obj"
     write_obj(ground, *plan.terrain.mesh(), CLASS_NAMES[GROUND])
     written.append(ground)
     parts, rows = _parts(plan, models, files, ground)
