@@ -26,7 +26,7 @@ from .scan import scan
 from .scene import build_scene
 from .trees import build_models
 from .trees.imported import import_report
-from .write import (PointWriter, Staging, check_output_folder, existing_outputs, output_lock, write_manifest,
+from .write import (PointWriter, Staging, check_output_folder, earlier_results, output_lock, write_manifest,
                     write_render_outputs)
 from .write.background import Background
 
@@ -108,7 +108,7 @@ class Timings(dict):
 
 
 def _refuse_existing(out: Path, name: str, overwrite: bool) -> None:
-    found = existing_outputs(out, name)
+    found = earlier_results(out, name)
     if found and not overwrite:
         raise UserError(f"{out} already holds results of '{name}' ({', '.join(found[:3])}, ...);"
                         " pass --overwrite to replace them")
