@@ -165,6 +165,8 @@ def _plan(args) -> int:
 def _trees(args) -> int:
     from .trees.archetypes import DEFAULT_ARCHETYPES
     from .trees.gallery import write_gallery
+    from .write import check_output_folder
+    check_output_folder(args.output)
     models = ()
     if args.scene:
         from .config import load_scene
@@ -181,7 +183,9 @@ def _export(args) -> int:
     from .config import load_scene
     from .plan import make_plan
     from .trees import build_models
+    from .write import check_output_folder
     from .write.export import export_scene
+    check_output_folder(args.output)
     scene = load_scene(args.scene, seed=args.seed)
     plan = make_plan(scene)
     export_scene(scene, plan, build_models(plan), args.output)

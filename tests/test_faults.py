@@ -68,14 +68,15 @@ def test_write_failure_reports_the_cause_and_leaves_nothing(tmp_path, monkeypatc
     assert list(out.iterdir()) == []
 
 
+@pytest.mark.parametrize("command", ["render", "plan", "trees", "export"])
 @pytest.mark.parametrize("where", ["a file", "under a file"])
-def test_output_folder_that_cannot_be_made_is_refused_before_work(tmp_path, monkeypatch, capsys, where):
+def test_output_folder_that_cannot_be_made_is_refused_before_work(tmp_path, monkeypatch, capsys, where, command):
     monkeypatch.chdir(tmp_path)
     (tmp_path / "scene.yaml").write_text(GOOD)
     (tmp_path / "taken").write_text("x")
     target = "taken" if where == "a file" else "taken/out"
     start = time.perf_counter()
-    assert main(["render", "scene.yaml", "-o", target]) == 2
+    assert main([command, *([] if command == "trees" else ["scene.yaml"]), "-o", target]) == 2
     err = capsys.readouterr().err.strip()
     assert time.perf_counter() - start < 1.0
     assert err.count("\n") == 0 and "the output folder" in err and "is a file" in err, err
