@@ -200,6 +200,21 @@ def test_damaged_file_gets_one_line(case, tmp_path, capsys):
     assert err.count("\n") == 0 and err.startswith(f"mitsuforest: {path}: ") and message in err, err
 
 
+@pytest.mark.parametrize("holds", ["a point file", "no point file"])
+def test_info_on_a_folder_says_it_is_one(holds, tmp_path, capsys):
+    """``mitsuforest info OUTDIR`` names the problem (a folder) and, where it has one, a point file to give."""
+    folder = tmp_path / "out"
+    folder.mkdir()
+    (folder / "notes.txt").write_text("x")
+    if holds == "a point file":
+        _pcd(folder)
+    assert main(["info", str(folder)]) == 2
+    err = capsys.readouterr().err.strip()
+    wanted = (f"is a folder; give one of its point files, such as {folder / 'p.pcd'}" if holds == "a point file"
+              else "is a folder, with no point file in it; give a .pcd, .las or .laz file")
+    assert err == f"mitsuforest: {folder}: {wanted}", err
+
+
 def test_foreign_las_shows_asprs_class_names(tmp_path, capsys):
     assert main(["info", str(_las(tmp_path, label=False))]) == 0
     out = capsys.readouterr().out
