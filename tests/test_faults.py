@@ -15,6 +15,7 @@ HOSTILE = {
     "infinite bushes": (GOOD.replace("bushes: 0", "bushes: .inf"), [], "understory.bushes: must be finite, got inf"),
     "negative seed": (GOOD, ["--seed", "-1"], "seed: must be >= 0, got -1"),
     "scalar variant": (GOOD, ["--variant", "scalar_rgb"], "simulation.variant: must be auto or a Mitsuba llvm_*"),
+    "unknown variant": (GOOD, ["--variant", "llvm_foo"], "simulation.variant: 'llvm_foo' is not in this Mitsuba build"),
     "slow flight": (GOOD.replace("altitude: 30", "altitude: 30, speed: 1e-4"), [],
                     "survey.speed: leg 1 lasts"),
     "huge plot": (GOOD.replace("size: [10, 10]", "size: [1e6, 1e6]"), [], "area.size[0]: must be <= 2000, got 1e+06"),
