@@ -38,7 +38,9 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--quiet", action="store_true", help="no progress bars or summaries")
 
     pl = sub.add_parser("plan", help="write the placement plan only",
-                        description="Place trees and understory, measure canopy cover, write <name>_plan.json.")
+                        description="Place trees and understory, measure canopy cover, write <name>_plan.json. "
+                                    "A folder holding a finished render of the scene is refused: "
+                                    "its plan is the render's.")
     pl.add_argument("scene", type=Path, help="scene file")
     pl.add_argument("-o", "--output", type=Path, help="output folder (default: the scene's output.dir)")
     pl.add_argument("--seed", type=int, help="override the scene's seed")
@@ -143,13 +145,13 @@ def _render(args) -> int:
 def _plan(args) -> int:
     from .config import load_scene
     from .plan import make_plan
-    from .write.atomic import write_text
+    from .write import check_output_folder, refuse_finished_render, write_plan
     scene = load_scene(args.scene, seed=args.seed, output_dir=args.output)
-    plan = make_plan(scene)
     out = Path(scene.output.dir)
-    out.mkdir(parents=True, exist_ok=True)
-    path = out / f"{scene.name}_plan.json"
-    write_text(path, plan.to_json())
+    check_output_folder(out)
+    refuse_finished_render(out, scene.name)
+    plan = make_plan(scene)
+    path = write_plan(out, scene.name, plan)
     kinds = {}
     for obj in plan.objects:
         kinds[obj.kind] = kinds.get(obj.kind, 0) + 1
@@ -163,6 +165,8 @@ def _plan(args) -> int:
 def _trees(args) -> int:
     from .trees.archetypes import DEFAULT_ARCHETYPES
     from .trees.gallery import write_gallery
+    from .write import check_output_folder
+    check_output_folder(args.output)
     models = ()
     if args.scene:
         from .config import load_scene
@@ -179,7 +183,9 @@ def _export(args) -> int:
     from .config import load_scene
     from .plan import make_plan
     from .trees import build_models
+    from .write import check_output_folder
     from .write.export import export_scene
+    check_output_folder(args.output)
     scene = load_scene(args.scene, seed=args.seed)
     plan = make_plan(scene)
     export_scene(scene, plan, build_models(plan), args.output)

@@ -23,10 +23,10 @@ from .interrupts import InterruptedAfterCommit, Terminated, deferred_signals
 from .plan import Plan, make_plan
 from .realism import realism_table
 from .scan import scan
-from .scene import build_scene
+from .scene import build_scene, scene_variant
 from .trees import build_models
 from .trees.imported import import_report
-from .write import (PointWriter, Staging, check_output_folder, existing_outputs, output_lock, write_manifest,
+from .write import (PointWriter, Staging, check_output_folder, earlier_results, output_lock, write_manifest,
                     write_render_outputs)
 from .write.background import Background
 
@@ -64,6 +64,8 @@ def render(scene, *, output_dir=None, seed=None, variant=None, overwrite=False, 
     scene = _as_scene(scene, seed=seed, variant=variant, output_dir=output_dir)
     keep_points = (not write) if keep_points is None else keep_points
     name, out = scene.name, Path(scene.output.dir)
+    if scan_source is None:
+        scene_variant(scene)    # before any work, naming the scene file
     if write:
         check_output_folder(out)
         _refuse_existing(out, name, overwrite)
@@ -108,7 +110,7 @@ class Timings(dict):
 
 
 def _refuse_existing(out: Path, name: str, overwrite: bool) -> None:
-    found = existing_outputs(out, name)
+    found = earlier_results(out, name)
     if found and not overwrite:
         raise UserError(f"{out} already holds results of '{name}' ({', '.join(found[:3])}, ...);"
                         " pass --overwrite to replace them")

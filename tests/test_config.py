@@ -22,6 +22,14 @@ survey: {{altitude: 30, pulse_frequency: 200000}}
 """
 
 CASES = {
+    "empty name": (GOOD.replace("name: t", 'name: ""'), "name: must not be empty"),
+    "name leaving the folder": (GOOD.replace("name: t", "name: ../escape"),
+                                "name: must be a plain file name, without / or \\, got '../escape'"),
+    "name with a folder": (GOOD.replace("name: t", "name: a/b"), "name: must be a plain file name"),
+    "name with a backslash": (GOOD.replace("name: t", "name: 'a\\b'"), "name: must be a plain file name"),
+    "name dot": (GOOD.replace("name: t", "name: ."), "name: must not start with a dot"),
+    "name dot dot": (GOOD.replace("name: t", "name: .."), "name: must not start with a dot"),
+    "hidden name": (GOOD.replace("name: t", "name: .t"), "name: must not start with a dot"),
     "wrong type": (GOOD.replace("altitude: 30", "altitude: high"), "survey.altitude: must be a number, got 'high'"),
     "negative altitude": (GOOD.replace("altitude: 30", "altitude: -30"), "survey.altitude: must be > 0, got -30"),
     "unknown key": (GOOD.replace("altitude: 30", "altitud: 30"),

@@ -243,6 +243,8 @@ def _assert_complete(out: Path, count: int) -> None:
     ("plots: 2\nvary: {forest.trees: {range: [1, 300]}}\n", "set.yaml: plot 0: forest.trees="),
     ("vary: {forest.trees: {range: [1, 3]}}\n", "set.yaml: plots: is required"),
     ("plots: 2\nsplits: {train: 0.5, validation: 0.1, test: 0.1}\n", "set.yaml: splits: the ratios must add up to 1"),
+    ("name: ../up\nplots: 2\n", "set.yaml: name: must be a plain file name, without / or \\, got '../up'"),
+    ("name: ''\nplots: 2\n", "set.yaml: name: must not be empty"),
 ])
 def test_bad_input_one_line_exit_2_nothing_written(tmp_path, capsys, body, message):
     from mitsuforest.cli import main

@@ -15,6 +15,7 @@ HOSTILE = {
     "infinite bushes": (GOOD.replace("bushes: 0", "bushes: .inf"), [], "understory.bushes: must be finite, got inf"),
     "negative seed": (GOOD, ["--seed", "-1"], "seed: must be >= 0, got -1"),
     "scalar variant": (GOOD, ["--variant", "scalar_rgb"], "simulation.variant: must be auto or a Mitsuba llvm_*"),
+    "unknown variant": (GOOD, ["--variant", "llvm_foo"], "simulation.variant: 'llvm_foo' is not in this Mitsuba build"),
     "slow flight": (GOOD.replace("altitude: 30", "altitude: 30, speed: 1e-4"), [],
                     "survey.speed: leg 1 lasts"),
     "huge plot": (GOOD.replace("size: [10, 10]", "size: [1e6, 1e6]"), [], "area.size[0]: must be <= 2000, got 1e+06"),
@@ -68,14 +69,15 @@ def test_write_failure_reports_the_cause_and_leaves_nothing(tmp_path, monkeypatc
     assert list(out.iterdir()) == []
 
 
+@pytest.mark.parametrize("command", ["render", "plan", "trees", "export"])
 @pytest.mark.parametrize("where", ["a file", "under a file"])
-def test_output_folder_that_cannot_be_made_is_refused_before_work(tmp_path, monkeypatch, capsys, where):
+def test_output_folder_that_cannot_be_made_is_refused_before_work(tmp_path, monkeypatch, capsys, where, command):
     monkeypatch.chdir(tmp_path)
     (tmp_path / "scene.yaml").write_text(GOOD)
     (tmp_path / "taken").write_text("x")
     target = "taken" if where == "a file" else "taken/out"
     start = time.perf_counter()
-    assert main(["render", "scene.yaml", "-o", target]) == 2
+    assert main([command, *([] if command == "trees" else ["scene.yaml"]), "-o", target]) == 2
     err = capsys.readouterr().err.strip()
     assert time.perf_counter() - start < 1.0
     assert err.count("\n") == 0 and "the output folder" in err and "is a file" in err, err
@@ -197,6 +199,21 @@ def test_damaged_file_gets_one_line(case, tmp_path, capsys):
     assert main(["info", str(path)]) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and err.startswith(f"mitsuforest: {path}: ") and message in err, err
+
+
+@pytest.mark.parametrize("holds", ["a point file", "no point file"])
+def test_info_on_a_folder_says_it_is_one(holds, tmp_path, capsys):
+    """``mitsuforest info OUTDIR`` names the problem (a folder) and, where it has one, a point file to give."""
+    folder = tmp_path / "out"
+    folder.mkdir()
+    (folder / "notes.txt").write_text("x")
+    if holds == "a point file":
+        _pcd(folder)
+    assert main(["info", str(folder)]) == 2
+    err = capsys.readouterr().err.strip()
+    wanted = (f"is a folder; give one of its point files, such as {folder / 'p.pcd'}" if holds == "a point file"
+              else "is a folder, with no point file in it; give a .pcd, .las or .laz file")
+    assert err == f"mitsuforest: {folder}: {wanted}", err
 
 
 def test_foreign_las_shows_asprs_class_names(tmp_path, capsys):

@@ -143,3 +143,17 @@ def test_unsupported_elements_are_named_in_one_line(tmp_path, monkeypatch, capsy
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and err.startswith("mitsuforest: data/survey.xml: ") and element in err
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("name, reason", [("../escape", "must be a plain file name"), (".hidden", "must not start")])
+def test_a_survey_name_that_is_no_file_name_is_refused(tmp_path, monkeypatch, capsys, name, reason):
+    """The survey's name prefixes the output files: one that would leave the folder or hide them is
+    refused in one line, before any part is read, nothing written."""
+    _demo_like_survey(tmp_path)
+    survey = tmp_path / "data" / "survey.xml"
+    survey.write_text(survey.read_text().replace('name="toy"', f'name="{name}"'))
+    monkeypatch.chdir(tmp_path)
+    assert main(["render", "data/survey.xml", "--assets", "assets", "-o", "out"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("mitsuforest: data/survey.xml: survey.name: " + reason), err
+    assert not (tmp_path / "out").exists()

@@ -149,6 +149,26 @@ def test_refuses_to_overwrite_older_results(rendered, capsys):
     assert (rendered / "a" / "test.pcd").stat().st_mtime_ns == before
 
 
+def test_render_follows_a_plan_into_the_same_folder(rendered, tmp_path):
+    """README's workflow, ``plan`` then ``render`` into one folder: a lone plan is no earlier result, and
+    the render replaces it with its own."""
+    scene, out = str(rendered / "scene.yaml"), str(tmp_path / "out")
+    assert main(["plan", scene, "-o", out, "--seed", "99"]) == 0
+    assert main(["render", scene, "-o", out, "--quiet"]) == 0
+    assert (tmp_path / "out" / "test_plan.json").read_bytes() == (rendered / "a" / "test_plan.json").read_bytes()
+
+
+def test_plan_keeps_a_finished_renders_plan(rendered, capsys):
+    """``plan`` into a finished render's folder would leave its points described by another plan:
+    refused in one line, exit 2, the folder as it was."""
+    folder = rendered / "a"
+    before = {p.name: p.read_bytes() for p in folder.iterdir()}
+    assert main(["plan", str(rendered / "scene.yaml"), "-o", str(folder), "--seed", "99"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "holds a finished render of 'test'" in err, err
+    assert {p.name: p.read_bytes() for p in folder.iterdir()} == before
+
+
 def _start(path, out):
     return subprocess.Popen([sys.executable, "-m", "mitsuforest", "render", str(path), "-o", str(out), "--quiet"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)

@@ -20,7 +20,7 @@ import yaml
 from ..errors import ConfigError, UserError
 from ..trees.archetypes import DEFAULT_ARCHETYPES, FAMILY_ARCHETYPES, FIELDS as ARCHETYPE_FIELDS, Archetype
 from ..trees.sources import DEFAULT_LEAF_PATTERNS, REPAIR_MODES, UNITS, UP_AXES, MeshTree, QsmTree
-from .schema import REQUIRED, Context, Custom, FilePath, ListOf, Number, Text, Vector, parse_mapping
+from .schema import REQUIRED, Context, Custom, FilePath, ListOf, Number, Text, Vector, name_problem, parse_mapping
 from .types import BEAM_PATTERNS, FOREST_BANDS, Scene, Sensor, display_path, from_mapping, to_mapping
 
 __all__ = ["load_scene", "load_sensor", "scene_from_mapping", "read_yaml", "validate_scene", "scene_error", "Scene", "Sensor",
@@ -327,6 +327,8 @@ def _parsed_scene(data, ctx: Context) -> dict:
     scene = parse_mapping(SCENE_SPEC, data, ctx)
     if scene["name"] is None:
         scene["name"] = ctx.file.stem if ctx.file.name != "<scene>" else "scene"
+    if problem := name_problem(scene["name"]):
+        ctx.fail("name", problem)
     if scene["output"]["dir"] is None:
         scene["output"]["dir"] = str(Path("out", scene["name"]).resolve())
     _check_scene(scene, ctx)

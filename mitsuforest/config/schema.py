@@ -149,6 +149,23 @@ class Custom:
         return self.fn(value, ctx, key)
 
 
+MAX_NAME_BYTES = 200   # names make file and folder names: most file systems allow 255 bytes, suffixes included
+
+
+def name_problem(name: str) -> str | None:
+    """Why ``name`` cannot name the files (or folder) a run writes, or ``None`` if it can: it must be a
+    plain, visible file name."""
+    if not name:
+        return "must not be empty"
+    if any(c in name for c in "/\\\0"):
+        return f"must be a plain file name, without / or \\, got {name!r}"
+    if name.startswith("."):
+        return f"must not start with a dot (a hidden file; . and .. are folders), got {name!r}"
+    if len(name.encode()) > MAX_NAME_BYTES:
+        return f"must be at most {MAX_NAME_BYTES} bytes long, got {len(name.encode())}"
+    return None
+
+
 def _did_you_mean(word: str, choices) -> str:
     close = difflib.get_close_matches(str(word), list(choices), n=1, cutoff=0.6)
     return f" (did you mean {close[0]!r}?)" if close else ""

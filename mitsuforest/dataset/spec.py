@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from ..config import SCENE_SPEC, load_scene, read_yaml
-from ..config.schema import REQUIRED, Context, Custom, FilePath, Number, Text, parse_mapping
+from ..config.schema import REQUIRED, Context, Custom, FilePath, Number, Text, name_problem, parse_mapping
 from ..config.types import Scene
 from ..errors import ConfigError
 from .tiles import tile_grid
@@ -90,6 +90,9 @@ def load_dataset(path) -> Dataset:
     """
     data, ctx = read_yaml(path)
     parsed = parse_mapping(DATASET_SPEC, data, ctx)
+    name = ctx.file.stem if parsed["name"] is None else parsed["name"]
+    if problem := name_problem(name):
+        ctx.fail("name", problem)
     vary, grid = parsed["vary"] or {}, parsed["grid"] or {}
     ranges = {key: _variation(value, ctx, f"vary.{key}") for key, value in vary.items()}
     choices = {key: _grid_values(value, ctx, f"grid.{key}") for key, value in grid.items()}
@@ -101,7 +104,6 @@ def load_dataset(path) -> Dataset:
     if tiles:
         _check_tile_count(tiles, base, count, ranges, choices, ctx)
     _check_splits(parsed["splits"], ctx)
-    name = parsed["name"] or ctx.file.stem
     combos = list(itertools.product(*choices.values())) or [()]
     width = max(4, len(str(count - 1)))
     plots = []

@@ -176,9 +176,10 @@ def _scan_setup(path):
         _SETUP.clear()
         from ..config import load_scene
         from ..plan import make_plan
-        from ..scene import build_scene
+        from ..scene import build_scene, scene_variant
         from ..trees import build_models
         scene = load_scene(path)
+        scene_variant(scene)
         plan = make_plan(scene)
         _SETUP[key] = (scene, plan, build_scene(plan, build_models(plan), scene.sensor, scene.simulation.variant))
     return _SETUP[key]

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..config.schema import name_problem
 from ..errors import ConfigError
 from .documents import OPTICS, sub_rays
 
@@ -159,6 +160,9 @@ def read_survey(path, assets=()) -> HeliosSurvey:
     seed = survey.get("seed", "AUTO")
     if seed != "AUTO" and not seed.isdigit():
         reader.fail("survey.seed", f"must be a whole number >= 0 or AUTO, got {seed!r}")
+    name = survey.get("name") or Path(path).stem
+    if problem := name_problem(name):
+        reader.fail("survey.name", problem)
     for key in ("platform", "scanner", "scene"):
         if not survey.get(key):
             reader.fail("survey", f"attribute {key} is required")
@@ -182,7 +186,7 @@ def read_survey(path, assets=()) -> HeliosSurvey:
     if len(waypoints) < 2:
         reader.fail("survey.leg", "a survey needs at least two legs (waypoints)")
     parts = tuple(_part(reader, node, i) for i, node in enumerate(_scene_parts(reader, scene_node, scene_path)))
-    return HeliosSurvey(survey.get("name") or Path(path).stem, Path(path).resolve(), scanner, beam_samples,
+    return HeliosSurvey(name, Path(path).resolve(), scanner, beam_samples,
                         waypoints, parts, int(seed) if seed.isdigit() else None)
 
 

@@ -15,9 +15,9 @@ import numpy as np
 from ..classes import SPECIES_CODES
 from ..plan.transforms import apply
 from .meshes import face_normals, mitsuba_mesh
-from .variant import select_variant, variant_scope
+from .variant import scene_variant, select_variant, variant_scope
 
-__all__ = ["ScanScene", "build_scene", "select_variant", "variant_scope", "reachable"]
+__all__ = ["ScanScene", "build_scene", "scene_variant", "select_variant", "variant_scope", "reachable"]
 
 
 @dataclass

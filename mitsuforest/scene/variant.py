@@ -64,20 +64,43 @@ def available_variants() -> list[str]:
     return out
 
 
+class VariantError(UserError):
+    """A ``simulation.variant`` this machine cannot run (see :func:`scene_variant`, which names the file)."""
+
+    def __init__(self, reason: str):
+        self.reason = reason
+        super().__init__(f"simulation.variant: {reason}")
+
+    def __reduce__(self):   # pickled whole (Dask sends a worker's errors to the client)
+        return type(self), (self.reason,)
+
+
 def select_variant(requested: str = "auto") -> str:
-    """The variant to run, checked: ``auto`` prefers ``cuda_ad_mono`` when a GPU is usable."""
+    """The variant to run, checked: ``auto`` prefers ``cuda_ad_mono`` when a GPU is usable.
+
+    :raises VariantError: a variant not in this Mitsuba build, or a CUDA one without a usable GPU.
+    """
     import mitsuba as mi
     variant = requested
     if requested == "auto":
         variant = "cuda_ad_mono" if cuda_available() else "llvm_ad_mono"
     if variant not in mi.variants():
-        raise UserError(f"simulation.variant: {variant!r} is not in this Mitsuba build "
-                        f"(available: {', '.join(mi.variants())})")
+        raise VariantError(f"{variant!r} is not in this Mitsuba build (available: {', '.join(mi.variants())})")
     if variant.startswith("llvm"):
         check_llvm()
     if variant.startswith("cuda") and not cuda_available():
-        raise UserError(f"simulation.variant: {variant} needs a CUDA GPU, and none is usable here")
+        raise VariantError(f"{variant} needs a CUDA GPU, and none is usable here")
     return variant
+
+
+def scene_variant(scene) -> str:
+    """The variant a :class:`~mitsuforest.config.types.Scene` runs under (:func:`select_variant`); one
+    this machine cannot run is refused like the scene file's own errors, ``FILE: simulation.variant: ...``."""
+    from ..config import scene_error
+    try:
+        return select_variant(scene.simulation.variant)
+    except VariantError as e:
+        raise scene_error(scene, "simulation.variant", e.reason) from None
 
 
 @contextmanager

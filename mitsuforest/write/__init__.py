@@ -27,11 +27,13 @@ from .figures import write_profile_figure, write_returns_figure, write_tile_figu
 from .stream import PointWriter, georeference
 from .tables import write_ids, write_trajectory, write_volumes
 
-__all__ = ["Staging", "check_output_folder", "output_lock", "PointWriter", "georeference", "output_files", "existing_outputs", "read_pcd",
-           "write_las", "write_render_outputs", "write_manifest"]
+__all__ = ["Staging", "check_output_folder", "output_lock", "PointWriter", "georeference", "output_files", "existing_outputs",
+           "earlier_results", "refuse_finished_render", "write_plan", "read_pcd", "write_las", "write_render_outputs",
+           "write_manifest"]
 
-SUFFIXES = (".pcd", ".las", ".laz", "_volumes.csv", "_ids.csv", "_plan.json", "_trajectory.csv",
-            "_manifest.json", "_top.png", "_side.png", "_profile.png", "_returns.png")
+PLAN, MANIFEST = "_plan.json", "_manifest.json"
+SUFFIXES = (".pcd", ".las", ".laz", "_volumes.csv", "_ids.csv", PLAN, "_trajectory.csv",
+            MANIFEST, "_top.png", "_side.png", "_profile.png", "_returns.png")
 
 
 def output_files(name: str) -> list[str]:
@@ -41,6 +43,30 @@ def output_files(name: str) -> list[str]:
 def existing_outputs(folder, name: str) -> list[str]:
     folder = Path(folder)
     return [f for f in output_files(name) if (folder / f).exists()]
+
+
+def earlier_results(folder, name: str) -> list[str]:
+    """The files of ``name`` in ``folder`` that a render replaces only with ``overwrite``: every output
+    but the plan, since a lone plan is what ``mitsuforest plan`` leaves for a render to follow."""
+    return [f for f in existing_outputs(folder, name) if f != name + PLAN]
+
+
+def refuse_finished_render(folder, name: str) -> None:
+    """Refuse to write a lone plan where a finished render of ``name`` is: the plan there is that
+    render's, and replacing it would leave its points described by another plan."""
+    if (Path(folder) / (name + MANIFEST)).exists():
+        raise UserError(f"{folder} holds a finished render of '{name}' ({name}{MANIFEST}), whose plan this would "
+                        "replace; plan into another folder (-o DIR), or render again with --overwrite")
+
+
+def write_plan(folder, name: str, plan) -> Path:
+    """Write ``NAME_plan.json`` into ``folder`` (``mitsuforest plan``), holding the render lock so that
+    a render finishing meanwhile is not overwritten (see :func:`refuse_finished_render`)."""
+    path = Path(folder) / (name + PLAN)
+    with output_lock(folder, name):
+        refuse_finished_render(folder, name)
+        write_text(path, plan.to_json())
+    return path
 
 
 def check_output_folder(folder) -> None:
@@ -136,7 +162,7 @@ def write_render_outputs(staging: Staging, *, scene, plan, models, writer) -> No
     offset = scene.origin.offset
     write_volumes(staging.file("_volumes.csv"), plan, models, offset)
     write_ids(staging.file("_ids.csv"), plan, models, offset)
-    write_text(staging.file("_plan.json"), plan.to_json())
+    write_text(staging.file(PLAN), plan.to_json())
     write_trajectory(staging.file("_trajectory.csv"), plan.legs, offset)
     classes = [int(c) for c in np.flatnonzero(writer.classes)]
     write_top_figure(staging.file("_top.png"), writer.top, writer.side, classes)
@@ -146,4 +172,4 @@ def write_render_outputs(staging: Staging, *, scene, plan, models, writer) -> No
 
 
 def write_manifest(staging: Staging, manifest: dict) -> None:
-    write_text(staging.file("_manifest.json"), json.dumps(manifest, indent=1, sort_keys=True, default=str) + "\n")
+    write_text(staging.file(MANIFEST), json.dumps(manifest, indent=1, sort_keys=True, default=str) + "\n")

@@ -10,6 +10,8 @@ from ..classes import CLASS_NAMES
 from ..errors import UserError
 from .pcd import PointFileError, read_pcd
 
+POINT_SUFFIXES = (".pcd", ".las", ".laz")
+
 # ASPRS LAS 1.4 classes, for files of other tools (ours carry our own classes in ``label``).
 ASPRS_NAMES = {0: "never classified", 1: "unclassified", 2: "ground", 3: "low vegetation", 4: "medium vegetation",
                5: "high vegetation", 6: "building", 7: "low point (noise)", 9: "water", 10: "rail",
@@ -22,7 +24,7 @@ def load_points(path) -> tuple[dict, list[str], dict]:
     file carries our ``label``, else ASPRS's)."""
     path = Path(path)
     if not path.is_file():
-        raise UserError(f"{path}: file not found")
+        raise UserError(_not_a_file(path))
     suffix = path.suffix.lower()
     try:
         if suffix == ".pcd":
@@ -37,6 +39,21 @@ def load_points(path) -> tuple[dict, list[str], dict]:
     except Exception as e:  # laspy and lazrs raise their own kinds for damaged files
         raise UserError(f"{path}: cannot read: {type(e).__name__}: {e}") from None
     raise UserError(f"{path}: unknown point file type {suffix!r} (expected .pcd, .las or .laz)")
+
+
+def _not_a_file(path: Path) -> str:
+    """What is wrong with a path that is no regular file; for a folder, a point file in it to give."""
+    if not path.exists():
+        return f"{path}: file not found"
+    if not path.is_dir():
+        return f"{path}: not a regular file"
+    try:
+        found = sorted(p for p in path.iterdir() if p.suffix.lower() in POINT_SUFFIXES and p.is_file())
+    except OSError:
+        found = []
+    if found:
+        return f"{path}: is a folder; give one of its point files, such as {found[0]}"
+    return f"{path}: is a folder, with no point file in it; give a .pcd, .las or .laz file"
 
 
 def _load_las(path: Path) -> tuple[dict, list[str], dict]:
