@@ -70,7 +70,7 @@ def test_patches_sit_on_a_dem_hill_and_stay_in_the_plot(tmp_path):
         worst = max(worst, float(np.abs(plane[:, 2] - ground(plane)).max()))
         tilted += max(map(abs, obj.tilt)) > 2
         v = apply(obj.matrix, models[obj.model].vertices())
-        assert v[:, 0].min() >= 0 and v[:, 1].min() >= 0 and v[:, 0].max() <= size[0] and v[:, 1].max() <= size[1]
+        assert v[:, :2].min() >= -1e-9 and v[:, 0].max() <= size[0] + 1e-9 and v[:, 1].max() <= size[1] + 1e-9
         above = v[:, 2] - ground(v)
         if obj.kind == "litter":
             assert -0.01 < above.min() and above.max() < 0.03, (obj, above.min(), above.max())
@@ -82,18 +82,55 @@ def test_patches_sit_on_a_dem_hill_and_stay_in_the_plot(tmp_path):
     assert len(_patches(plan)) == round(0.7 * size[0] * size[1])
 
 
+def _steep(x, y):
+    """A plane rising 0.25 m per m east and north (19° of slope, 14° about each axis), on a 100 m datum."""
+    return 100.0 + 0.25 * (x - OFFSET[0]) + 0.25 * (y - OFFSET[1])
+
+
+@pytest.mark.parametrize("where", ["steep plane", "examples/dem.yaml"])
+def test_patches_keep_their_own_cells_and_the_plot_on_slopes(tmp_path, where):
+    """Each patch stays centred in its own 1 m cell (no two closer than a cell) and wholly inside the plot:
+    at the plot's edges a tilted patch is tilted less rather than pushed into its neighbour's cell."""
+    if where == "steep plane":
+        scene = load_scene(dem_scene(tmp_path, write_dem(tmp_path / "dem.tif", _steep))).with_(
+            {"understory.grass.cover": 0.6, "understory.litter.cover": 0.4, "understory.grass.height": 0.6})
+    else:
+        scene = load_scene(ROOT / "examples" / "dem.yaml")
+    plan = make_plan(scene)
+    size = scene.area.size
+    patches = _patches(plan)
+    xy = np.array([o.position[:2] for o in patches])
+    apart = np.abs(xy[:, None] - xy[None]).max(-1) + np.eye(len(xy)) * PATCH_SIZE
+    assert apart.min() >= PATCH_SIZE - 1e-9
+    models = {n: build_model(n, spec) for n, spec in plan.models.items() if spec.kind in ("grass", "litter")}
+    flattened = 0
+    for obj in patches:
+        v = apply(obj.matrix, models[obj.model].vertices())
+        assert v[:, :2].min() >= -1e-9 and v[:, 0].max() <= size[0] + 1e-9 and v[:, 1].max() <= size[1] + 1e-9
+        flattened += max(map(abs, obj.tilt)) < 10
+    if where == "steep plane":     # 14° about each axis inside; less only in the edge cells that need it
+        assert 0 < flattened < 4 * size[0]
+
+
 def test_covers_that_do_not_fit_are_refused(tmp_path):
     with pytest.raises(ConfigError, match="understory.litter.cover: grass and litter patches do not overlap: their "
                                           "covers add up to 1.2"):
         _ground_scene(tmp_path, 0.7, 0.5)
     with pytest.raises(ConfigError, match="understory.grass.cover: must be <= 1, got 1.5"):
         _ground_scene(tmp_path, 1.5, 0.0)
+
+
+
+@pytest.mark.parametrize("grass, litter, expected", [(1.0, 0.0, (100, 0)), (0.5, 0.5, (50, 50)),
+                                                     (0.255, 0.745, (26, 74))])
+def test_covers_are_shares_of_the_whole_cells(tmp_path, grass, litter, expected):
+    """A 10.5 m plot has 100 whole 1 m cells (a 0.25 m strip at each edge stays free): covers adding up to
+    1 fill them exactly, however the two round."""
     scene = load_scene(scene_file(tmp_path, area={"size": [10.5, 10.5]},
                                   understory={"bushes": 0, "rocks": 0, "deadwood": 0, "stumps": 0,
-                                              "grass": {"cover": 1.0}}))
-    with pytest.raises(ConfigError, match=r"understory.grass.cover: 110 ground-layer patches of 1 m do not fit in "
-                                          r"the 100 whole 1 m cells"):
-        make_plan(scene)
+                                              "grass": {"cover": grass}, "litter": {"cover": litter}}))
+    patches = _patches(make_plan(scene))
+    assert (len([o for o in patches if o.kind == "grass"]), len([o for o in patches if o.kind == "litter"])) == expected
 
 
 def test_patch_models_are_what_their_docstrings_say():

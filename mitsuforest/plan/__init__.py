@@ -22,7 +22,7 @@ from ..trees.skeleton import grow
 from ..trees.understory import SHRUB_FORMS, UNDERSTORY_COMPONENTS
 from .cover import CoverGrid, crown_outline
 from .flight import flight_legs
-from .ground_layer import ground_layer_refusal, place_ground_layer
+from .ground_layer import place_ground_layer
 from .terrain import Terrain, make_terrain
 from .transforms import apply
 from .types import Leg, ModelSpec, PlacedObject, Plan
@@ -236,9 +236,6 @@ def _check_understory_fits(scene) -> None:
     fills at most a share RSA_JAMMING of the plane); the placement loop stays the exact test."""
     counts = scene.understory
     (w, h), used = scene.area.size, 0.0
-    refusal = ground_layer_refusal(counts, scene.area.size)
-    if refusal:
-        raise _Refusal(*refusal)
     for kind, key in UNDERSTORY_KEYS.items():
         if getattr(counts, key) and min(w, h) <= 2 * CLEARANCE[kind]:
             raise _Refusal(f"understory.{key}", f"a {w:g} x {h:g} m plot is too small for {key} (each needs "

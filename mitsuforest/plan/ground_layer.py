@@ -1,11 +1,14 @@
 """Placing the ground layer (``understory.grass`` and ``understory.litter``): patches on a grid of cells.
 
 The plot is cut into :data:`~mitsuforest.trees.ground_layer.PATCH_SIZE` m cells (the grid centred in
-the plot); ``cover`` × the plot's area worth of cells, drawn at random, each take one patch, grass first,
-then litter from the cells left, so the two never overlap and the covers are met to one cell. Each patch
-is one of :data:`~mitsuforest.trees.ground_layer.PATCH_MODELS` models of its kind, turned by a multiple
-of 90° (so it stays in its cell), and laid on the plane fitted to the terrain under its cell: tilted to
-the slope, its centre at the plane's height there. Patches do not avoid trees, rocks or logs (grass grows
+the plot; a plot whose sides are not whole metres keeps a strip under 1 m free at its edges); ``cover``
+× the number of cells, drawn at random, each take one patch, grass first, then litter from the cells
+left, so the two never overlap and the covers are met to one cell. Each patch is one of
+:data:`~mitsuforest.trees.ground_layer.PATCH_MODELS` models of its kind, turned by a multiple of 90° (so
+it stays in its cell), and laid on the plane fitted to the terrain under its cell: tilted to the slope,
+its centre at the plane's height there. A tilted patch's top leans out of its cell downhill; in a cell
+at the plot's edge it is tilted less, just enough for its top to stay inside the plot (its centre never
+moves, so patches never overlap). Patches do not avoid trees, rocks or logs (grass grows
 round them). The draws use their own random stream, so a scene without a ground layer is planned as
 before.
 """
@@ -32,21 +35,14 @@ def ground_cells(size) -> np.ndarray:
 
 
 def patch_counts(understory, size) -> tuple[int, int]:
-    """Grass and litter patches for the covers of ``understory`` over a plot of ``size``, each cover times
-    the plot's area in cells, rounded."""
-    cells = size[0] * size[1] / PATCH_SIZE ** 2
-    return int(round(understory.grass.cover * cells)), int(round(understory.litter.cover * cells))
-
-
-def ground_layer_refusal(understory, size) -> tuple[str, str] | None:
-    """``(key, reason)`` when the covers ask for more patches than the plot has whole cells, else None."""
-    grass, litter = patch_counts(understory, size)
+    """Grass and litter patches for the covers of ``understory`` over a plot of ``size``: each cover times
+    the plot's whole cells (:func:`ground_cells`), rounded; litter takes one fewer where both round up
+    past the cells there are, so covers adding up to at most 1 always fit."""
     cells = len(ground_cells(size))
-    if grass + litter <= cells:
-        return None
-    return ("understory.litter.cover" if litter else "understory.grass.cover",
-            f"{grass + litter} ground-layer patches of {PATCH_SIZE:g} m do not fit in the {cells} whole "
-            f"{PATCH_SIZE:g} m cells of a {size[0]:g} x {size[1]:g} m plot; lower the covers")
+    grass, litter = (int(round(cover * cells)) for cover in (understory.grass.cover, understory.litter.cover))
+    if grass + litter > cells:          # both rounded up: covers add up to at most 1
+        litter = cells - grass
+    return grass, litter
 
 
 def terrain_planes(terrain, centres: np.ndarray) -> np.ndarray:
@@ -68,8 +64,8 @@ def slope_tilts(p: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def place_ground_layer(understory, size, terrain, seed: int) -> tuple[list[PlacedObject], dict[str, ModelSpec]]:
-    """The ground layer's patches and their models (``grass01``.., ``litter01``..); the covers must fit
-    (:func:`ground_layer_refusal`)."""
+    """The ground layer's patches and their models (``grass01``.., ``litter01``..) for covers adding up to
+    at most 1 (the scene's rule)."""
     grass, litter = patch_counts(understory, size)
     if not grass + litter:
         return [], {}
@@ -79,9 +75,7 @@ def place_ground_layer(understory, size, terrain, seed: int) -> tuple[list[Place
     kinds = ["grass"] * grass + ["litter"] * litter
     tops = np.array([GRASS_TOP * understory.grass.height if k == "grass" else LITTER_TOP for k in kinds])
     planes = terrain_planes(terrain, chosen)
-    tilt_x, tilt_y = slope_tilts(planes[:, 1], planes[:, 2])
-    centres = _inside(chosen, tops * np.sin(np.deg2rad(np.hypot(tilt_x, tilt_y))), size)
-    heights = planes[:, 0] + planes[:, 1] * (centres[:, 0] - chosen[:, 0]) + planes[:, 2] * (centres[:, 1] - chosen[:, 1])
+    tilt_x, tilt_y = _within_plot(*slope_tilts(planes[:, 1], planes[:, 2]), tops, chosen, size)
     models = {f"{kind}{i + 1:02d}": ModelSpec(kind, 1, seed=int(seed) * 1000 + 500 + 10 * (kind == "litter") + i,
                                                height=understory.grass.height if kind == "grass" else None)
               for kind, n in (("grass", grass), ("litter", litter)) if n for i in range(PATCH_MODELS)}
@@ -89,12 +83,16 @@ def place_ground_layer(understory, size, terrain, seed: int) -> tuple[list[Place
     yaw = 90.0 * rng.integers(0, 4, len(kinds))
     objects = [PlacedObject(kind=k, model=f"{k}{int(w) + 1:02d}", treeid=0,
                             position=(float(c[0]), float(c[1]), float(h)), rotation=float(r), tilt=(float(a), float(b)))
-               for k, w, c, h, r, a, b in zip(kinds, which, centres, heights, yaw, tilt_x, tilt_y)]
+               for k, w, c, h, r, a, b in zip(kinds, which, chosen, planes[:, 0], yaw, tilt_x, tilt_y)]
     return objects, models
 
 
-def _inside(centres: np.ndarray, lean: np.ndarray, size) -> np.ndarray:
-    """(n, 2) ``centres`` moved in from the plot's edges by ``lean`` (n,): a tilted patch's top leans out
-    of its cell by up to that much, and must stay in the plot."""
-    reach = PATCH_SIZE / 2 + lean[:, None]
-    return np.clip(centres, reach, np.asarray(size, float) - reach)
+def _within_plot(tilt_x: np.ndarray, tilt_y: np.ndarray, tops: np.ndarray, centres: np.ndarray, size):
+    """Tilts (degrees, (n,) each) scaled down where a patch's top, ``tops`` (n,) above its plane, would
+    lean out of the plot: by up to ``top · sin(tilt)`` beyond the cell at ``centres`` (n, 2), which the
+    cell's free margin to the plot's nearest edge must hold."""
+    margin = np.minimum(centres, np.asarray(size, float) - centres).min(axis=1) - PATCH_SIZE / 2
+    tilt = np.hypot(tilt_x, tilt_y)
+    allowed = np.rad2deg(np.arcsin(np.clip(np.maximum(margin, 0.0) / tops, 0.0, 1.0)))
+    scale = np.where(tilt > allowed, allowed / np.maximum(tilt, 1e-12), 1.0)
+    return tilt_x * scale, tilt_y * scale
