@@ -80,6 +80,23 @@ def test_dem_heights_honour_the_offset_and_carry_objects(tmp_path):
         assert ground - 0.06 < z < ground + 0.01
 
 
+def test_nodata_beyond_the_plot_edge_is_as_if_the_dem_ended_there(tmp_path):
+    """The plot's east edge is at local x 40; the DEM (1 m cells) holds nodata east of it. The cell
+    centred at x 40.5, read only to interpolate the edge, takes its inner neighbour's height, so the
+    edge lies at the height of the last centre inside (x 39.5), as for a DEM that ends at the edge."""
+    dem = write_dem(tmp_path / "dem.tif", plane, cell=1.0)
+    with rasterio.open(dem, "r+") as data:
+        z = data.read(1)
+        z[:, 43:] = data.nodata                   # world x >= EAST + 43: local x >= 40
+        data.write(z, 1)
+    plan = make_plan(load_scene(dem_scene(tmp_path, dem, crs="EPSG:28355")))
+    y = np.array([5.5, 20.5, 35.5])
+    inner = plane(EAST + 3.0 + 39.5, NORTH + 4.0 + y) - OFFSET[2]
+    assert np.allclose(plan.terrain.height(np.full(3, 40.0), y), inner, atol=1e-4)
+    assert np.allclose(plan.terrain.height(np.full(3, 20.0), y), plane(EAST + 23.0, NORTH + 4.0 + y) - OFFSET[2],
+                       atol=1e-4)
+
+
 @pytest.mark.parametrize("case, reason", [
     ("missing", "file not found"),
     ("small", "the DEM does not cover the plot"),

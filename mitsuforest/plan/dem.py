@@ -45,16 +45,32 @@ def read_dem(path, size, offset=(0.0, 0.0, 0.0), crs: str | None = None):
     x = t.c - ox + (np.arange(cols[0], cols[1]) + 0.5) * t.a
     y = t.f - oy + (np.arange(rows[0], rows[1]) + 0.5) * t.e
     z = np.ma.filled(band.astype(np.float64), np.nan) - oz
+    if t.a < 0:
+        x, z = x[::-1], z[:, ::-1]
+    if t.e < 0:                      # north-up: rows run south
+        y, z = y[::-1], z[::-1]
+    z = _clamp_outer_holes(x, y, z, size)
     holes = ~np.isfinite(z)
     if holes.any():
         j, i = np.argwhere(holes)[0]
         raise UserError(f"{path}: the DEM has {int(holes.sum())} nodata cells over the plot (the first at local "
                         f"x {x[i]:.2f}, y {y[j]:.2f}); fill them first (gdal_fillnodata)")
-    if t.a < 0:
-        x, z = x[::-1], z[:, ::-1]
-    if t.e < 0:                      # north-up: rows run south
-        y, z = y[::-1], z[::-1]
     return x, y, np.ascontiguousarray(z)
+
+
+def _clamp_outer_holes(x: np.ndarray, y: np.ndarray, z: np.ndarray, size) -> np.ndarray:
+    """``z`` (ny, nx) with nodata (NaN) in a cell centred beyond the plot's edge (read only to interpolate
+    the heights along the edge) replaced by the height of the cell inside next to it, as if the DEM
+    ended there. ``x``, ``y`` ascending."""
+    z = z.copy()
+    for grid, centres, length in ((z.T, x, size[0]), (z, y, size[1])):    # columns, then rows
+        if len(centres) < 2:
+            continue
+        for outer, inner in ((0, 1), (-1, -2)):
+            if centres[outer] < 0 or centres[outer] > length:
+                holes = np.isnan(grid[outer])
+                grid[outer][holes] = grid[inner][holes]
+    return z
 
 
 def _cell_span(start: float, step: float, length: float, count: int) -> tuple[int, int] | None:
