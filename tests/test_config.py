@@ -47,6 +47,7 @@ CASES = {
     "scan frequency": (GOOD.replace("altitude: 30", "scan_frequency: 500"),
                        "survey.scan_frequency: 500 Hz is outside the sensor's range 10-200 Hz"),
     "fractional seed": ("seed: 1.5\n" + GOOD, "seed: must be an integer, got 1.5"),
+    "plot under a metre": (GOOD.replace("size: [10, 10]", "size: [0.1, 10]"), "area.size[0]: must be >= 1, got 0.1"),
 }
 
 

@@ -189,7 +189,7 @@ def _pair(v, ctx, key):
 SCENE_SPEC = {
     "name": Text(None, nullable=True),
     "seed": Number(0, integer=True, ge=0),
-    "area": {"size": Vector(2, Number(gt=0, le=MAX_PLOT_SIDE), [100.0, 100.0])},
+    "area": {"size": Vector(2, Number(ge=1, le=MAX_PLOT_SIDE), [100.0, 100.0])},   # smaller holds nothing (no cover cell)
     "origin": {"crs": Custom(_crs, None), "offset": Vector(3, Number(), [0.0, 0.0, 0.0])},
     "terrain": {
         "type": Text("flat", choices=("flat", "noise", "mesh", "dem")),
