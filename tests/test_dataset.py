@@ -266,6 +266,17 @@ def test_unreachable_scheduler(tmp_path, capsys, monkeypatch):
     assert not (tmp_path / "out").exists()
 
 
+def test_tiled_plots_may_choose_their_area_from_a_list(tmp_path):
+    """A choice of areas is tiled like a grid of them; the tile limit is checked on the largest."""
+    from mitsuforest.config import ConfigError
+    from mitsuforest.dataset import load_dataset
+    choice = "vary: {area.size: {choice: [[12, 12], [14, 14]]}}\n"
+    dataset = load_dataset(_dataset_file(tmp_path, "plots: 6\ntiles: {size: 6}\n" + choice))
+    assert {tuple(p.scene.area.size) for p in dataset.plots} == {(12, 12), (14, 14)}
+    with pytest.raises(ConfigError, match="tiles.size: 0.13 m tiles make 11,664 tiles per plot"):
+        load_dataset(_dataset_file(tmp_path, "plots: 2\ntiles: {size: 0.13}\n" + choice))   # 12 m: 93², 14 m: 108²
+
+
 def test_plot_draws_do_not_depend_on_the_plot_count(tmp_path):
     from mitsuforest.dataset import load_dataset
     body = "seed: 9\nvary: {forest.trees: {range: [1, 3]}, survey.altitude: {range: [25.0, 35.0]}}\n"

@@ -11,6 +11,7 @@ plot's scene is validated before any work; a problem is reported as ``FILE: key:
 from __future__ import annotations
 
 import itertools
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -110,7 +111,7 @@ def load_dataset(path) -> Dataset:
     for i in range(count):
         values = dict(zip(choices, combos[i % len(combos)]))
         rng = np.random.default_rng([parsed["seed"], i])
-        values.update({key: draw(rng) for key, draw in ranges.items()})
+        values.update({key: variation.draw(rng) for key, variation in ranges.items()})
         values.setdefault("seed", int(rng.integers(0, 2**31 - 1)))
         name_i = f"plot_{i:0{width}d}"
         plots.append(PlotSpec(name_i, values, _plot_scene(base, {**values, "name": name_i}, ctx, i)))
@@ -165,23 +166,31 @@ def _spec_of(dotted: str):
     return node
 
 
-def _variation(value, ctx: Context, key: str):
-    """``{range: [lo, hi]}`` (uniform; integers when both ends are) or ``{choice: [a, b, ...]}``:
-    a function drawing one value from a numpy Generator."""
+@dataclass(frozen=True)
+class Variation:
+    """One ``vary`` entry: ``draw(rng)`` gives a plot's value; ``options`` are a choice's values (None for
+    a range)."""
+
+    draw: Callable
+    options: list | None = None
+
+
+def _variation(value, ctx: Context, key: str) -> Variation:
+    """``{range: [lo, hi]}`` (uniform; integers when both ends are) or ``{choice: [a, b, ...]}``."""
     if not isinstance(value, dict) or len(value) != 1 or next(iter(value)) not in ("range", "choice"):
         ctx.fail(key, f"must be {{range: [low, high]}} or {{choice: [a, b, ...]}}, got {value!r}")
     (kind, arg), = value.items()
     if kind == "choice":
         options = _grid_values(arg, ctx, f"{key}.choice")
-        return lambda rng: options[int(rng.integers(len(options)))]
+        return Variation(lambda rng: options[int(rng.integers(len(options)))], options)
     if not isinstance(arg, list) or len(arg) != 2:
         ctx.fail(f"{key}.range", f"must be [low, high], got {arg!r}")
     lo, hi = (Number().parse(v, ctx, f"{key}.range[{i}]") for i, v in enumerate(arg))
     if lo > hi:
         ctx.fail(f"{key}.range", f"is empty: low {lo:g} > high {hi:g}")
     if all(isinstance(v, int) and not isinstance(v, bool) for v in arg):
-        return lambda rng: int(rng.integers(lo, hi + 1))
-    return lambda rng: float(rng.uniform(lo, hi))
+        return Variation(lambda rng: int(rng.integers(lo, hi + 1)))
+    return Variation(lambda rng: float(rng.uniform(lo, hi)))
 
 
 def _grid_values(value, ctx: Context, key: str) -> list:
@@ -223,7 +232,9 @@ def _check_tile_count(tiles: Tiles, base: Scene, count: int, ranges: dict, choic
     if "area.size" in choices:
         sizes += choices["area.size"]
     if "area.size" in ranges:
-        ctx.fail("vary.area.size", "an area cannot be drawn from a range; give a choice or a grid of sizes")
+        if ranges["area.size"].options is None:
+            ctx.fail("vary.area.size", "an area cannot be drawn from a range; give a choice or a grid of sizes")
+        sizes += ranges["area.size"].options
     per_plot = max(tile_count(size, tiles.size) for size in sizes)
     if per_plot > MAX_TILES_PER_PLOT or per_plot * count > MAX_TILES:
         ctx.fail("tiles.size", f"{tiles.size:g} m tiles make {per_plot:,} tiles per plot and {per_plot * count:,} "
