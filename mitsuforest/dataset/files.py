@@ -253,19 +253,45 @@ def write_index(root, records, varied, splits) -> None:
     write_text(Path(root) / "index.csv", csv_text(header, rows))
 
 
+SPLIT_BLOCK = 10   # plots per block of the split assignment
+
+
 def assign_splits(names: list[str], ratios: dict, seed: int) -> dict:
-    """``{split: [plot names]}``: the plots shuffled with ``seed`` and cut by ``ratios`` (largest
-    remainders), so no plot is in two splits and every plot is in one."""
-    order = list(np.random.default_rng([seed, 1]).permutation(len(names)))
-    exact = np.array([ratios[k] for k in ratios]) * len(names)
-    counts = np.floor(exact).astype(int)
-    for k in np.argsort(-(exact - counts), kind="stable")[: len(names) - counts.sum()]:
-        counts[k] += 1
-    out, start = {}, 0
-    for key, n in zip(ratios, counts):
-        out[key] = sorted(names[k] for k in order[start:start + n])
-        start += n
-    return out
+    """``{split: [plot names]}``: every plot in exactly one split, and a plot's split depends only on the
+    seed and its place in ``names``, so raising ``plots`` never moves a plot to another split.
+
+    Plots are taken in blocks of :data:`SPLIT_BLOCK`. Each block's quota per split is what brings the
+    running counts to the ratios times the plots so far (:func:`split_quotas`), so after every whole
+    block each split is within one plot of its ratio. Inside a block the j-th of a split's q places
+    falls at ``(j + u) / q`` of the block, u uniform from ``[seed, 1, block]``: each split is spread
+    evenly through the block, so a partial block (a dataset of 3 plots) stays close to the ratios too,
+    yet no split follows a period of the plot list (a grid's combinations repeat along it)."""
+    out = {key: [] for key in ratios}
+    keys = list(ratios)
+    for block, quota in enumerate(split_quotas(ratios, -(-len(names) // SPLIT_BLOCK))):
+        split = np.repeat(np.arange(len(keys)), quota)
+        place = np.concatenate([np.arange(q) for q in quota])
+        u = np.random.default_rng([seed, 1, block]).random(len(split))
+        order = split[np.argsort((place + u) / quota[split], kind="stable")]
+        for name, k in zip(names[block * SPLIT_BLOCK:(block + 1) * SPLIT_BLOCK], order):
+            out[keys[k]].append(name)
+    return {key: sorted(plots) for key, plots in out.items()}
+
+
+def split_quotas(ratios: dict, blocks: int) -> list[np.ndarray]:
+    """Plots per split in each of ``blocks`` blocks of :data:`SPLIT_BLOCK`: the largest-remainder
+    apportionment of the running total, so the counts after block b are within one of the ratios times
+    ``(b + 1) · SPLIT_BLOCK``."""
+    share = np.array(list(ratios.values()), float)
+    quotas, done = [], np.zeros(len(share), int)
+    for block in range(blocks):
+        exact = share * (block + 1) * SPLIT_BLOCK
+        total = np.floor(exact).astype(int)
+        for k in np.argsort(-(exact - total), kind="stable")[: (block + 1) * SPLIT_BLOCK - total.sum()]:
+            total[k] += 1
+        quotas.append(total - done)
+        done = total
+    return quotas
 
 
 def write_json(path, data) -> None:
