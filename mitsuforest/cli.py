@@ -101,8 +101,9 @@ def main(argv=None) -> int:
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
     except OSError as e:                      # a write failing mid-run: disk full, folder removed ...
-        print(f"mitsuforest: {e.filename or ''}: {e.strerror or e}; nothing was finished (partial files "
-              "removed)", file=sys.stderr)
+        where = f"{e.filename}: " if e.filename else ""
+        print(f"mitsuforest: {where}{e.strerror or e}; nothing was finished (partial files removed)",
+              file=sys.stderr)
         return 1
     finally:
         if previous is not None:

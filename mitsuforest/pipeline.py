@@ -144,11 +144,13 @@ def _scan_and_write(scene, plan, models, scan_scene, timings, run_scan, keep_poi
                     files = staging.commit()
             except KeyboardInterrupt as e:
                 raise InterruptedAfterCommit(isinstance(e, Terminated)) from None
-    except BaseException:
+    except BaseException as e:
         if writer:
             writer.abort()
         if staging:
             staging.discard()
+            if isinstance(e, OSError):
+                raise staging.public_error(e) from e
         raise
     return result, manifest, writer, files
 

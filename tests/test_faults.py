@@ -69,6 +69,31 @@ def test_write_failure_reports_the_cause_and_leaves_nothing(tmp_path, monkeypatc
     assert list(out.iterdir()) == []
 
 
+@pytest.mark.parametrize("fmt", ["pcd", "laz"])
+def test_real_write_failure_names_the_file_and_leaves_nothing(fmt, tmp_path):
+    """A real failing write (a 64 kB file size limit standing in for a full disk): the write names no
+    file and the LAZ compressor raises its own error, yet the message names the point file, exit 1,
+    no traceback, no staging folder."""
+    import resource
+    import subprocess
+    import sys
+
+    from helpers import scene_file
+    path = scene_file(tmp_path, sensor="riegl_vux-1uav22.yaml", area={"size": [12, 12]}, forest={"trees": 1},
+                      survey={"pulse_frequency": 100000, "lines": [[[6, -3], [6, 15]]]}, output={"formats": [fmt]})
+    out = tmp_path / "out"
+
+    def limit_file_size():   # Python ignores SIGXFSZ, so a write past the limit fails with EFBIG
+        resource.setrlimit(resource.RLIMIT_FSIZE, (64_000, resource.RLIM_INFINITY))
+    proc = subprocess.run([sys.executable, "-m", "mitsuforest", "render", str(path), "-o", str(out), "--quiet"],
+                          capture_output=True, text=True, preexec_fn=limit_file_size, timeout=300)
+    last = proc.stderr.strip().splitlines()[-1]   # after a warning that the model cache cannot be written
+    assert proc.returncode == 1 and "Traceback" not in proc.stderr, proc.stderr
+    assert last.startswith(f"mitsuforest: {out / ('test.' + fmt)}: "), proc.stderr
+    assert last.endswith("nothing was finished (partial files removed)"), proc.stderr
+    assert list(out.iterdir()) == []
+
+
 @pytest.mark.parametrize("command", ["render", "plan", "trees", "export"])
 @pytest.mark.parametrize("where", ["a file", "under a file"])
 def test_output_folder_that_cannot_be_made_is_refused_before_work(tmp_path, monkeypatch, capsys, where, command):

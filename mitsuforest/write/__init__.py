@@ -20,7 +20,7 @@ import numpy as np
 
 from ..errors import UserError
 
-from .atomic import owner_is_gone, owner_tag, write_text
+from .atomic import TMP_MARK, owner_is_gone, owner_tag, write_text
 from .las import write_las
 from .pcd import read_pcd
 from .figures import write_profile_figure, write_returns_figure, write_tile_figure, write_top_figure
@@ -155,6 +155,16 @@ class Staging:
 
     def discard(self) -> None:
         shutil.rmtree(self.path, ignore_errors=True)
+
+    def public_error(self, error: OSError) -> OSError:
+        """``error`` naming the file it would have become (a staged file's final path), or the output
+        folder when it names none (a failing ``write`` names no file)."""
+        name = Path(error.filename) if error.filename else None
+        if name is None:
+            name = self.folder
+        elif name.parent == self.path:
+            name = self.folder / name.name.split(TMP_MARK)[0]
+        return OSError(error.errno, error.strerror or str(error), str(name))
 
 
 def write_render_outputs(staging: Staging, *, scene, plan, models, writer) -> None:

@@ -15,7 +15,10 @@ as LAS 1.4 requires for point format 6 (with or without a CRS).
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import json
+from pathlib import Path
 
 import laspy
 import numpy as np
@@ -29,6 +32,12 @@ ASPRS_CODE = {GROUND: 2, TREE_WOOD: 5, TREE_LEAVES: 5, BUSH: 4, GROUND_VEGETATIO
 INTENSITY_SCALE = 1e-6   # amplitude units per LAS intensity count (65535 ≙ a 6.5 % full-beam target at 1 m)
 COORDINATE_SCALE = 1e-4  # m
 LAS_MAX_RETURNS = 15     # point format 6 has 4 bits for each return field; the PCD keeps larger counts
+
+try:
+    from lazrs import LazrsError
+    CODEC_ERRORS: tuple = (LazrsError,)
+except ImportError:          # laspy without the lazrs backend writes no LAZ
+    CODEC_ERRORS = ()
 
 
 def crs_wkt(text: str) -> str:
@@ -130,23 +139,40 @@ class LasStream:
 
     def __init__(self, path, offset, crs: str | None = None, compress: bool | None = None):
         """:param compress: LAZ compression; by default when ``path`` ends in ``.laz``."""
+        self.path = Path(path)
         self.header = las_header(offset, crs)
         compress = str(path).endswith(".laz") if compress is None else compress
         self._writer = laspy.open(str(path), mode="w", header=self.header, do_compress=compress)
 
     def write(self, points: np.ndarray) -> None:
         if len(points):
-            self._writer.write_points(las_points(self.header, points).points)
+            with self._io_errors():
+                self._writer.write_points(las_points(self.header, points).points)
 
     def close(self) -> None:
-        self._writer.close()
+        with self._io_errors():
+            self._writer.close()
 
     def abort(self) -> None:
-        """Close, unless closed already (laspy cannot close twice); errors of a broken file are moot."""
+        """Close, unless closed already (laspy cannot close twice); any error of a broken file is moot
+        (closing flushes, and on a full disk the LAZ compressor fails again)."""
         try:
             self._writer.close()
-        except (ValueError, OSError):
+        except Exception:   # noqa: BLE001
             pass
+
+    @contextlib.contextmanager
+    def _io_errors(self):
+        """The LAZ compressor's write failures (a full disk) as the OSError naming this file that
+        every other write failure is."""
+        try:
+            yield
+        except OSError as e:
+            if e.filename is None:
+                raise OSError(e.errno, e.strerror or str(e), str(self.path)) from e
+            raise
+        except CODEC_ERRORS as e:
+            raise OSError(errno.EIO, f"the LAZ compressor could not write ({e})", str(self.path)) from e
 
 
 def write_las(path, points: np.ndarray, offset, crs: str | None = None) -> None:
