@@ -19,7 +19,8 @@ import numpy as np
 
 from ..classes import CLASS_NAMES, GROUND
 from ..config import MAX_BEAM_SAMPLES, scene_from_mapping
-from ..errors import ConfigError
+from ..errors import ConfigError, display_path
+from ..plan import MAX_LEG_PULSES
 from ..plan.types import Leg, ModelSpec, PlacedObject, Plan
 from ..scan.radiometry import reflectance_table
 from ..trees.models import Component, Model, Part, merge
@@ -70,7 +71,7 @@ def render_survey(path, *, assets=(), output_dir=None, seed=None, variant=None, 
 def survey_scene(survey: HeliosSurvey, output_dir=None, seed=None, variant=None):
     """The scene, plan, models and (256,) class reflectances of a survey, and notes on what was
     approximated."""
-    fail = lambda key, reason: ConfigError(survey.file, key, reason)   # noqa: E731
+    fail = lambda key, reason: ConfigError(display_path(survey.file), key, reason)   # noqa: E731
     legs, flown = _legs(survey, fail)
     first = survey.waypoints[flown[0]]
     meshes, objects, models, ground, notes = _placed_parts(survey, fail)
@@ -103,13 +104,38 @@ def survey_scene(survey: HeliosSurvey, output_dir=None, seed=None, variant=None)
         "simulation": {"beam_samples": samples, "variant": variant or "auto"},
         "output": {"dir": str(Path(output_dir or Path("out") / survey.name).resolve())},
     }
-    scene = scene_from_mapping(data, file=survey.file)
+    try:
+        scene = scene_from_mapping(data, file=display_path(survey.file))
+    except ConfigError as e:
+        raise fail(_survey_key(e.key, survey, flown[0]), f"{e.reason} (checked as our {e.key})") from None
     table = reflectance_table(scene.sensor.wavelength)
     reflectance, disagreements = class_reflectances(meshes, table)
     plan = Plan(scene=survey.name, seed=scene.seed, area=tuple(data["area"]["size"]), forest_type="open",
                 canopy_cover=0.0, terrain=MeshGround(ground_v, ground_f), models={n: ModelSpec("part", 1) for n in models},
                 objects=tuple(objects), legs=tuple(legs), ground_object_id=ground_id, ground_class=GROUND)
     return scene, plan, models, reflectance, notes + disagreements
+
+
+SCANNER_ATTRIBUTES = {"field_of_view": "scanAngleMax_deg", "pulse_frequencies": "pulseFreqs_Hz",
+                      "scan_frequency_range": "scanFreqMin_Hz/scanFreqMax_Hz", "beam_divergence": "beamDivergence_rad",
+                      "pulse_length": "pulseLength_ns", "wavelength": "wavelength_nm", "range_min": "rangeMin_m",
+                      "range_precision": "accuracy_m", "max_returns": "maxNOR", "range_max": "rangeMax_m"}
+LEG_ATTRIBUTES = {"speed": "platformSettings.movePerSec_m", "altitude": "platformSettings.z",
+                  "pulse_frequency": "scannerSettings.pulseFreq_hz", "scan_frequency": "scannerSettings.scanFreq_hz"}
+
+
+def _survey_key(key: str, survey: HeliosSurvey, first_leg: int) -> str:
+    """The survey element and attribute that a key of the converted scene came from."""
+    section, _, rest = key.partition(".")
+    field = rest.split("[")[0].split(".")[0]
+    scanner = survey.scanner.get("source", "").removeprefix("HELIOS++ scanner ")
+    if section == "sensor" and field in SCANNER_ATTRIBUTES:
+        return f"scanner[{scanner}].{SCANNER_ATTRIBUTES[field]}"
+    if section == "survey" and field in LEG_ATTRIBUTES:
+        return f"survey.leg[{first_leg}].{LEG_ATTRIBUTES[field]}"
+    if section == "area":
+        return "scene (the extent of the ground parts)"
+    return f"survey ({key})"
 
 
 def _legs(survey: HeliosSurvey, fail) -> tuple[list[Leg], list[int]]:
@@ -131,7 +157,12 @@ def _legs(survey: HeliosSurvey, fail) -> tuple[list[Leg], list[int]]:
                         raise fail(f"survey.leg[{i}].scannerSettings.{name}",
                                    f"{getattr(a, key)} differs from leg {flown[0]}'s {getattr(ref, key)}; one value "
                                    "for every leg with the scanner on is supported")
-            legs.append(Leg(tuple(map(float, a.position)), tuple(map(float, b.position)), t, t + length / a.speed))
+            leg = Leg(tuple(map(float, a.position)), tuple(map(float, b.position)), t, t + length / a.speed)
+            if (count := leg.pulse_count(a.pulse_frequency)) >= MAX_LEG_PULSES:
+                raise fail(f"survey.leg[{i}].scannerSettings.pulseFreq_hz",
+                           f"{a.pulse_frequency:g} Hz over the leg's {leg.t1 - leg.t0:,.1f} s is {count:,} pulses, "
+                           f"more than the {MAX_LEG_PULSES:,} a leg can number; split the leg or fly faster")
+            legs.append(leg)
             flown.append(i)
         t += length / a.speed
     if not legs:

@@ -35,6 +35,8 @@ IGNORED = {
                 "atmosphericVisibility_km", "scanAngleEffectiveMax_deg", "refrIndex_air", "scanProduct"},
 }
 PLATFORM_TYPES = ("linearpath", "multicopter")
+MAX_BEAM_SAMPLE_QUALITY = 100   # 31,087 HELIOS++ sub-rays; above 5 (62) we cast our maximum anyway
+MAX_PART_ID = 2 ** 32 - 1       # a part's id becomes its points' 32-bit object_id
 
 
 @dataclass(frozen=True)
@@ -176,7 +178,7 @@ def read_survey(path, assets=()) -> HeliosSurvey:
         if child.tag == "FWFSettings":
             _check_attributes(reader, child, "survey.FWFSettings", {"beamSampleQuality"} | IGNORED["FWFSettings"])
             if child.get("beamSampleQuality"):
-                beam_samples = sub_rays(int(_number(reader, child, "beamSampleQuality", "survey.FWFSettings")))
+                beam_samples = _beam_sample_quality(reader, child, "survey.FWFSettings")
         elif child.tag not in ("leg", "platformSettings", "scannerSettings"):
             reader.fail(f"survey.{child.tag}", "element not supported")
     scanner = _scanner(reader, scanner_node)
@@ -209,6 +211,13 @@ def _number(reader, node, key: str, where: str, default=None) -> float:
     if not math.isfinite(value):
         reader.fail(f"{where}.{key}", f"must be finite, got {text}")
     return value
+
+
+def _whole(reader, node, key: str, where: str, default: int) -> int:
+    value = _number(reader, node, key, where, float(default))
+    if value != int(value) or value < 0:
+        reader.fail(f"{where}.{key}", f"must be a whole number >= 0, got {node.get(key)}")
+    return int(value)
 
 
 def _flag(reader, node, key: str, where: str, default: bool) -> bool:
@@ -262,7 +271,7 @@ def _scanner(reader, node) -> dict:
         "wavelength": _number(reader, node, "wavelength_nm", where, 1064.0) * 1e-9,
         "range_min": _number(reader, node, "rangeMin_m", where, 0.0),
         "range_precision": _number(reader, node, "accuracy_m", where, 0.0),
-        "max_returns": int(_number(reader, node, "maxNOR", where, 0.0)),
+        "max_returns": _whole(reader, node, "maxNOR", where, 0),
     }
     if node.get("rangeMax_m"):
         sensor["range_max"] = _number(reader, node, "rangeMax_m", where)
@@ -273,15 +282,28 @@ def _scanner_beam_samples(reader, node) -> int | None:
     fwf = node.find("FWFSettings")
     if fwf is None or not fwf.get("beamSampleQuality"):
         return None
-    return sub_rays(int(_number(reader, fwf, "beamSampleQuality", f"scanner[{node.get('id')}].FWFSettings")))
+    return _beam_sample_quality(reader, fwf, f"scanner[{node.get('id')}].FWFSettings")
 
 
-def _settings(reader, node, tag: str, where: str, here: Path) -> dict:
-    """A settings element's attributes over those of its template (``template="id"`` or ``PATH#id``)."""
+def _beam_sample_quality(reader, node, where: str) -> int:
+    """The sub-rays of an ``FWFSettings`` element's ``beamSampleQuality``, a whole number from 1 to
+    :data:`MAX_BEAM_SAMPLE_QUALITY`."""
+    value = _number(reader, node, "beamSampleQuality", where)
+    if value != int(value) or not 1 <= value <= MAX_BEAM_SAMPLE_QUALITY:
+        reader.fail(f"{where}.beamSampleQuality", f"must be a whole number from 1 to {MAX_BEAM_SAMPLE_QUALITY}, "
+                                                  f"got {node.get('beamSampleQuality')}")
+    return sub_rays(int(value))
+
+
+def _settings(reader, node, tag: str, where: str, here: Path, seen=()) -> dict:
+    """A settings element's attributes over those of its template (``template="id"`` or ``PATH#id``);
+    a chain of templates that comes back to one of its own elements is refused."""
     attrs = {}
     if node.get("template"):
         template, path = reader.element(node.get("template"), tag, f"{where}.template", here)
-        attrs.update(_settings(reader, template, tag, f"{where}.template", path))
+        if template in seen or template is node:
+            reader.fail(f"{where}.template", f"{node.get('template')!r} leads back to itself (a template cycle)")
+        attrs.update(_settings(reader, template, tag, f"{where}.template", path, (*seen, node)))
     attrs.update(node.attrib)
     return attrs
 
@@ -331,8 +353,9 @@ def _part(reader, node, index: int) -> Part:
     where = f"scene.part[{index}]"
     _check_attributes(reader, node, where, {"id"})
     part_id = node.get("id", str(index))
-    if not part_id.lstrip("-").isdigit() or int(part_id) < 0:
-        reader.fail(f"{where}.id", f"must be a whole number >= 0 (it becomes the points' object_id), got {part_id!r}")
+    if not part_id.lstrip("-").isdigit() or not 0 <= int(part_id) <= MAX_PART_ID:
+        reader.fail(f"{where}.id", f"must be a whole number from 0 to {MAX_PART_ID} (it becomes the points' "
+                                   f"object_id), got {part_id!r}")
     files, y_up, rotation, scale, offset = None, False, np.eye(3), 1.0, (0.0, 0.0, 0.0)
     for j, f in enumerate(node):
         fw = f"{where}.filter[{j}]"
