@@ -211,3 +211,27 @@ def test_survey_values_are_refused_by_their_own_names(file, old, new, message, t
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and err.startswith("mitsuforest: data/survey.xml: " + message), err
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("survey, message", [
+    ("folder.xml", "folder.xml: a folder, not a file"),
+    ("broken.xml", "broken.xml: not valid XML (unclosed token: line 1, column 0)"),
+    ("nowhere.xml", "nowhere.xml: file not found"),
+])
+def test_a_survey_that_cannot_be_read_is_named_once(survey, message, tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "folder.xml").mkdir()
+    (tmp_path / "broken.xml").write_text("<doc")
+    assert main(["render", survey, "-o", "out"]) == 2
+    assert capsys.readouterr().err == f"mitsuforest: {message}\n"
+
+
+def test_a_missing_material_file_is_named(tmp_path, monkeypatch, capsys):
+    """Without its .mtl the ground part has no helios_isGround: the refusal says why."""
+    _demo_like_survey(tmp_path)
+    (tmp_path / "assets" / "parts" / "ground.mtl").unlink()
+    monkeypatch.chdir(tmp_path)
+    assert main(["render", "data/survey.xml", "--assets", "assets", "-o", "out"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "scene: no part is ground" in err, err
+    assert err.rstrip().endswith(f"material file not found, faces unclassified: {tmp_path / 'assets/parts/ground.mtl'}")

@@ -24,7 +24,7 @@ from ..plan import MAX_LEG_PULSES
 from ..plan.types import Leg, ModelSpec, PlacedObject, Plan
 from ..scan.radiometry import reflectance_table
 from ..trees.models import Component, Model, Part, merge
-from .parts import class_reflectances, read_obj
+from .parts import class_reflectances, missing_material_files, read_obj
 from .survey import HeliosSurvey, read_survey
 
 
@@ -175,12 +175,13 @@ def _placed_parts(survey: HeliosSurvey, fail):
     in the model); the ground parts' triangles as one mesh in place."""
     all_meshes, objects, models, notes = [], [], {}, []
     ground_meshes, ground_ids = [], []
-    keys = {}
+    keys, missing = {}, []
     for part in survey.parts:
         m = np.eye(4)
         m[:3, :3], m[:3, 3] = part.rotation, part.offset
         by_class = {}
         for path in part.files:
+            missing += missing_material_files(path)
             for mesh in read_obj(path, part.y_up):
                 all_meshes.append(mesh)
                 by_class.setdefault(mesh.classification, []).append((path, mesh))
@@ -201,9 +202,13 @@ def _placed_parts(survey: HeliosSurvey, fail):
                                       position=tuple(map(float, part.offset)), rotation=0.0, tilt=(0.0, 0.0),
                                       instance=len(objects) + 1, object_id=part.part_id, components=1,
                                       transform=tuple(map(tuple, m.tolist()))))
+    missing = list(dict.fromkeys(missing))
+    if missing:
+        notes.append(f"material file{'s' if len(missing) > 1 else ''} not found, faces unclassified: "
+                     + ", ".join(map(str, missing)))
     if not ground_meshes:
         raise fail("scene", "no part is ground (a material with helios_isGround true or helios_classification 1); "
-                            "the ground is needed")
+                            "the ground is needed" + (f"; {notes[-1]}" if missing else ""))
     if len(set(ground_ids)) > 1:
         notes.append(f"ground parts {', '.join(map(str, ground_ids))} form one terrain; its points carry "
                      f"object_id {ground_ids[0]}")

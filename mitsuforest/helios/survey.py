@@ -91,12 +91,13 @@ class _Reader:
     def document(self, path: Path, element: str) -> ET.Element:
         path = path.resolve()
         if path not in self.docs:
+            named = "" if path == self.survey_file.resolve() else f"{path}: "   # the error names the survey
             if not path.is_file():
-                self.fail(element, f"file not found: {path}")
+                self.fail(element, f"{named}{'a folder, not a file' if path.is_dir() else 'file not found'}")
             try:
                 self.docs[path] = ET.parse(path).getroot()
             except ET.ParseError as e:
-                self.fail(element, f"{path}: not valid XML ({e})")
+                self.fail(element, f"{named}not valid XML ({e})")
         return self.docs[path]
 
     def locate_document(self, text: str) -> Path:
