@@ -44,6 +44,9 @@ def main(argv=None) -> int:
     p.add_argument("--quick", action="store_true", help="100 kHz and 7 sub-rays (a smoke test)")
     args = p.parse_args(argv)
     helios = args.helios or shutil.which("helios++") or shutil.which("helios")
+    if args.helios and not shutil.which(args.helios):
+        print(f"--helios {args.helios}: no such executable", file=sys.stderr)
+        return 2
     if not helios or not Path(helios).exists():
         print("helios++ not found (not on PATH and no --helios): nothing to compare. "
               "See README, 'HELIOS++', to build it from source.")
