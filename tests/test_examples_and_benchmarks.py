@@ -1,5 +1,6 @@
 """Every example and benchmark runs (quick versions, no timing assertions), so none can rot."""
 
+import os
 import subprocess
 import sys
 
@@ -70,6 +71,14 @@ def test_speed_vs_error_benchmark_quick(tmp_path):
 def test_full_scenes_benchmark_quick(tmp_path):
     stdout = _run([str(ROOT / "benchmarks" / "full_scenes.py", ), "open", "--quick", "--out", str(tmp_path)], ROOT)
     assert "pts/m2 (paper 3593)" in stdout
+    import json
+    run = json.loads((tmp_path / "full_scenes.json").read_text())[0]
+    points, returns = run["points"], run["returns_histogram"]
+    assert run["scene"] == "open" and run["beam_samples"] == 19 and points > 50_000
+    assert points == sum(int(n) * count for n, count in returns.items())   # a pulse of n returns gives n points
+    assert points == sum(run["classes"].values())
+    assert run["density_per_m2"] * 400 == pytest.approx(points)            # the quick plot is 20 m x 20 m
+    assert sum(returns.values()) <= run["pulses_cast"]
 
 
 def test_profile_leg_benchmark():
@@ -79,8 +88,13 @@ def test_profile_leg_benchmark():
 
 
 def test_helios_compare_without_helios_says_so(tmp_path):
-    stdout = _run([str(ROOT / "benchmarks" / "helios_compare.py"), "--helios", str(tmp_path / "none")], ROOT)
-    assert "helios++ not found" in stdout
+    env = {**os.environ, "PATH": str(tmp_path)}   # no helios++ on it
+    proc = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "helios_compare.py")], cwd=ROOT, env=env,
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0 and "helios++ not found (not on PATH and no --helios)" in proc.stdout, proc.stderr
+    missing = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "helios_compare.py"), "--helios",
+                              str(tmp_path / "none")], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert missing.returncode == 2 and missing.stderr == f"--helios {tmp_path / 'none'}: no such executable\n"
 
 
 FAKE_HELIOS = '''
