@@ -98,9 +98,13 @@ class FilePath(Text):
         value = super().parse(value, ctx, key)
         if value is None:
             return None
+        if not value.strip():
+            ctx.fail(key, "must name a file, got an empty path")
         path = (ctx.folder / Path(value).expanduser()).resolve()
         if self.must_exist and not path.exists():
             ctx.fail(key, f"file not found: {path}")
+        if self.must_exist and not path.is_file():
+            ctx.fail(key, f"not a file (a folder): {path}")
         return str(path)
 
 
