@@ -108,6 +108,49 @@ def test_qsm_csv_with_end_points_and_ids(tmp_path):
     assert len(model.parts) == 1 and [c.kind for c in model.components] == ["stem"]
 
 
+BAD_TABLES = {   # the file's text, and the error: its real line (comments and blank lines counted)
+    "negative length": ("# exported by hand\n\nradius,length,start_x,start_y,start_z,axis_x,axis_y,axis_z\n"
+                        "0.1,2,0,0,0,0,0,1\n\n0.05,-1,0,0,2,0,0,1\n", "line 6: length -1 is not positive"),
+    "zero radii": ("radius,start_x,start_y,start_z,end_x,end_y,end_z\n# stem\n0,0,0,0,0,0,1\n0,0,0,1,0,0,2\n",
+                   "line 3: radius 0 is not positive (1 more cylinders like it)"),
+    "one zero radius": ("radius,start_x,start_y,start_z,end_x,end_y,end_z\n0.1,0,0,0,0,0,1\n0,0,0,1,0,0,2\n",
+                        "line 3: radius 0 is not positive"),
+    "no header": ("# TreeQSM cylinder export\n# in metres\n0.1 2 0 0 0 0 0 1 0 0 1 0 9 9\n"
+                  "0.1 2 0 0 2 0 0 x 1 0 1 0\n", "line 4: not a number in '0.1 2 0 0 2 0 0 x 1 0 1 0'"),
+    "long row": ("radius,start_x,start_y,start_z,end_x,end_y,end_z\n0.1,0,0,0,0,0,1,7\n",
+                 "line 2: 8 values, the header names 7 columns"),
+    "binary": (b"MATLAB 5.0 MAT-file\x00\xff\xfe\x80", "not a text table (a binary file; TreeQSM's .mat models"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD_TABLES))
+def test_bad_qsm_table_names_its_real_line(case, tmp_path):
+    text, message = BAD_TABLES[case]
+    path = tmp_path / "q.csv"
+    path.write_bytes(text if isinstance(text, bytes) else text.encode())
+    with pytest.raises(ModelFileError) as e:
+        qsm_tree_model(QsmTree(qsm=str(path), leaf_area=0), "q")
+    if message.startswith("line"):
+        assert f"{e.value.key}: {e.value.reason}" == message
+    else:
+        assert e.value.reason.startswith(message)
+
+
+def test_qsm_listed_top_down_stands_on_the_ground(tmp_path):
+    """A stem whose cylinders run from top to bottom: the base is the lowest end, not the lowest start."""
+    down = tmp_path / "down.csv"
+    down.write_text("radius,start_x,start_y,start_z,end_x,end_y,end_z\n0.1,5,5,14,5,5,12\n0.15,5,5,12,5,5,10\n")
+    up = tmp_path / "up.csv"
+    up.write_text("radius,start_x,start_y,start_z,end_x,end_y,end_z\n0.15,5,5,10,5,5,12\n0.1,5,5,12,5,5,14\n")
+    for path in (down, up):
+        model = qsm_tree_model(QsmTree(qsm=str(path), leaf_area=0), "q")
+        wood = model.parts[0].vertices
+        assert wood[:, 2].min() == pytest.approx(0.0, abs=1e-9) and wood[:, 2].max() == pytest.approx(4.0)
+        assert np.abs(wood[:, :2]).max() <= 0.15 * 1.1   # centred on the stem axis
+        assert model.meta["height"] == pytest.approx(4.0)
+        assert model.volume.analytic == pytest.approx(np.pi * (0.01 + 0.0225) * 2, rel=1e-12)
+
+
 def test_y_up_obj_in_centimetres_stands_upright_at_its_height(tmp_path):
     stem = cylinder([0, 0, 0], [0, 0, 12.0], 0.25)
     branch = cylinder([0, 0, 6.0], [3.0, 0, 9.0], 0.05)

@@ -127,16 +127,17 @@ def qsm_tree_model(entry: QsmTree, name: str) -> Model:
     cyl = read_qsm(entry.qsm)
     start, end = (to_tree_frame(p, entry.units, entry.up) for p in (cyl.start, cyl.end))
     radius = cyl.radius * UNITS[entry.units]
-    base = start[int(np.argmin(start[:, 2]))].copy()
+    lowest = int(np.argmin(np.minimum(start[:, 2], end[:, 2])))   # a table may list a cylinder top down
+    base = min(start[lowest], end[lowest], key=lambda p: p[2]).copy()
     start, end = start - base, end - base
     cyl = dataclasses.replace(cyl, start=start, end=end, radius=radius)
     height = float(max(start[:, 2].max(), end[:, 2].max()))
     check_height(entry.qsm, height, entry.units, entry.up)
     tubes = [tube(np.array([s, e]), np.array([r, r])) for s, e, r in zip(start, end, radius)]
-    stem = int(cyl.branch[int(np.argmin(start[:, 2]))])
+    stem = int(cyl.branch[lowest])
     branches = [stem] + [int(b) for b in np.unique(cyl.branch) if b != stem]
     component_of = {b: i for i, b in enumerate(branches)}
-    union = union_volume(tubes, [f"{entry.qsm}: line {i + 2}" for i in range(len(tubes))])
+    union = union_volume(tubes, [f"{entry.qsm}: line {n}" for n in cyl.line])
     volume = WoodVolume(union=union, analytic=cyl.volume(), naive=float(sum(signed_volume(v, f) for v, f in tubes)),
                         parts=len(tubes))
     if len(branches) + 1 > MAX_COMPONENTS:

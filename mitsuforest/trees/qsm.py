@@ -58,7 +58,7 @@ class Cylinders:
 
     ``start``, ``end``: (n, 3) float64; ``radius``: (n,); ``parent``: (n,) row of the parent
     cylinder, -1 for none; ``branch``: (n,) int64 branch ids (all 0 without a branch column);
-    ``order``: (n,) branch order (0 stem).
+    ``order``: (n,) branch order (0 stem); ``line``: (n,) each cylinder's line in the file (from 1).
     """
 
     start: np.ndarray
@@ -67,6 +67,7 @@ class Cylinders:
     parent: np.ndarray
     branch: np.ndarray
     order: np.ndarray
+    line: np.ndarray
 
     @property
     def length(self) -> np.ndarray:
@@ -132,28 +133,39 @@ def read_qsm(path) -> Cylinders:
 
     :raises ModelFileError: on missing columns, text in number columns, non-positive radii or lengths.
     """
-    try:
-        lines = [ln for ln in open(path, encoding="utf-8-sig").read().splitlines() if ln.strip() and
-                 not ln.lstrip().startswith("#")]
-    except (OSError, UnicodeDecodeError) as e:
-        raise ModelFileError(path, "", f"cannot read the cylinder table ({e})") from None
-    if not lines:
-        raise ModelFileError(path, "", "the cylinder table is empty")
-    sep = "," if "," in lines[0] else ("\t" if "\t" in lines[0] else None)
-    header = [c.strip() for c in lines[0].split(sep)]
+    lines = _table_lines(path)
+    first = lines[0][1]
+    sep = "," if "," in first else ("\t" if "\t" in first else None)
+    header = [c.strip() for c in first.split(sep)]
     if all(_number(c) for c in header if c):
         if len([c for c in header if c]) < len(TREEQSM_COLUMNS):
             raise ModelFileError(path, "", "no header line, and fewer than the 12 columns of TreeQSM's cylinder "
                                  "export; add a header naming the columns (see the README)")
-        columns, rows = TREEQSM_COLUMNS, lines
+        columns, rows, exact = TREEQSM_COLUMNS, lines, False   # TreeQSM's export has more columns after these
     else:
-        columns, rows = _column_names([_key(c) for c in header]), lines[1:]
-    table = _numbers(path, rows, sep, len(columns))
+        columns, rows, exact = _column_names([_key(c) for c in header]), lines[1:], True
+    table = _numbers(path, rows, sep, len(columns), exact)
     named = {}
     for i, c in enumerate(columns):
         if c:
             named.setdefault(c, table[:, i])
-    return _cylinders(path, named)
+    return _cylinders(path, named, np.array([n for n, _ in rows]))
+
+
+def _table_lines(path) -> list[tuple[int, str]]:
+    """(line number from 1, text) of the lines that are neither blank nor comments."""
+    try:
+        text = open(path, encoding="utf-8-sig").read()
+    except UnicodeDecodeError:
+        raise ModelFileError(path, "", "not a text table (a binary file; TreeQSM's .mat models must be exported "
+                             "as a text cylinder table first)") from None
+    except OSError as e:
+        raise ModelFileError(path, "", f"cannot read the cylinder table ({e})") from None
+    lines = [(n, ln) for n, ln in enumerate(text.splitlines(), start=1)
+             if ln.strip() and not ln.lstrip().startswith("#")]
+    if not lines:
+        raise ModelFileError(path, "", "the cylinder table is empty")
+    return lines
 
 
 def _number(text: str) -> bool:
@@ -164,26 +176,27 @@ def _number(text: str) -> bool:
         return False
 
 
-def _numbers(path, rows, sep, width) -> np.ndarray:
+def _numbers(path, rows, sep, width, exact) -> np.ndarray:
+    """(len(rows), width) the table's numbers; with ``exact`` a row must have ``width`` values, else at least."""
     if not rows:
         raise ModelFileError(path, "", "no cylinders after the header")
     out = np.empty((len(rows), width))
-    for n, row in enumerate(rows, start=2):
+    for i, (n, row) in enumerate(rows):
         cells = [c.strip() for c in row.split(sep)]
         cells = [c for c in cells if c] if sep != "," else cells
-        if len(cells) < width:
+        if len(cells) < width or (exact and len(cells) > width):
             raise ModelFileError(path, f"line {n}", f"{len(cells)} values, the header names {width} columns")
         try:
-            out[n - 2] = [float(c) for c in cells[:width]]
+            out[i] = [float(c) for c in cells[:width]]
         except ValueError:
             raise ModelFileError(path, f"line {n}", f"not a number in {row.strip()[:60]!r}") from None
     if not np.all(np.isfinite(out)):
-        n = int(np.flatnonzero(~np.all(np.isfinite(out), axis=1))[0]) + 2
+        n = rows[int(np.flatnonzero(~np.all(np.isfinite(out), axis=1))[0])][0]
         raise ModelFileError(path, f"line {n}", "a value is not finite")
     return out
 
 
-def _cylinders(path, col: dict) -> Cylinders:
+def _cylinders(path, col: dict, line: np.ndarray) -> Cylinders:
     def need(*names):
         missing = [n for n in names if n not in col]
         if missing:
@@ -199,17 +212,22 @@ def _cylinders(path, col: dict) -> Cylinders:
         axis = np.column_stack(need("axis_x", "axis_y", "axis_z"))
         (length,) = need("length")
         norm = np.linalg.norm(axis, axis=1)
+        _positive(path, "length", length, line)   # a negative length would silently turn the axis round
         if np.any(norm == 0):
-            raise ModelFileError(path, f"line {int(np.argmax(norm == 0)) + 2}", "the axis is zero")
+            raise ModelFileError(path, f"line {line[int(np.argmax(norm == 0))]}", "the axis is zero")
         end = start + axis / norm[:, None] * length[:, None]
-    for name, values in (("radius", radius), ("length", np.linalg.norm(end - start, axis=1))):
-        bad = np.flatnonzero(~(values > 0))
-        if len(bad):
-            raise ModelFileError(path, f"line {bad[0] + 2}", f"{name} {values[bad[0]]:g} is not positive "
-                                 f"({len(bad)} cylinders like it)")
+    _positive(path, "radius", radius, line)
+    _positive(path, "length", np.linalg.norm(end - start, axis=1), line)
     return Cylinders(start, end, radius, _parent_rows(path, col, len(radius)),
                      col.get("branch", np.zeros(len(radius))).astype(np.int64),
-                     col.get("order", np.zeros(len(radius))).astype(np.int64))
+                     col.get("order", np.zeros(len(radius))).astype(np.int64), line)
+
+
+def _positive(path, name: str, values: np.ndarray, line: np.ndarray) -> None:
+    bad = np.flatnonzero(~(values > 0))
+    if len(bad):
+        more = f" ({len(bad) - 1:,} more cylinders like it)" if len(bad) > 1 else ""
+        raise ModelFileError(path, f"line {line[bad[0]]}", f"{name} {values[bad[0]]:g} is not positive{more}")
 
 
 def _parent_rows(path, col, n) -> np.ndarray:
