@@ -46,10 +46,22 @@ def read_pieces(path) -> list[Piece]:
         if not np.array_equal(transform, np.eye(4)):
             v = v @ transform[:3, :3].T + transform[:3, 3]
         names = tuple(n for n in (str(node), str(geometry), material) if n)
+        _check_finite(path, names[0], v)
         pieces.append(Piece(names, v, np.asarray(mesh.faces, np.int64)))
     if not pieces:
         raise ModelFileError(path, "", "no triangles in the file")
     return pieces
+
+
+def _check_finite(path, piece: str, vertices: np.ndarray) -> None:
+    """Refuse a piece with a nan or infinite coordinate (the reader may reorder vertices, so the
+    point is given by its coordinates, not its index)."""
+    bad = ~np.all(np.isfinite(vertices), axis=1)
+    if bad.any():
+        where = "" if piece == Path(path).name else f"piece {piece!r}"
+        first = ", ".join(f"{c:g}" for c in vertices[np.argmax(bad)])
+        count = f"{int(bad.sum()):,} vertices are" if bad.sum() > 1 else "a vertex is"
+        raise ModelFileError(path, where, f"{count} not finite, the first at ({first})")
 
 
 def split_by_patterns(path, pieces: list[Piece], patterns) -> tuple[list[Piece], list[Piece]]:
