@@ -244,6 +244,13 @@ def test_bark_and_leaf_materials_become_wood_and_leaf_points_with_the_tree_ids(t
     assert row[4] == "" and row[-3:] == ["tree.obj", "0", "0"]   # no analytic volume for a mesh
     limb, sine = np.hypot(1.2, 2.0), 1.2 / np.hypot(1.2, 2.0)    # the limb's first 0.3 / sine m are inside the stem
     assert float(row[3]) == pytest.approx(np.pi * (0.09 * 10 + 0.0064 * (limb - 0.3 / sine)), rel=1e-3)
+    import json
+
+    def refuse(constant):
+        raise ValueError(f"{constant} is not JSON")
+    manifest = json.loads((tmp_path / "out" / "test_manifest.json").read_text(), parse_constant=refuse)
+    report = manifest["imported_trees"]["tree01"]["volume_m3"]
+    assert report["analytic"] is None and report["union"] == pytest.approx(float(row[3]), rel=1e-6)
 
 
 def test_models_come_after_the_archetypes_in_treeid_and_deadwood_moves_past_them(tmp_path):

@@ -26,7 +26,7 @@ import yaml
 
 from ..classes import CLASS_NAMES, DEADWOOD, TREE_LEAVES, TREE_WOOD
 from ..config.types import to_mapping
-from ..write.atomic import atomic_path, write_text
+from ..write.atomic import atomic_path, write_json, write_text
 from ..write.las import write_las
 from ..write.pcd import pcd_header, read_pcd
 from ..write.tables import csv_text
@@ -100,7 +100,7 @@ def valid_record(root, name: str) -> dict | None:
 
 
 def write_record(root, name: str, record: dict) -> None:
-    write_text(plot_folder(root, name) / f"{name}{RECORD_SUFFIX}", json.dumps(record, indent=1, default=str) + "\n")
+    write_json(plot_folder(root, name) / f"{name}{RECORD_SUFFIX}", record)
 
 
 def remove_record(root, name: str) -> None:
@@ -294,5 +294,3 @@ def split_quotas(ratios: dict, blocks: int) -> list[np.ndarray]:
     return quotas
 
 
-def write_json(path, data) -> None:
-    write_text(path, json.dumps(data, indent=1, default=str) + "\n")

@@ -9,7 +9,6 @@ when all of them are complete, the manifest last: a render is finished exactly w
 from __future__ import annotations
 
 import fcntl
-import json
 import os
 import shutil
 import tempfile
@@ -20,7 +19,7 @@ import numpy as np
 
 from ..errors import UserError
 
-from .atomic import TMP_MARK, owner_is_gone, owner_tag, write_text
+from .atomic import TMP_MARK, owner_is_gone, owner_tag, write_json, write_text
 from .las import write_las
 from .pcd import read_pcd
 from .figures import write_profile_figure, write_returns_figure, write_tile_figure, write_top_figure
@@ -182,4 +181,4 @@ def write_render_outputs(staging: Staging, *, scene, plan, models, writer) -> No
 
 
 def write_manifest(staging: Staging, manifest: dict) -> None:
-    write_text(staging.file(MANIFEST), json.dumps(manifest, indent=1, sort_keys=True, default=str) + "\n")
+    write_json(staging.file(MANIFEST), manifest, sort_keys=True)

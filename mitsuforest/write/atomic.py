@@ -9,6 +9,8 @@ never disturbed.
 from __future__ import annotations
 
 import contextlib
+import json
+import math
 import os
 import socket
 from pathlib import Path
@@ -59,3 +61,20 @@ def atomic_path(path):
 def write_text(path, text: str) -> None:
     with atomic_path(path) as tmp:
         tmp.write_text(text)
+
+
+def write_json(path, data, indent: int = 1, **options) -> None:
+    """``data`` as strict JSON: a nan or infinite float is written as ``null`` (``NaN`` is no JSON)."""
+    write_text(path, json.dumps(_finite(data), allow_nan=False, default=str, indent=indent, **options) + "\n")
+
+
+def _finite(value):
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_finite(v) for v in value]
+    if hasattr(value, "dtype") and getattr(value, "shape", None) == ():   # a numpy scalar
+        return _finite(value.item())
+    return value
