@@ -203,9 +203,14 @@ def test_cache_is_keyed_on_the_file_content(tmp_path):
     (tmp_path / "elsewhere.mtl").write_bytes(path.with_suffix(".mtl").read_bytes())
     again = imported_model(MeshTree(mesh=str(moved)), "b")
     assert entries() - before == added and again.volume.union == first.volume.union
+    assert (first.meta["source"], again.meta["source"]) == ("c.obj", "elsewhere.obj")   # each its own file
+    mtl = path.with_suffix(".mtl")
+    mtl.write_text(mtl.read_text().replace("newmtl leaf", "newmtl foliage"))   # material names pick leaves
+    imported_model(MeshTree(mesh=str(path)), "a")
+    assert len(entries() - before) == 2                                           # so an edit is a new model
     write_obj(path, {"stem": (*cylinder([0, 0, 0], [0, 0, 6.0], 0.2), "bark"), "leaves": (*leaf_sheet(4.0), "leaf")})
     changed = imported_model(MeshTree(mesh=str(path)), "a")
-    assert len(entries() - before) == 2
+    assert len(entries() - before) == 3
     assert changed.volume.union == pytest.approx(np.pi * 0.04 * 6, rel=1e-9)
 
 
@@ -219,8 +224,8 @@ def test_bark_and_leaf_materials_become_wood_and_leaf_points_with_the_tree_ids(t
     from mitsuforest.pipeline import render
     stem = cylinder([0, 0, 0], [0, 0, 10.0], 0.3)
     branch = cylinder([0, 0, 5.0], [1.2, 0, 7.0], 0.08)
-    path = write_obj(tmp_path / "tree.obj", {"stem": (*stem, "bark"), "limb": (*branch, "bark"),
-                                             "canopy": (*leaf_sheet(8.0, 2.0, (-1.0, 0)), "leaf")})
+    write_obj(tmp_path / "tree.obj", {"stem": (*stem, "bark"), "limb": (*branch, "bark"),
+                                  "canopy": (*leaf_sheet(8.0, 2.0, (-1.0, 0)), "leaf")})
     scene = load_scene(_tree_scene(tmp_path, {"mesh": "tree.obj", "leaves": ["leaf"]}))
     result = render(scene, write=True, keep_points=True, progress=False, log=lambda *_: None)
     (tree,) = result.plan.trees
@@ -346,3 +351,26 @@ def test_glb_pieces_split_by_material_name(tmp_path):
     assert model.volume.union == pytest.approx(prism, rel=1e-6)   # glTF stores float32 positions
     assert [c.kind for c in model.components] == ["stem", "leaves"]
     assert model.parts[1].vertices[:, 2].min() == pytest.approx(9.0 - 0.005 - 5.0, abs=1e-6)
+
+
+def test_the_cache_key_covers_the_files_a_mesh_reads(tmp_path):
+    """A glTF's buffers and an OBJ's material libraries change the key; a missing one too, so a warm cache
+    cannot accept what a cold one refuses; so does the file's kind (suffix)."""
+    import json
+
+    from mitsuforest.trees.sources import companion_files, content_hash
+    gltf = tmp_path / "t.gltf"
+    gltf.write_text(json.dumps({"buffers": [{"uri": "geo%20metry.bin"}, {"uri": "data:application/octet-stream;base64,AA=="}]}))
+    (tmp_path / "geo metry.bin").write_bytes(b"\0" * 8)
+    assert companion_files(gltf) == [tmp_path / "geo metry.bin"]
+    key = content_hash([gltf])
+    (tmp_path / "geo metry.bin").write_bytes(b"\1" * 8)
+    edited = content_hash([gltf])
+    (tmp_path / "geo metry.bin").unlink()
+    assert len({key, edited, content_hash([gltf])}) == 3
+    obj = write_obj(tmp_path / "c.obj", {"stem": (*cylinder([0, 0, 0], [0, 0, 5.0], 0.2), "bark")})
+    with_mtl = content_hash([obj])
+    obj.with_suffix(".mtl").unlink()
+    without_mtl = content_hash([obj])
+    as_stl = content_hash([obj.rename(tmp_path / "c.stl")])
+    assert len({with_mtl, without_mtl, as_stl}) == 3

@@ -16,6 +16,7 @@ import math
 import numpy as np
 
 from ..classes import TREE_LEAVES, TREE_WOOD
+from ..errors import display_path
 from .cache import cached
 from .leaves import leaves_on_twigs
 from .meshfile import check_height, joined, read_pieces, split_by_patterns, stem_base, to_tree_frame
@@ -43,11 +44,12 @@ def imported_model(entry, name: str) -> Model:
     build = mesh_tree_model if isinstance(entry, MeshTree) else qsm_tree_model
     model = cached(kind, params, lambda: build(entry, name))
     model.name = name
+    model.meta["source"] = source_name(entry)   # the entry may be a copy of another file with the same bytes
     for part in model.meta.get("repair", []):
         if part["action"] == "skipped" and (entry.source, part["part"]) not in _warned:
             _warned.add((entry.source, part["part"]))
             log.warning("mitsuforest: %s: part %d: %s; left out of the wood volume (repair: skip)",
-                        entry.source, part["part"], part["reason"])
+                        display_path(entry.source), part["part"], part["reason"])
     return model
 
 

@@ -9,8 +9,10 @@ cache, see :func:`content_hash`.
 from __future__ import annotations
 
 import hashlib
+import json
 from dataclasses import dataclass
 from pathlib import Path
+from urllib.parse import unquote
 
 from ..errors import ConfigError, display_path
 
@@ -69,14 +71,44 @@ class QsmTree:
 
 
 def content_hash(paths) -> str:
-    """SHA-256 of the files' bytes, in order (a renamed or moved file keeps its cache entry)."""
+    """SHA-256 of the files' bytes and kinds (suffixes), in order, each followed by the files it reads
+    (an OBJ's ``mtllib``, a glTF's buffers; a missing one counts as missing): a renamed or moved file
+    keeps its cache entry, while an edited material or buffer file, or a new suffix, does not."""
     digest = hashlib.sha256()
     for path in paths:
-        with open(path, "rb") as f:
-            for block in iter(lambda: f.read(1 << 20), b""):
-                digest.update(block)
+        digest.update(Path(path).suffix.lower().encode() + b"\0kind\0")
+        _hash_file(digest, path)
+        for companion in companion_files(path):
+            if Path(companion).is_file():
+                _hash_file(digest, companion)
+            else:
+                digest.update(b"\0missing\0" + Path(companion).name.encode())
         digest.update(b"\0file\0")
     return digest.hexdigest()
+
+
+def _hash_file(digest, path) -> None:
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+
+
+def companion_files(path) -> list[Path]:
+    """The files a mesh file reads beside itself: an OBJ's material libraries, a glTF's buffers."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix == ".obj":
+        with open(path, "rb") as f:
+            names = [n for line in f if line.startswith(b"mtllib") for n in line.split()[1:]]
+        return [path.parent / n.decode("utf-8", "replace") for n in names]
+    if suffix == ".gltf":
+        try:
+            document = json.loads(path.read_text(encoding="utf-8"))
+        except (ValueError, UnicodeDecodeError):
+            return []   # the reader reports it
+        uris = [b.get("uri", "") for b in document.get("buffers", []) if isinstance(b, dict)]
+        return [path.parent / unquote(u) for u in uris if u and not u.startswith("data:")]
+    return []
 
 
 def source_name(entry) -> str:
