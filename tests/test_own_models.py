@@ -285,11 +285,16 @@ def test_models_come_after_the_archetypes_in_treeid_and_deadwood_moves_past_them
     ("bad units", {"mesh": "tree.obj", "units": "ft"}, "forest.models[0].units: must be one of m, cm, mm"),
     ("nan vertex", {"mesh": "nan.obj"}, "nan.obj: piece 'stem': a vertex is not finite, the first at (0, 1, nan)"),
     ("a folder", {"mesh": "."}, "forest.models[0].mesh: not a file (a folder): "),
+    ("no mtl", {"mesh": "nomtl.obj"}, "match no piece (pieces and materials: crown_crown, stem_stem); the material "
+                                      "file nomtl.mtl is missing, so material names are unknown"),
 ])
 def test_bad_model_input_is_one_line_exit_2_and_nothing_written(tmp_path, capsys, case, model, message):
     write_obj(tmp_path / "tree.obj", {"stem": (*cylinder([0, 0, 0], [0, 0, 10.0], 0.2), "bark"),
                                       "leaves": (*leaf_sheet(9.0), "leaf")}, scale=100, y_up=True)
     (tmp_path / "junk.glb").write_bytes(b"glTF not really")
+    write_obj(tmp_path / "nomtl.obj", {"stem": (*cylinder([0, 0, 0], [0, 0, 10.0], 0.2), "bark"),
+                                       "crown": (*leaf_sheet(9.0), "leaf")}, scale=100, y_up=True)
+    (tmp_path / "nomtl.mtl").unlink()
     (tmp_path / "nan.obj").write_text("o stem\nv 0 0 0\nv 1 0 0\nv 0 1 nan\nv 0 0 1\nf 1 2 3\nf 1 2 4\nf 1 3 4\nf 2 3 4\n")
     (tmp_path / "cols.csv").write_text("radius,length\n0.1,2\n")
     (tmp_path / "neg.csv").write_text("radius,start_x,start_y,start_z,end_x,end_y,end_z\n"
