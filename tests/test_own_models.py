@@ -320,6 +320,17 @@ def test_trees_command_shows_imported_models(tmp_path):
     assert rows[2].startswith("tree02,6,,") and rows[2].endswith(",tree.obj,1,0")
     repairs = (tmp_path / "g" / "repairs.csv").read_text().splitlines()
     assert repairs[1].startswith("tree02,tree.obj,1,stem_stem_bark,repaired,96,126,1,0,30,,0.75398")
+    before = {p.name: p.read_bytes() for p in (tmp_path / "g").iterdir()}
+    (tmp_path / "bad.csv").write_text("radius,start_x,start_y,start_z,end_x,end_y,end_z\n-1,0,0,0,0,0,1\n")
+    bad = _tree_scene(tmp_path, {"qsm": "bad.csv"}, archetypes=[{"base": 4}])
+    for folder in ("g", "fresh"):   # a model that cannot be built writes nothing, not even the folder
+        assert main(["trees", "--scene", str(bad), "-o", str(tmp_path / folder)]) == 2
+    assert {p.name: p.read_bytes() for p in (tmp_path / "g").iterdir()} == before
+    assert not (tmp_path / "fresh").exists()
+    one = scene_file(tmp_path, forest={"trees": 1, "archetypes": [{"base": 2}]})
+    assert main(["trees", "--scene", str(one), "-o", str(tmp_path / "g")]) == 0
+    assert sorted(p.name for p in (tmp_path / "g").iterdir()) == [   # the earlier gallery's files are gone
+        "tree01_leaves.ply", "tree01_wood.ply", "trees.png", "volumes.csv"]
 
 
 def test_scene_edits_keep_the_models(tmp_path):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -14,39 +15,53 @@ from ..plan.types import ModelSpec
 from . import build_model
 
 
+GALLERY_FILE = re.compile(r"tree\d{2,}_(wood|leaves)\.ply|volumes\.csv|repairs\.csv|trees\.png")
+
+
 def write_gallery(archetypes, folder, progress=print, models=()) -> list[dict]:
     """Write ``treeNN_wood.ply``, ``treeNN_leaves.ply``, ``volumes.csv`` and ``trees.png`` into ``folder``:
     the archetypes, then the imported ``models`` (``forest.models`` entries), numbered as a render
-    numbers them. With imported meshes, ``repairs.csv`` lists every wood part the repair changed."""
+    numbers them. With imported meshes, ``repairs.csv`` lists every wood part the repair changed.
+
+    Every model is built before anything is written, so a model that cannot be built leaves the folder
+    as it was; the files of an earlier gallery in ``folder`` are replaced, none left behind."""
+    specs = [ModelSpec("tree", 0, archetype=a) for a in archetypes] + [ModelSpec("tree", 0, source=m) for m in models]
+    built = []
+    for i, spec in enumerate(specs):
+        model = build_model(f"tree{i + 1:02d}", spec)
+        v = model.volume
+        progress(f"{model.name}: {v.union:.4f} m3 wood (union), {model.triangles:,} triangles"
+                 + (f", {v.repaired} parts repaired, {v.skipped} skipped" if spec.source else ""))
+        built.append((model, spec))
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    specs = [ModelSpec("tree", 0, archetype=a) for a in archetypes] + [ModelSpec("tree", 0, source=m) for m in models]
-    rows, pictures, repairs = [], [], []
-    for i, spec in enumerate(specs):
-        name = f"tree{i + 1:02d}"
-        model = build_model(name, spec)
+    for old in folder.iterdir():
+        if GALLERY_FILE.fullmatch(old.name) and old.is_file():
+            old.unlink()
+    rows = [_row(model, spec.archetype) for model, spec in built]
+    repairs = [{"model": model.name, "source": model.meta["source"], **r}
+               for model, _ in built for r in model.meta.get("repair", [])]
+    for model, _ in built:
         for part in model.parts:
-            mesh = trimesh.Trimesh(part.vertices, part.faces, process=False)
-            with atomic_path(folder / f"{name}_{part.name}.ply") as tmp:
-                mesh.export(tmp, file_type="ply")
-        v, a = model.volume, spec.archetype
-        rows.append({"model": name, "height_m": a.height if a else model.meta["height"], "dbh_m": a.dbh if a else "",
-                     "volume_union_m3": v.union, "volume_analytic_m3": v.analytic, "volume_naive_m3": v.naive,
-                     "parts": v.parts, "wood_triangles": len(model.parts[0].faces),
-                     "leaf_triangles": sum(len(p.faces) for p in model.parts[1:]),
-                     "source": model.meta.get("source", ""), "parts_repaired": v.repaired, "parts_skipped": v.skipped})
-        repairs += [{"model": name, "source": model.meta["source"], **r} for r in model.meta.get("repair", [])]
-        pictures.append(_side_picture(model))
-        progress(f"{name}: {v.union:.4f} m3 wood (union), {model.triangles:,} triangles"
-                 + (f", {v.repaired} parts repaired, {v.skipped} skipped" if spec.source else ""))
+            with atomic_path(folder / f"{model.name}_{part.name}.ply") as tmp:
+                trimesh.Trimesh(part.vertices, part.faces, process=False).export(tmp, file_type="ply")
     header = list(rows[0])
     write_text(folder / "volumes.csv", csv_text(header, [[_cell(r[k]) for k in header] for r in rows]))
     if repairs:
         write_text(folder / "repairs.csv", csv_text(list(repairs[0]), [[_cell(r[k]) for k in repairs[0]]
                                                                          for r in repairs]))
     with atomic_path(folder / "trees.png") as tmp:
-        _side_by_side(pictures).save(tmp, format="PNG")
+        _side_by_side([_side_picture(model) for model, _ in built]).save(tmp, format="PNG")
     return rows
+
+
+def _row(model, archetype) -> dict:
+    v, a = model.volume, archetype
+    return {"model": model.name, "height_m": a.height if a else model.meta["height"], "dbh_m": a.dbh if a else "",
+            "volume_union_m3": v.union, "volume_analytic_m3": v.analytic, "volume_naive_m3": v.naive,
+            "parts": v.parts, "wood_triangles": len(model.parts[0].faces),
+            "leaf_triangles": sum(len(p.faces) for p in model.parts[1:]),
+            "source": model.meta.get("source", ""), "parts_repaired": v.repaired, "parts_skipped": v.skipped}
 
 
 def _cell(x):
