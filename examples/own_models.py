@@ -123,7 +123,7 @@ def main() -> None:
         v = info["volume_m3"]
         print(f"{name} ({info['source']}): {info['height_m']:.2f} m tall, {info['triangles']:,} triangles; wood "
               f"union {v['union']:.5f} m3, naive sum {v['naive']:.5f} m3"
-              + (f", cylinder sum {v['analytic']:.5f} m3" if v["analytic"] == v["analytic"] else "")
+              + (f", cylinder sum {v['analytic']:.5f} m3" if v["analytic"] is not None else "")
               + f"; parts: {v['parts']} in the volume, {v['repaired']} repaired, {v['skipped']} skipped")
         for r in info["repair"]:
             print(f"  part {r['part']:>2} ({r['piece']}): {r['action']:<10} {r['reason']:<20} faces {r['faces_before']} -> "
