@@ -190,6 +190,25 @@ def test_unrepairable_part_is_an_error_or_skipped(tmp_path, caplog):
     assert len(model.components) == 2    # a skipped part is still scanned, with its own object id
 
 
+def test_import_report_gives_none_for_undefined_volumes(tmp_path):
+    """A mesh has no cylinder sum and a skipped open part no volume: the manifest's report (also the
+    ``result.manifest`` a caller gets) says None, not nan, so it is JSON as it stands."""
+    import json
+    from types import SimpleNamespace
+
+    from mitsuforest.trees.imported import import_report
+    path = write_obj(tmp_path / "t.obj", {"stem": (*cylinder([0, 0, 0], [0, 0, 5.0], 0.2), "bark"),
+                                          "flat": (*leaf_sheet(3.0, 0.5, (2.0, 0.0)), "bark")})
+    entry = MeshTree(mesh=str(path), leaves=(), repair="skip")
+    plan = SimpleNamespace(models={"tree01": SimpleNamespace(source=entry)})
+    report = import_report(plan, {"tree01": imported_model(entry, "tree01")})["tree01"]
+    assert report["volume_m3"]["analytic"] is None
+    assert report["volume_m3"]["union"] == pytest.approx(np.pi * 0.04 * 5, rel=1e-9)
+    (repair,) = report["repair"]
+    assert repair["action"] == "skipped" and repair["volume_before"] is None and repair["volume_after"] is None
+    json.dumps(report, allow_nan=False)
+
+
 def test_cache_is_keyed_on_the_file_content(tmp_path):
     stem = cylinder([0, 0, 0], [0, 0, 5.0], 0.2)
     path = write_obj(tmp_path / "c.obj", {"stem": (*stem, "bark"), "leaves": (*leaf_sheet(4.0), "leaf")})

@@ -178,12 +178,18 @@ def _model(name, wood_meshes, wood_components, components, leaves, volume, meta)
 
 def import_report(plan, models: dict) -> dict:
     """Per imported tree model of a plan: its file, height, volumes and the repair of each changed part
-    (for the run manifest)."""
+    (for the run manifest). A volume that is not defined (a mesh's cylinder sum, an open part's volume)
+    is None, JSON's null, not nan."""
     out = {}
     for name, spec in plan.models.items():
         if getattr(spec, "source", None) is not None and name in models:
             model = models[name]
             out[name] = {"source": spec.source.source, "height_m": model.meta.get("height"),
-                         "volume_m3": model.volume.as_dict(), "triangles": model.triangles,
-                         "parts_ok": model.meta.get("parts_ok"), "repair": model.meta.get("repair", [])}
+                         "volume_m3": _nan_as_none(model.volume.as_dict()), "triangles": model.triangles,
+                         "parts_ok": model.meta.get("parts_ok"),
+                         "repair": [_nan_as_none(r) for r in model.meta.get("repair", [])]}
     return out
+
+
+def _nan_as_none(values: dict) -> dict:
+    return {k: None if isinstance(v, float) and math.isnan(v) else v for k, v in values.items()}
