@@ -117,6 +117,10 @@ BAD_TABLES = {   # the file's text, and the error: its real line (comments and b
                         "line 3: radius 0 is not positive"),
     "no header": ("# TreeQSM cylinder export\n# in metres\n0.1 2 0 0 0 0 0 1 0 0 1 0 9 9\n"
                   "0.1 2 0 0 2 0 0 x 1 0 1 0\n", "line 4: not a number in '0.1 2 0 0 2 0 0 x 1 0 1 0'"),
+    "nan radius": ("# by hand\nradius,length,start_x,start_y,start_z,axis_x,axis_y,axis_z\n0.1,2,0,0,0,0,0,1\n\n"
+                   "nan,1,0,0,2,0,0,1\n", "line 5: a value is not finite"),
+    "inf axis": ("radius start_x start_y start_z end_x end_y end_z\n# stem\n0.1 0 0 0 0 0 inf\n",
+                 "line 3: a value is not finite"),
     "long row": ("radius,start_x,start_y,start_z,end_x,end_y,end_z\n0.1,0,0,0,0,0,1,7\n",
                  "line 2: 8 values, the header names 7 columns"),
     "binary": (b"MATLAB 5.0 MAT-file\x00\xff\xfe\x80", "not a text table (a binary file; TreeQSM's .mat models"),
