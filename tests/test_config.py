@@ -41,6 +41,8 @@ CASES = {
                         f"sensor: not a file (a folder): {SENSORS}"),
     "model a folder": (GOOD.replace("trees: 1", "trees: 1, models: [{qsm: .}]"),
                        "forest.models[0].qsm: not a file (a folder): "),
+    "model a device": (GOOD.replace("trees: 1", "trees: 1, models: [{qsm: /dev/null}]"),
+                       "forest.models[0].qsm: not a file (a device, pipe or socket): /dev/null"),
     "model empty path": (GOOD.replace("trees: 1", "trees: 1, models: [{qsm: ''}]"),
                          "forest.models[0].qsm: must name a file, got an empty path"),
     "syntax": (GOOD + "forest: [1,\n", "YAML syntax error: line"),

@@ -104,7 +104,7 @@ class FilePath(Text):
         if self.must_exist and not path.exists():
             ctx.fail(key, f"file not found: {path}")
         if self.must_exist and not path.is_file():
-            ctx.fail(key, f"not a file (a folder): {path}")
+            ctx.fail(key, f"not a file ({'a folder' if path.is_dir() else 'a device, pipe or socket'}): {path}")
         return str(path)
 
 
