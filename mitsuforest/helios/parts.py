@@ -53,18 +53,6 @@ def read_obj(path: Path, y_up: bool) -> list[MaterialMesh]:
     return out
 
 
-def missing_material_files(path: Path) -> list[Path]:
-    """The files an OBJ names in ``mtllib`` that are not beside it (its faces are then unclassified)."""
-    missing = []
-    with open(path, encoding="utf-8", errors="replace") as f:
-        for line in f:
-            if line.startswith("mtllib"):
-                for name in line.split()[1:]:
-                    if not (Path(path).parent / name).is_file():
-                        missing.append(Path(path).parent / name)
-    return missing
-
-
 def _material(g) -> tuple[str, dict]:
     material = getattr(getattr(g, "visual", None), "material", None)
     if material is None:

@@ -24,7 +24,8 @@ from ..plan import MAX_LEG_PULSES
 from ..plan.types import Leg, ModelSpec, PlacedObject, Plan
 from ..scan.radiometry import reflectance_table
 from ..trees.models import Component, Model, Part, merge
-from .parts import class_reflectances, missing_material_files, read_obj
+from ..trees.sources import missing_companions
+from .parts import class_reflectances, read_obj
 from .survey import HeliosSurvey, read_survey
 
 
@@ -181,7 +182,7 @@ def _placed_parts(survey: HeliosSurvey, fail):
         m[:3, :3], m[:3, 3] = part.rotation, part.offset
         by_class = {}
         for path in part.files:
-            missing += missing_material_files(path)
+            missing += missing_companions(path)   # an OBJ's faces are unclassified without its .mtl
             for mesh in read_obj(path, part.y_up):
                 all_meshes.append(mesh)
                 by_class.setdefault(mesh.classification, []).append((path, mesh))

@@ -180,16 +180,13 @@ def import_report(plan, models: dict) -> dict:
     """Per imported tree model of a plan: its file, height, volumes and the repair of each changed part
     (for the run manifest). A volume that is not defined (a mesh's cylinder sum, an open part's volume)
     is None, JSON's null, not nan."""
+    from ..write.atomic import finite_or_null   # the writer's package; a plan alone does not need it
     out = {}
     for name, spec in plan.models.items():
         if getattr(spec, "source", None) is not None and name in models:
             model = models[name]
             out[name] = {"source": spec.source.source, "height_m": model.meta.get("height"),
-                         "volume_m3": _nan_as_none(model.volume.as_dict()), "triangles": model.triangles,
+                         "volume_m3": finite_or_null(model.volume.as_dict()), "triangles": model.triangles,
                          "parts_ok": model.meta.get("parts_ok"),
-                         "repair": [_nan_as_none(r) for r in model.meta.get("repair", [])]}
+                         "repair": finite_or_null(model.meta.get("repair", []))}
     return out
-
-
-def _nan_as_none(values: dict) -> dict:
-    return {k: None if isinstance(v, float) and math.isnan(v) else v for k, v in values.items()}

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .sources import MAX_HEIGHT, MIN_HEIGHT, UNITS, ModelFileError, companion_files
+from .sources import MAX_HEIGHT, MIN_HEIGHT, UNITS, ModelFileError, missing_companions
 
 Y_UP_TO_Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])   # +y becomes +z
 BASE_SLICE = 0.1   # m: the stem base is the centre of the wood's lowest 10 cm (less for small trees)
@@ -76,7 +76,7 @@ def split_by_patterns(path, pieces: list[Piece], patterns) -> tuple[list[Piece],
     found = sorted({piece.names[-1] for piece in pieces})
     listed = ", ".join(found[:8]) + (", ..." if len(found) > 8 else "")
     if not any(is_leaf):
-        missing = [p.name for p in companion_files(path) if not p.is_file()]
+        missing = [p.name for p in missing_companions(path)]
         unknown = f"; the material file {', '.join(missing)} is missing, so material names are unknown" if missing else ""
         raise ModelFileError(path, "leaves", f"the patterns {list(patterns)} match no piece (pieces and materials: "
                              f"{listed}){unknown}; name the leaf pieces, or give leaves: [] for a tree without leaves")

@@ -111,6 +111,11 @@ def companion_files(path) -> list[Path]:
     return []
 
 
+def missing_companions(path) -> list[Path]:
+    """The :func:`companion_files` of ``path`` that are not there."""
+    return [p for p in companion_files(path) if not p.is_file()]
+
+
 def source_name(entry) -> str:
     return Path(entry.source).name
 

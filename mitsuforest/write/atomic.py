@@ -63,18 +63,32 @@ def write_text(path, text: str) -> None:
         tmp.write_text(text)
 
 
+@contextlib.contextmanager
+def naming_errors(path):
+    """Give an OSError raised inside the block that names no file (a failing ``write`` does not) the
+    name of ``path``, the file being written."""
+    try:
+        yield
+    except OSError as e:
+        if e.filename is None:
+            raise OSError(e.errno, e.strerror or str(e), str(path)) from e
+        raise
+
+
 def write_json(path, data, indent: int = 1, **options) -> None:
     """``data`` as strict JSON: a nan or infinite float is written as ``null`` (``NaN`` is no JSON)."""
-    write_text(path, json.dumps(_finite(data), allow_nan=False, default=str, indent=indent, **options) + "\n")
+    write_text(path, json.dumps(finite_or_null(data), allow_nan=False, default=str, indent=indent, **options)
+               + "\n")
 
 
-def _finite(value):
+def finite_or_null(value):
+    """``value`` (nested dicts, lists, tuples, numbers) with every nan or infinite float as None."""
     if isinstance(value, float):
         return value if math.isfinite(value) else None
     if isinstance(value, dict):
-        return {k: _finite(v) for k, v in value.items()}
+        return {k: finite_or_null(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
-        return [_finite(v) for v in value]
+        return [finite_or_null(v) for v in value]
     if hasattr(value, "dtype") and getattr(value, "shape", None) == ():   # a numpy scalar
-        return _finite(value.item())
+        return finite_or_null(value.item())
     return value

@@ -26,7 +26,7 @@ from laspy.vlrs.known import WktCoordinateSystemVlr
 
 from ..classes import BUSH, DEADWOOD, GROUND, GROUND_VEGETATION, ROCK, SPECIES_CODES, STUMP, TREE_LEAVES, TREE_WOOD
 from ..errors import UserError
-from .atomic import atomic_path
+from .atomic import atomic_path, naming_errors
 
 ASPRS_CODE = {GROUND: 2, TREE_WOOD: 5, TREE_LEAVES: 5, BUSH: 4, GROUND_VEGETATION: 3, DEADWOOD: 64, ROCK: 65, STUMP: 66}
 INTENSITY_SCALE = 1e-6   # amplitude units per LAS intensity count (65535 ≙ a 6.5 % full-beam target at 1 m)
@@ -163,14 +163,10 @@ class LasStream:
 
     @contextlib.contextmanager
     def _io_errors(self):
-        """The LAZ compressor's write failures (a full disk) as the OSError naming this file that
-        every other write failure is."""
+        """Write failures as OSErrors naming this file, the LAZ compressor's (a full disk) included."""
         try:
-            yield
-        except OSError as e:
-            if e.filename is None:
-                raise OSError(e.errno, e.strerror or str(e), str(self.path)) from e
-            raise
+            with naming_errors(self.path):
+                yield
         except CODEC_ERRORS as e:
             raise OSError(errno.EIO, f"the LAZ compressor could not write ({e})", str(self.path)) from e
 

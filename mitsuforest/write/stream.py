@@ -6,10 +6,9 @@ classes, returns, spacing) and the quick-look rasters are accumulated batch by b
 
 from __future__ import annotations
 
-import contextlib
-
 import numpy as np
 
+from .atomic import naming_errors
 from .las import LasStream
 from .pcd import COUNT_DIGITS, pcd_header
 from .profile import ReturnCounts
@@ -66,7 +65,7 @@ class PointWriter:
         geo = georeference(points, self.offset)
         if self._pcd_file:
             record = self._pcd_record
-            with _naming(self._pcd_file.name):
+            with naming_errors(self._pcd_file.name):
                 self._pcd_file.write(np.ascontiguousarray(geo if record == geo.dtype else geo.astype(record)).data)
         for las in self._las:
             las.write(geo)
@@ -89,7 +88,7 @@ class PointWriter:
             if self.dtype is None:
                 from ..scan import POINT_DTYPE
                 self.add(np.zeros(0, POINT_DTYPE))
-            with _naming(self._pcd_file.name):
+            with naming_errors(self._pcd_file.name):
                 self._pcd_file.seek(0)                 # the counts, now known, in the header's padded fields
                 self._pcd_file.write(pcd_header(self._pcd_record, self.count, COUNT_DIGITS).encode("ascii"))
                 self._pcd_file.close()
@@ -126,17 +125,6 @@ class PointWriter:
             "returns_histogram": {int(k): int(v) for k, v in enumerate(self.returns) if v},
             "mean_spacing_m": float(np.concatenate(spacings).mean()) if spacings else None,
         }
-
-
-@contextlib.contextmanager
-def _naming(path):
-    """Give an OSError raised by a write (which names no file) the name of the file written."""
-    try:
-        yield
-    except OSError as e:
-        if e.filename is None:
-            raise OSError(e.errno, e.strerror or str(e), str(path)) from e
-        raise
 
 
 def georeference(points: np.ndarray, offset) -> np.ndarray:
