@@ -214,10 +214,11 @@ def _number(reader, node, key: str, where: str, default=None) -> float:
     return value
 
 
-def _whole(reader, node, key: str, where: str, default: int) -> int:
-    value = _number(reader, node, key, where, float(default))
-    if value != int(value) or value < 0:
-        reader.fail(f"{where}.{key}", f"must be a whole number >= 0, got {node.get(key)}")
+def _whole(reader, node, key: str, where: str, default: int | None = None, lo: int = 0, hi: int | None = None) -> int:
+    value = _number(reader, node, key, where, None if default is None else float(default))
+    if value != int(value) or value < lo or (hi is not None and value > hi):
+        bounds = f">= {lo}" if hi is None else f"from {lo} to {hi}"
+        reader.fail(f"{where}.{key}", f"must be a whole number {bounds}, got {node.get(key)}")
     return int(value)
 
 
@@ -289,11 +290,7 @@ def _scanner_beam_samples(reader, node) -> int | None:
 def _beam_sample_quality(reader, node, where: str) -> int:
     """The sub-rays of an ``FWFSettings`` element's ``beamSampleQuality``, a whole number from 1 to
     :data:`MAX_BEAM_SAMPLE_QUALITY`."""
-    value = _number(reader, node, "beamSampleQuality", where)
-    if value != int(value) or not 1 <= value <= MAX_BEAM_SAMPLE_QUALITY:
-        reader.fail(f"{where}.beamSampleQuality", f"must be a whole number from 1 to {MAX_BEAM_SAMPLE_QUALITY}, "
-                                                  f"got {node.get('beamSampleQuality')}")
-    return sub_rays(int(value))
+    return sub_rays(_whole(reader, node, "beamSampleQuality", where, lo=1, hi=MAX_BEAM_SAMPLE_QUALITY))
 
 
 def _settings(reader, node, tag: str, where: str, here: Path, seen=()) -> dict:
@@ -302,9 +299,10 @@ def _settings(reader, node, tag: str, where: str, here: Path, seen=()) -> dict:
     attrs = {}
     if node.get("template"):
         template, path = reader.element(node.get("template"), tag, f"{where}.template", here)
-        if template in seen or template is node:
+        seen = (*seen, node)
+        if template in seen:
             reader.fail(f"{where}.template", f"{node.get('template')!r} leads back to itself (a template cycle)")
-        attrs.update(_settings(reader, template, tag, f"{where}.template", path, (*seen, node)))
+        attrs.update(_settings(reader, template, tag, f"{where}.template", path, seen))
     attrs.update(node.attrib)
     return attrs
 
