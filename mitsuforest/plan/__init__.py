@@ -10,6 +10,7 @@ byte for byte, when written with :func:`plan_json`.
 from __future__ import annotations
 
 import dataclasses
+from functools import lru_cache
 
 import numpy as np
 
@@ -136,14 +137,19 @@ def _tree_models(forest) -> dict[str, tuple[np.ndarray, ModelSpec]]:
     return out
 
 
+@lru_cache(maxsize=64)
 def _summarise(a) -> tuple[np.ndarray, int]:
-    """Crown points (skeleton widened outward by a leaf length) and component count of an archetype."""
+    """Crown points (skeleton widened outward by a leaf length) and component count of an archetype.
+
+    Cached per process: a dataset worker plans many plots of the same archetypes, and growing their
+    skeletons was most of a small plot's planning time. The crown array is shared, so it is read-only."""
     branches = grow(a)
     pts = np.vstack([b.points for b in branches])
     radial = pts.copy()
     radial[:, 2] = 0
     norm = np.linalg.norm(radial, axis=1, keepdims=True)
     crown = pts + radial / np.maximum(norm, 1e-9) * a.leaf_length
+    crown.flags.writeable = False
     return crown, len(tree_components(a, branches))
 
 

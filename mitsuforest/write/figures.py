@@ -24,7 +24,9 @@ def _figure(width_in: float, height_in: float):
 
 def _save(fig, path) -> None:
     with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png", dpi=DPI, bbox_inches="tight", pad_inches=0.1)   # legends outside axes too
+        # The constrained layout already makes room for legends outside the axes; bbox_inches="tight"
+        # drew every figure twice for the same frame (a third of the pictures' time).
+        fig.savefig(tmp, format="png", dpi=DPI)
 
 
 def _class_legend(ax, codes, **kwargs) -> None:
