@@ -55,6 +55,8 @@ def load_cloud(path) -> Cloud:
         columns = {**columns, "scan_angle": columns["scan_angle"] * LAS_SCAN_ANGLE_UNIT}
     elif "scan_angle_rank" in columns:                                     # LAS point formats 0-5: whole degrees
         columns = {**columns, "scan_angle": columns["scan_angle_rank"]}
+    if "amplitude" in columns and class_names is CLASS_NAMES:   # our LAS: the exact amplitude, as our PCD's
+        columns = {**columns, "intensity": columns["amplitude"]}   # intensity (16-bit intensity may clip)
     return cloud_from_columns(columns, Path(path).name, "mitsuforest" if class_names is CLASS_NAMES else "ASPRS")
 
 

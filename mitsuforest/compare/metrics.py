@@ -114,7 +114,7 @@ def earth_movers(a: np.ndarray, b: np.ndarray) -> float:
 
 @dataclass(frozen=True)
 class GroundModel:
-    """Ground heights on a regular grid: ``z[i, j]`` at x = x0 + (i + 0.5) cell, y = y0 + (j + 0.5) cell."""
+    """Ground heights on a regular grid of nodes: ``z[i, j]`` at x = x0 + i cell, y = y0 + j cell."""
 
     x0: float
     y0: float
@@ -122,10 +122,10 @@ class GroundModel:
     z: np.ndarray          # (nx, ny)
 
     def height(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        """(n,) ground height under the (n,) points, bilinear between the grid nodes (held flat beyond)."""
+        """(n,) ground height under the (n,) points, bilinear between the nodes (held flat beyond)."""
         from scipy.ndimage import map_coordinates
-        u = (np.asarray(x, np.float64) - self.x0) / self.cell - 0.5
-        v = (np.asarray(y, np.float64) - self.y0) / self.cell - 0.5
+        u = (np.asarray(x, np.float64) - self.x0) / self.cell
+        v = (np.asarray(y, np.float64) - self.y0) / self.cell
         return map_coordinates(self.z, [u, v], order=1, mode="nearest")
 
 
@@ -133,9 +133,9 @@ def ground_model(x: np.ndarray, y: np.ndarray, gx: np.ndarray, gy: np.ndarray, g
                  cell: float = CELL_M) -> GroundModel:
     """The ground under the (n,) points ``x, y`` from the (g,) ground points ``gx, gy, gz``.
 
-    Each ``cell`` holding ground points gives one node (their mean x, y, z); the nodes are joined by
-    linear interpolation over their Delaunay triangles, and the grid beyond their hull takes the
-    nearest node. The grid spans the points' bounds; it coarsens to at most MAX_GRID_CELLS cells.
+    Each ``cell`` holding ground points gives one node (their mean x, y, z); the grid's nodes take the
+    linear interpolation over the Delaunay triangles of these, or beyond their hull the nearest one.
+    The grid spans the points' bounds (it coarsens to at most MAX_GRID_CELLS cells for a wide file).
 
     :raises ValueError: no ground points.
     """
@@ -146,17 +146,17 @@ def ground_model(x: np.ndarray, y: np.ndarray, gx: np.ndarray, gy: np.ndarray, g
     x0, y0 = grid_origin(x, y)
     span = max(np.max(x) - x0, np.max(y) - y0, cell)
     cell = max(cell, span / np.sqrt(MAX_GRID_CELLS))
-    nx, ny = (int(np.floor((np.max(v) - o) / cell)) + 1 for v, o in ((x, x0), (y, y0)))
+    nx, ny = (int(np.floor((np.max(v) - o) / cell)) + 2 for v, o in ((x, x0), (y, y0)))
     keys = cell_keys(gx, gy, cell, (x0, y0))
     _, inverse, count = np.unique(keys, return_inverse=True, return_counts=True)
     nodes = np.column_stack([np.bincount(inverse, v) / count for v in (gx, gy, gz)])
-    cx, cy = np.meshgrid((np.arange(nx) + 0.5) * cell + x0, (np.arange(ny) + 0.5) * cell + y0, indexing="ij")
+    gridx, gridy = np.meshgrid(np.arange(nx) * cell + x0, np.arange(ny) * cell + y0, indexing="ij")
     nearest = NearestNDInterpolator(nodes[:, :2], nodes[:, 2])
     try:
-        z = LinearNDInterpolator(nodes[:, :2], nodes[:, 2])(cx, cy)
-        z = np.where(np.isnan(z), nearest(cx, cy), z)
+        z = LinearNDInterpolator(nodes[:, :2], nodes[:, 2])(gridx, gridy)
+        z = np.where(np.isnan(z), nearest(gridx, gridy), z)
     except (QhullError, ValueError):   # fewer than 3 nodes, or all on a line
-        z = nearest(cx, cy)
+        z = nearest(gridx, gridy)
     return GroundModel(x0, y0, cell, np.asarray(z, np.float64).reshape(nx, ny))
 
 
