@@ -245,9 +245,9 @@ def test_the_uas_clip_measures_as_its_readme_says(real_result):
     5,272 / 850, as pulses 57.7 % single-return; up to 6 returns; ~559 points/m² over ~700 m²; scan
     angles up to ±70°; ASPRS classes with ground."""
     cloud = load_cloud(REAL / "UAS_Clip.laz")
-    assert len(cloud) == 390_877
+    assert len(cloud) == 390_877 - 2 and cloud.notes == ["2 noise points (ASPRS classes 7, 18) left out"]
     by_points = np.bincount(cloud.number_of_returns)[1:]
-    assert by_points.tolist() == [141_723, 143_458, 75_163, 24_411, 5_272, 850]
+    assert by_points.tolist() == pytest.approx([141_723, 143_458, 75_163, 24_411, 5_272, 850], abs=2)
     s = real_result["a"]
     as_pulses = m.shares(by_points / np.arange(1, 7))    # each pulse once: its points over its returns
     assert s["pulses_by_returns"]["1"] == pytest.approx(0.577, abs=0.002)

@@ -11,6 +11,7 @@ from ..classes import CLASS_NAMES, GROUND
 from ..errors import UserError
 
 ASPRS_GROUND = 2
+ASPRS_NOISE = (7, 18)         # low and high noise: left out of a comparison of another tool's file
 LAS_SCAN_ANGLE_UNIT = 0.006   # degrees per count of LAS 1.4's scan_angle (point formats 6-10)
 
 
@@ -77,25 +78,32 @@ def as_cloud(value, name: str = "cloud") -> Cloud:
 
 def cloud_from_columns(columns: dict, name: str, scheme: str) -> Cloud:
     """A Cloud of a file's columns by name (scan angles already in degrees)."""
-    n = len(columns["x"])
     notes = []
+    if scheme == "ASPRS" and "classification" in columns:
+        noise = np.isin(columns["classification"], ASPRS_NOISE)
+        if noise.any():
+            notes.append(f"{int(noise.sum()):,} noise points (ASPRS classes 7, 18) left out")
+            columns = {k: np.asarray(v)[~noise] for k, v in columns.items()}
+    n = len(columns["x"])
+    if n == 0:
+        raise UserError(f"{name}: no points other than noise")
     if "return_number" in columns and "number_of_returns" in columns:
-        rn, nr = (np.asarray(columns[k], np.int64) for k in ("return_number", "number_of_returns"))
+        rn, nr = (np.asarray(columns[k], np.int16) for k in ("return_number", "number_of_returns"))
     else:
-        rn, nr = np.ones(n, np.int64), np.ones(n, np.int64)
+        rn, nr = np.ones(n, np.int16), np.ones(n, np.int16)
         notes.append("no return numbers: every point taken as a single-return pulse")
-    intensity = _optional(columns, "intensity", notes, "no intensity")
+    intensity = _optional(columns, "intensity", np.float64, notes, "no intensity")
     if intensity is not None and not np.any(intensity):
         intensity = None
         notes.append("intensity is 0 everywhere: left out")
-    scan_angle = _optional(columns, "scan_angle", notes, "no scan angle")
-    classification = _optional(columns, "classification", notes, "no classes")
+    scan_angle = _optional(columns, "scan_angle", np.float32, notes, "no scan angle")
+    classification = _optional(columns, "classification", np.int16, notes, "no classes")
     return Cloud(name, *(np.asarray(columns[a], np.float64) for a in "xyz"), rn, nr, intensity, scan_angle,
-                 None if classification is None else classification.astype(np.int64), scheme, notes)
+                 classification, scheme, notes)
 
 
-def _optional(columns: dict, key: str, notes: list, missing: str):
+def _optional(columns: dict, key: str, dtype, notes: list, missing: str):
     if key not in columns:
         notes.append(missing)
         return None
-    return np.asarray(columns[key], np.float64)
+    return np.asarray(columns[key], dtype)

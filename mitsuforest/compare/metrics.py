@@ -18,6 +18,7 @@ FILTER_CELL_M = 2.0       # the fallback ground filter: lowest point per cell of
 FILTER_WINDOW = 5         # ... kept when within FILTER_RISE_M of the lowest in this many cells square ...
 FILTER_RISE_M = 1.5
 FILTER_BAND_M = 0.3       # ... and points within this of the surface through the kept points are ground
+PROFILE_RANGE_M = (-20.0, 200.0)  # the vertical profile's bins span at most this
 MAX_GRID_CELLS = 4_000_000  # the ground model's grid coarsens beyond this many cells (a very wide file)
 
 
@@ -114,7 +115,8 @@ def earth_movers(a: np.ndarray, b: np.ndarray) -> float:
 
 @dataclass(frozen=True)
 class GroundModel:
-    """Ground heights on a regular grid of nodes: ``z[i, j]`` at x = x0 + i cell, y = y0 + j cell."""
+    """Ground heights on a regular grid of nodes: ``z[i, j]`` at x = x0 + (i - 0.5) cell,
+    y = y0 + (j - 0.5) cell (the centres of the cells from ``x0, y0``, and a ring of cells around)."""
 
     x0: float
     y0: float
@@ -124,8 +126,8 @@ class GroundModel:
     def height(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         """(n,) ground height under the (n,) points, bilinear between the nodes (held flat beyond)."""
         from scipy.ndimage import map_coordinates
-        u = (np.asarray(x, np.float64) - self.x0) / self.cell
-        v = (np.asarray(y, np.float64) - self.y0) / self.cell
+        u = (np.asarray(x, np.float64) - self.x0) / self.cell + 0.5
+        v = (np.asarray(y, np.float64) - self.y0) / self.cell + 0.5
         return map_coordinates(self.z, [u, v], order=1, mode="nearest")
 
 
@@ -136,27 +138,31 @@ def ground_model(x: np.ndarray, y: np.ndarray, gx: np.ndarray, gy: np.ndarray, g
     Each ``cell`` holding ground points gives one node (their mean x, y, z); the grid's nodes take the
     linear interpolation over the Delaunay triangles of these, or beyond their hull the nearest one.
     The grid spans the points' bounds (it coarsens to at most MAX_GRID_CELLS cells for a wide file).
+    matplotlib's triangle finder looks the grid up (scipy's ``find_simplex`` walks slowly, by seconds,
+    on some regular grids of queries).
 
     :raises ValueError: no ground points.
     """
-    from scipy.interpolate import LinearNDInterpolator, NearestNDInterpolator
-    from scipy.spatial import QhullError
+    from matplotlib.tri import LinearTriInterpolator, Triangulation
+    from scipy.interpolate import NearestNDInterpolator
     if len(gx) == 0:
         raise ValueError("no ground points")
     x0, y0 = grid_origin(x, y)
     span = max(np.max(x) - x0, np.max(y) - y0, cell)
     cell = max(cell, span / np.sqrt(MAX_GRID_CELLS))
-    nx, ny = (int(np.floor((np.max(v) - o) / cell)) + 2 for v, o in ((x, x0), (y, y0)))
+    nx, ny = (int(np.floor((np.max(v) - o) / cell)) + 3 for v, o in ((x, x0), (y, y0)))
     keys = cell_keys(gx, gy, cell, (x0, y0))
     _, inverse, count = np.unique(keys, return_inverse=True, return_counts=True)
-    nodes = np.column_stack([np.bincount(inverse, v) / count for v in (gx, gy, gz)])
-    gridx, gridy = np.meshgrid(np.arange(nx) * cell + x0, np.arange(ny) * cell + y0, indexing="ij")
-    nearest = NearestNDInterpolator(nodes[:, :2], nodes[:, 2])
+    local = np.column_stack([np.bincount(inverse, gx - x0), np.bincount(inverse, gy - y0)]) / count[:, None]
+    height = np.bincount(inverse, gz) / count
+    # local coordinates: Qhull loses precision on UTM's millions of metres
+    grid = np.meshgrid((np.arange(nx) - 0.5) * cell, (np.arange(ny) - 0.5) * cell, indexing="ij")
+    nearest = NearestNDInterpolator(local, height)
     try:
-        z = LinearNDInterpolator(nodes[:, :2], nodes[:, 2])(gridx, gridy)
-        z = np.where(np.isnan(z), nearest(gridx, gridy), z)
-    except (QhullError, ValueError):   # fewer than 3 nodes, or all on a line
-        z = nearest(gridx, gridy)
+        linear = LinearTriInterpolator(Triangulation(local[:, 0], local[:, 1]), height)(*grid)
+        z = np.where(np.ma.getmaskarray(linear), nearest(*grid), np.ma.getdata(linear))
+    except (ValueError, RuntimeError):   # fewer than 3 nodes, or all on a line
+        z = nearest(*grid)
     return GroundModel(x0, y0, cell, np.asarray(z, np.float64).reshape(nx, ny))
 
 
@@ -184,11 +190,13 @@ def lowest_point_ground(x: np.ndarray, y: np.ndarray, z: np.ndarray, cell: float
     return np.abs(z - surface.height(x, y)) <= band
 
 
-def vertical_profile(height: np.ndarray, bin_m: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+def vertical_profile(height: np.ndarray, bin_m: float = 1.0, within=PROFILE_RANGE_M) -> tuple[np.ndarray, np.ndarray]:
     """The (n,) heights' profile: (lower edges (b,), share of the points in each bin (b,)), bins of
-    ``bin_m`` from the floor of the lowest height to past the highest."""
+    ``bin_m`` from the floor of the lowest height to past the highest; heights beyond ``within`` (a
+    bird, a pit) are counted in its end bins."""
     if len(height) == 0:
         return np.zeros(0), np.zeros(0)
+    height = np.clip(height, *within)
     lo = np.floor(np.min(height) / bin_m) * bin_m
     index = np.floor((height - lo) / bin_m).astype(np.int64)
     return lo + bin_m * np.arange(index.max() + 1), shares(np.bincount(index))
