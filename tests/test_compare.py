@@ -114,7 +114,7 @@ def test_without_ground_classes_the_lowest_point_filter_finds_a_sloped_ground():
     assert classed["canopy_height_m"]["p50"] == pytest.approx(10.0, abs=1e-6)
     assert bare["canopy_height_m"]["p50"] == pytest.approx(10.0, abs=0.02)
     assert bare["ground"]["points"] == 1200 and "lowest-point filter" in bare["ground"]["from"]
-    assert any("no ground points" in n and "lowest-point filter" in n for n in bare["notes"])
+    assert any(n.startswith("no classes: ground from the lowest-point filter") for n in bare["notes"])
 
 
 def load_cloud_like(points, classes=True) -> Cloud:
@@ -194,6 +194,32 @@ def test_no_ground_class_is_said_on_stderr(tmp_path, capsys):
     assert main(["compare", str(a), str(a), "-o", str(tmp_path / "o")]) == 0
     err = capsys.readouterr().err
     assert err.count("no ground points (class 2 (ASPRS ground)): ground from the lowest-point filter") == 2
+
+
+def test_a_bare_xyz_pcd_compares_with_what_stands_in(tmp_path, capsys):
+    """Another tool's PCD with x, y, z only: single-return pulses, the filter's ground, no intensity."""
+    points = _forest()
+    bare = np.zeros(len(points), [("x", "<f4"), ("y", "<f4"), ("z", "<f4")])
+    for axis in "xyz":
+        bare[axis] = points[axis]
+    path = _our_pcd(tmp_path / "bare.pcd", bare)
+    assert main(["compare", str(_our_pcd(tmp_path / "ours.pcd", points)), str(path), "-o", str(tmp_path / "o")]) == 0
+    err = capsys.readouterr().err
+    for said in ("no return numbers: every point taken as a single-return pulse", "no intensity",
+                 "no classes: ground from the lowest-point filter"):
+        assert f"mitsuforest: bare.pcd: {said}" in err, err
+    saved = json.loads((tmp_path / "o" / "compare.json").read_text())
+    assert saved["b"]["pulses_by_returns"] == {"1": 1.0} and saved["b"]["intensity"] is None
+    assert saved["distance"]["intensity_ks"] is None and saved["distance"]["returns_tv"] == pytest.approx(0.25)
+    assert saved["b"]["canopy_height_m"]["p95"] == pytest.approx(10.0)   # the filter's ground is the plane z = 0
+
+
+def test_an_output_folder_that_is_a_file_is_refused_first(tmp_path, capsys):
+    a = _our_pcd(tmp_path / "a.pcd", _forest())
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    assert main(["compare", str(a), str(a), "-o", str(blocker)]) == 2
+    assert capsys.readouterr().err.strip() == f"mitsuforest: {blocker}: the output folder is a file"
 
 
 def _empty_pcd(path):

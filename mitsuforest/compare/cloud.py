@@ -97,7 +97,7 @@ def cloud_from_columns(columns: dict, name: str, scheme: str) -> Cloud:
         intensity = None
         notes.append("intensity is 0 everywhere: left out")
     scan_angle = _optional(columns, "scan_angle", np.float32, notes, "no scan angle")
-    classification = _optional(columns, "classification", np.int16, notes, "no classes")
+    classification = np.asarray(columns["classification"], np.int16) if "classification" in columns else None
     return Cloud(name, *(np.asarray(columns[a], np.float64) for a in "xyz"), rn, nr, intensity, scan_angle,
                  classification, scheme, notes)
 

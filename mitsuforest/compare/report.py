@@ -78,7 +78,8 @@ def _ground(cloud: Cloud, notes: list) -> tuple[np.ndarray, str]:
     source = (f"lowest-point filter (lowest point per {m.FILTER_CELL_M:g} m cell within {m.FILTER_RISE_M:g} m "
               f"of the lowest of the {m.FILTER_WINDOW}x{m.FILTER_WINDOW} cells around it, points within "
               f"{m.FILTER_BAND_M:g} m of their surface)")
-    notes.append(f"no ground points ({scheme}): ground from the {source}")
+    lacking = "no classes" if cloud.classification is None else f"no ground points ({scheme})"
+    notes.append(f"{lacking}: ground from the {source}")
     return m.lowest_point_ground(cloud.x, cloud.y, cloud.z), source
 
 
