@@ -12,6 +12,7 @@ from .report import RETURN_NUMBERS, Description
 DPI = 100
 COLOURS = ("#1f5fa8", "#c8442b")      # A, B
 MAP_PIXELS = 300                      # a density map's cells on its longer side, at least 1 m each
+INTENSITY_TOP = 4.0                   # the intensity panel's right end at most (x the ground median)
 
 
 def write_compare_figure(path, a: Description, b: Description) -> None:
@@ -59,7 +60,7 @@ def _intensity(ax, descriptions, labels) -> None:
     if not present:
         ax.text(0.5, 0.5, "no intensity", ha="center", va="center", transform=ax.transAxes)
     else:
-        top = max(float(np.percentile(v, 99.5)) for v in present)
+        top = min(max(float(np.percentile(v, 99)) for v in present), INTENSITY_TOP)
         bins = np.linspace(0, max(top, 1e-9), 60)
         for d, label, colour in zip(descriptions, labels, COLOURS):
             if d.intensity is None:
@@ -70,7 +71,7 @@ def _intensity(ax, descriptions, labels) -> None:
                     ax.hist(values, bins, density=True, histtype="step", ls=style, color=colour, lw=1.3,
                             label=f"{label.split(':')[0]} return {r} ({len(values):,})")
         ax.legend(fontsize=8)
-    ax.set(xlabel="intensity / median of first-return ground echoes", ylabel="density",
+    ax.set(xlabel="intensity / median intensity of first-return ground echoes", ylabel="density",
            title="Intensity by return number")
     ax.grid(alpha=0.3)
 
@@ -86,8 +87,12 @@ def _density(fig, ax, d: Description, label: str) -> None:
     shown = ax.imshow(image, origin="lower", extent=(0, bins[0][-1], 0, bins[1][-1]), cmap="viridis",
                       interpolation="nearest")
     fig.colorbar(shown, ax=ax, label="points per m²", shrink=0.85)
-    ax.set(xlabel=f"x − {x0:.0f} (m)", ylabel=f"y − {y0:.0f} (m)",
+    ax.set(xlabel=_offset_label("x", x0), ylabel=_offset_label("y", y0),
            title=f"Density, {label} ({cell:g} m cells; blank: no point)")
+
+
+def _offset_label(axis: str, origin: float) -> str:
+    return f"{axis} − {origin:.0f} (m)" if origin else f"{axis} (m)"
 
 
 def _scan_angles(ax, descriptions, labels) -> None:
