@@ -175,10 +175,12 @@ def lowest_point_ground(x: np.ndarray, y: np.ndarray, z: np.ndarray, cell: float
     lowest candidate in the ``window`` × ``window`` cells around it (a crown's lowest point, higher than
     the ground beside it, is dropped); the surface through the kept candidates (:func:`ground_model`)
     makes every point within ``band`` metres of it ground. Slopes up to about rise / (window // 2
-    cells) pass: 1.5 m over 4 m, 20° with the defaults.
+    cells) pass: 1.5 m over 4 m, 20° with the defaults. The cells grow for a file so wide that they
+    would number more than MAX_GRID_CELLS.
     """
     from scipy.ndimage import minimum_filter
     origin = grid_origin(x, y)
+    cell = max(cell, max(np.max(x) - origin[0], np.max(y) - origin[1]) / np.sqrt(MAX_GRID_CELLS))
     ix = np.floor((x - origin[0]) / cell).astype(np.int64)
     iy = np.floor((y - origin[1]) / cell).astype(np.int64)
     lowest = np.full((ix.max() + 1, iy.max() + 1), np.inf)

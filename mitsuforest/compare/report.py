@@ -156,8 +156,8 @@ def compare_files(a, b, out_dir=None) -> dict:
         from .figure import write_compare_figure
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)
+        write_compare_figure(out / "compare.png", da, db)    # first: a failing figure leaves no compare.json
         write_json(out / "compare.json", result)
-        write_compare_figure(out / "compare.png", da, db)
     return result
 
 
