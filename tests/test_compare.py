@@ -150,7 +150,8 @@ def _foreign_las(path, points, point_format=6, ground=True):
     return path
 
 
-@pytest.mark.parametrize("kind", ["foreign LAS 1.4 (format 6)", "foreign LAS 1.2 (format 1)", "our LAS", "our LAZ"])
+@pytest.mark.parametrize("kind", ["foreign LAS 1.4 (format 6)", "foreign LAS 1.2 (format 1)",
+                                  "foreign LAS 1.2 (format 0, no GPS time)", "our LAS", "our LAZ"])
 def test_every_kind_of_file_reads_as_our_pcd(kind, tmp_path):
     """The same points from our PCD and from LAS/LAZ files of ours or another tool (ASPRS classes, no
     instance fields, a georeferenced offset) are at distance zero; scan angles are read in degrees."""
@@ -158,7 +159,7 @@ def test_every_kind_of_file_reads_as_our_pcd(kind, tmp_path):
     points = _forest()
     pcd = _our_pcd(tmp_path / "ours.pcd", points)
     if kind.startswith("foreign"):
-        other = _foreign_las(tmp_path / "other.las", points, point_format=6 if "format 6" in kind else 1)
+        other = _foreign_las(tmp_path / "other.las", points, point_format=int(kind.split("format ")[1][0]))
     else:
         other = tmp_path / ("ours.laz" if "LAZ" in kind else "ours.las")
         write_las(other, points, offset=[0, 0, 0])
@@ -166,7 +167,7 @@ def test_every_kind_of_file_reads_as_our_pcd(kind, tmp_path):
     b = result["b"]
     assert b["classes"] == ("ASPRS" if kind.startswith("foreign") else "mitsuforest")
     assert b["ground"]["points"] == 1200 and b["canopy_height_m"]["p95"] == pytest.approx(10.0, abs=1e-3)
-    assert b["scan_angle_deg"]["max_abs"] == pytest.approx(19.5 if "format 1" not in kind else 20.0, abs=0.01)
+    assert b["scan_angle_deg"]["max_abs"] == pytest.approx(20.0 if "1.2" in kind else 19.5, abs=0.01)  # whole degrees
     d = result["distance"]
     assert d["returns_tv"] == 0 and d["ground_share"] == 0 and d["density_ratio"] == 1
     assert d["height_ks"] == 0 and d["height_emd_m"] < 1e-3 and d["intensity_ks"] == 0
@@ -292,3 +293,17 @@ def test_the_real_scans_compare_with_finite_distances(real_result):
     assert 0 < d["returns_tv"] < 1 and 0 < d["height_ks"] < 1 and d["height_emd_m"] > 0
     assert d["density_ratio"] == pytest.approx(real_result["b"]["density_per_m2"] / real_result["a"]["density_per_m2"])
     assert real_result["b"]["pulses_by_returns"]["1"] == pytest.approx(26_087 / 37_657)   # every point a first return
+
+
+@needs_real
+def test_the_lowest_point_filter_finds_the_uas_clips_classified_ground():
+    """With its classes ignored, the filter's ground model lies within a few cm of the classified one
+    (README, "Comparing scans")."""
+    cloud = load_cloud(REAL / "UAS_Clip.laz")
+    classified = cloud.classification == 2
+    reference = m.ground_model(cloud.x, cloud.y, cloud.x[classified], cloud.y[classified], cloud.z[classified])
+    found = m.lowest_point_ground(cloud.x, cloud.y, cloud.z)
+    model = m.ground_model(cloud.x, cloud.y, cloud.x[found], cloud.y[found], cloud.z[found])
+    gap = np.abs(model.z - reference.z)
+    assert np.median(gap) < 0.05 and np.percentile(gap, 90) < 0.12, np.percentile(gap, [50, 90])
+    assert np.mean(found[classified]) > 0.95        # the classified ground is found
