@@ -173,6 +173,19 @@ def test_every_kind_of_file_reads_as_our_pcd(kind, tmp_path):
     assert d["height_ks"] == 0 and d["height_emd_m"] < 1e-3 and d["intensity_ks"] == 0
 
 
+def test_noise_and_withheld_points_are_left_out(tmp_path):
+    points = _forest()
+    path = _foreign_las(tmp_path / "a.las", points)
+    las = laspy.read(str(path))
+    las.classification[:3] = 7
+    las.classification[3:5] = 18
+    las.withheld[10:14] = True
+    las.write(str(path))
+    cloud = load_cloud(path)
+    assert len(cloud) == len(points) - 9
+    assert cloud.notes == ["5 noise points (ASPRS classes 7, 18) left out", "4 withheld points left out"]
+
+
 def test_the_command_writes_table_json_and_figure(tmp_path, capsys):
     points = _forest()
     a = _our_pcd(tmp_path / "a.pcd", points)

@@ -80,13 +80,13 @@ def cloud_from_columns(columns: dict, name: str, scheme: str) -> Cloud:
     """A Cloud of a file's columns by name (scan angles already in degrees)."""
     notes = []
     if scheme == "ASPRS" and "classification" in columns:
-        noise = np.isin(columns["classification"], ASPRS_NOISE)
-        if noise.any():
-            notes.append(f"{int(noise.sum()):,} noise points (ASPRS classes 7, 18) left out")
-            columns = {k: np.asarray(v)[~noise] for k, v in columns.items()}
+        columns = _left_out(columns, np.isin(columns["classification"], ASPRS_NOISE),
+                            "noise points (ASPRS classes 7, 18)", notes)
+    if "withheld" in columns:           # LAS: "should not be included in processing"
+        columns = _left_out(columns, np.asarray(columns["withheld"], bool), "withheld points", notes)
     n = len(columns["x"])
     if n == 0:
-        raise UserError(f"{name}: no points other than noise")
+        raise UserError(f"{name}: no points other than noise or withheld ones")
     if "return_number" in columns and "number_of_returns" in columns:
         rn, nr = (np.asarray(columns[k], np.int16) for k in ("return_number", "number_of_returns"))
     else:
@@ -100,6 +100,13 @@ def cloud_from_columns(columns: dict, name: str, scheme: str) -> Cloud:
     classification = np.asarray(columns["classification"], np.int16) if "classification" in columns else None
     return Cloud(name, *(np.asarray(columns[a], np.float64) for a in "xyz"), rn, nr, intensity, scan_angle,
                  classification, scheme, notes)
+
+
+def _left_out(columns: dict, drop: np.ndarray, what: str, notes: list) -> dict:
+    if not drop.any():
+        return columns
+    notes.append(f"{int(drop.sum()):,} {what} left out")
+    return {k: np.asarray(v)[~drop] for k, v in columns.items()}
 
 
 def _optional(columns: dict, key: str, dtype, notes: list, missing: str):
