@@ -1,4 +1,4 @@
-"""The ``mitsuforest`` command line: render, plan, trees, export, dataset, info.
+"""The ``mitsuforest`` command line: render, plan, trees, export, dataset, info, compare.
 
 User errors (bad files, bad values, refused overwrites, a busy or unwritable output folder) print
 one line ``mitsuforest: ...`` and exit with code 2, without a traceback. A write that fails mid-run
@@ -74,6 +74,17 @@ def _parser() -> argparse.ArgumentParser:
 
     i = sub.add_parser("info", help="summarise a point file", description="Summarise a PCD, LAS or LAZ file.")
     i.add_argument("file", type=Path, help="a .pcd, .las or .laz file")
+
+    c = sub.add_parser("compare", help="compare two point files: a table, compare.json and compare.png",
+                       description="Two point files (PCD, LAS or LAZ; ours or another tool's) side by side: "
+                                   "density, spacing, returns, heights above the ground, canopy, ground share, "
+                                   "intensity and scan angles, and the distances between them (see README, "
+                                   "\"Comparing scans\"). The table goes to stdout, compare.json and "
+                                   "compare.png to the output folder.")
+    c.add_argument("a", type=Path, help="the first point file (A; a real scan, say)")
+    c.add_argument("b", type=Path, help="the second point file (B; distances are B against A)")
+    c.add_argument("-o", "--output", type=Path, default=Path("out/compare"),
+                   help="output folder (default: out/compare)")
     return p
 
 
@@ -81,7 +92,7 @@ def main(argv=None) -> int:
     args = _parser().parse_args(argv)
     previous = signal.signal(signal.SIGTERM, raise_terminated) if in_main_thread() else None
     try:
-        if args.command != "info":
+        if args.command not in ("info", "compare"):
             _preload()
         code = _COMMANDS[args.command](args) or 0
         sys.stdout.flush()                    # a closed pipe shows here, not in a traceback at exit
@@ -207,8 +218,19 @@ def _info(args) -> int:
     return 0
 
 
+def _compare(args) -> int:
+    from .compare import compare_files, format_table
+    result = compare_files(args.a, args.b, out_dir=args.output)
+    for side in ("a", "b"):
+        for note in result[side]["notes"]:
+            print(f"mitsuforest: {result[side]['file']}: {note}", file=sys.stderr)
+    print(format_table(result))
+    print(f"wrote compare.json and compare.png to {args.output}")
+    return 0
+
+
 _COMMANDS = {"render": _render, "plan": _plan, "trees": _trees, "export": _export, "dataset": _dataset,
-             "info": _info}
+             "info": _info, "compare": _compare}
 
 if __name__ == "__main__":
     raise SystemExit(main())

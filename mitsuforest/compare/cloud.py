@@ -1,0 +1,116 @@
+"""Any point file (PCD, LAS, LAZ; ours or another tool's) as one common set of numpy fields."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..classes import CLASS_NAMES, GROUND
+from ..errors import UserError
+
+ASPRS_GROUND = 2
+ASPRS_NOISE = (7, 18)         # low and high noise: left out of a comparison of another tool's file
+LAS_SCAN_ANGLE_UNIT = 0.006   # degrees per count of LAS 1.4's scan_angle (point formats 6-10)
+
+
+@dataclass
+class Cloud:
+    """The fields a comparison reads, each (n,); None where the file has no such field.
+
+    :param scheme: ``"mitsuforest"`` (our classes, ground 1) or ``"ASPRS"`` (ground 2).
+    :param notes: what was missing and what stands in for it, in words.
+    """
+
+    name: str
+    x: np.ndarray
+    y: np.ndarray
+    z: np.ndarray
+    return_number: np.ndarray
+    number_of_returns: np.ndarray
+    intensity: np.ndarray | None = None
+    scan_angle: np.ndarray | None = None          # degrees
+    classification: np.ndarray | None = None
+    scheme: str = "ASPRS"
+    notes: list[str] = field(default_factory=list)
+
+    def __len__(self) -> int:
+        return len(self.x)
+
+    @property
+    def ground_code(self) -> int:
+        return GROUND if self.scheme == "mitsuforest" else ASPRS_GROUND
+
+
+def load_cloud(path) -> Cloud:
+    """Read a ``.pcd``, ``.las`` or ``.laz`` file (through :func:`mitsuforest.write.info.load_points`).
+
+    :raises UserError: a missing, damaged or foreign file, or one without points.
+    """
+    from ..write.info import load_points
+    columns, _, class_names = load_points(path)
+    if len(columns["x"]) == 0:
+        raise UserError(f"{path}: the file holds no points")
+    if "scan_angle" in columns and Path(path).suffix.lower() != ".pcd":   # LAS 1.4 counts; our PCD has degrees
+        columns = {**columns, "scan_angle": columns["scan_angle"] * LAS_SCAN_ANGLE_UNIT}
+    elif "scan_angle_rank" in columns:                                     # LAS point formats 0-5: whole degrees
+        columns = {**columns, "scan_angle": columns["scan_angle_rank"]}
+    if "amplitude" in columns and class_names is CLASS_NAMES:   # our LAS: the exact amplitude, as our PCD's
+        columns = {**columns, "intensity": columns["amplitude"]}   # intensity (16-bit intensity may clip)
+    return cloud_from_columns(columns, Path(path).name, "mitsuforest" if class_names is CLASS_NAMES else "ASPRS")
+
+
+def as_cloud(value, name: str = "cloud") -> Cloud:
+    """A :class:`Cloud` of ``value``: a Cloud, a path, or points in memory (a structured array such as
+    ``render(...).points``, or a mapping of columns), whose classes are taken as ours."""
+    if isinstance(value, Cloud):
+        return value
+    if isinstance(value, (str, Path)):
+        return load_cloud(value)
+    names = value.dtype.names if isinstance(value, np.ndarray) else tuple(value)
+    if not names or not {"x", "y", "z"} <= set(names):
+        raise UserError(f"{name}: no x, y, z fields: not a point cloud")
+    if len(value["x"]) == 0:
+        raise UserError(f"{name}: no points")
+    return cloud_from_columns({n: value[n] for n in names}, name, "mitsuforest")
+
+
+def cloud_from_columns(columns: dict, name: str, scheme: str) -> Cloud:
+    """A Cloud of a file's columns by name (scan angles already in degrees)."""
+    notes = []
+    if scheme == "ASPRS" and "classification" in columns:
+        columns = _left_out(columns, np.isin(columns["classification"], ASPRS_NOISE),
+                            "noise points (ASPRS classes 7, 18)", notes)
+    if "withheld" in columns:           # LAS: "should not be included in processing"
+        columns = _left_out(columns, np.asarray(columns["withheld"], bool), "withheld points", notes)
+    n = len(columns["x"])
+    if n == 0:
+        raise UserError(f"{name}: no points other than noise or withheld ones")
+    if "return_number" in columns and "number_of_returns" in columns:
+        rn, nr = (np.asarray(columns[k], np.int16) for k in ("return_number", "number_of_returns"))
+    else:
+        rn, nr = np.ones(n, np.int16), np.ones(n, np.int16)
+        notes.append("no return numbers: every point taken as a single-return pulse")
+    intensity = _optional(columns, "intensity", np.float64, notes, "no intensity")
+    if intensity is not None and not np.any(intensity):
+        intensity = None
+        notes.append("intensity is 0 everywhere: left out")
+    scan_angle = _optional(columns, "scan_angle", np.float32, notes, "no scan angle")
+    classification = np.asarray(columns["classification"], np.int16) if "classification" in columns else None
+    return Cloud(name, *(np.asarray(columns[a], np.float64) for a in "xyz"), rn, nr, intensity, scan_angle,
+                 classification, scheme, notes)
+
+
+def _left_out(columns: dict, drop: np.ndarray, what: str, notes: list) -> dict:
+    if not drop.any():
+        return columns
+    notes.append(f"{int(drop.sum()):,} {what} left out")
+    return {k: np.asarray(v)[~drop] for k, v in columns.items()}
+
+
+def _optional(columns: dict, key: str, dtype, notes: list, missing: str):
+    if key not in columns:
+        notes.append(missing)
+        return None
+    return np.asarray(columns[key], dtype)

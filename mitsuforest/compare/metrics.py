@@ -1,0 +1,256 @@
+"""Metrics of a point cloud and distances between two, as pure functions of numpy arrays.
+
+Coordinates are metres; ``n`` is a cloud's point count. Cells are square, ``cell`` metres on a side,
+counted from an ``origin`` (the lower-left corner of the cloud's x-y bounds, floored to the metre,
+unless given), so that two calls on one cloud agree on its cells.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+CELL_M = 1.0              # covered ground, canopy cover, the ground model's grid
+CANOPY_M = 2.0            # a first return this high above the ground is canopy
+SPACING_QUERIES = 200_000  # nearest-neighbour queries of the spacing: every k-th point beyond this many
+FILTER_CELL_M = 2.0       # the fallback ground filter: lowest point per cell of this size ...
+FILTER_WINDOW = 5         # ... kept when within FILTER_RISE_M of the lowest in this many cells square ...
+FILTER_RISE_M = 1.5
+FILTER_BAND_M = 0.3       # ... and points within this of the surface through the kept points are ground
+PROFILE_RANGE_M = (-20.0, 200.0)  # the vertical profile's bins span at most this
+MAX_GRID_CELLS = 4_000_000  # the ground model's grid coarsens beyond this many cells (a very wide file)
+
+
+def grid_origin(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
+    """The lower-left corner of the (n,) points' bounds, floored to the metre."""
+    return float(np.floor(np.min(x))), float(np.floor(np.min(y)))
+
+
+def cell_keys(x: np.ndarray, y: np.ndarray, cell: float = CELL_M, origin=None) -> np.ndarray:
+    """(n,) int64 key of each point's cell: one number per cell, the same for any subset of the points
+    given the same ``origin`` (which must lie below and left of them)."""
+    x0, y0 = grid_origin(x, y) if origin is None else origin
+    ix = np.floor((np.asarray(x, np.float64) - x0) / cell).astype(np.int64)
+    iy = np.floor((np.asarray(y, np.float64) - y0) / cell).astype(np.int64)
+    return (ix << 32) | iy
+
+
+def covered_area(x: np.ndarray, y: np.ndarray, cell: float = CELL_M) -> float:
+    """Area (m²) of the cells holding at least one of the (n,) points: the ground the scan covers."""
+    if len(x) == 0:
+        return 0.0
+    return float(len(np.unique(cell_keys(x, y, cell))) * cell * cell)
+
+
+def median_spacing(x: np.ndarray, y: np.ndarray, queries: int = SPACING_QUERIES) -> float:
+    """Median 2-D (x-y) distance from a point to its nearest neighbour among the (n,) points.
+
+    The tree holds every point; when there are more than ``queries``, only every k-th point asks
+    (deterministic, and unbiased, unlike thinning the points, which would widen the spacing).
+    Coincident points (distance 0) count as they are. nan for fewer than 2 points.
+    """
+    from scipy.spatial import cKDTree
+    if len(x) < 2:
+        return float("nan")
+    xy = np.column_stack([x - np.min(x), y - np.min(y)])
+    step = max(1, -(-len(xy) // queries))
+    d, _ = cKDTree(xy).query(xy[::step], k=2)
+    return float(np.median(d[:, 1]))
+
+
+def first_returns(return_number: np.ndarray) -> np.ndarray:
+    """(n,) bool: a pulse's first return (return number 1; 0, which LAS forbids, counts as 1)."""
+    return np.asarray(return_number) <= 1
+
+
+def last_returns(return_number: np.ndarray, number_of_returns: np.ndarray) -> np.ndarray:
+    """(n,) bool: a pulse's last return (its return number is its number of returns, or above it)."""
+    return np.asarray(return_number) >= np.asarray(number_of_returns)
+
+
+def pulses_by_returns(return_number: np.ndarray, number_of_returns: np.ndarray) -> np.ndarray:
+    """(k,) pulses by their number of returns (entry 0: none; k - 1 the most returns of a pulse):
+    each pulse is counted once, at its first return, by that point's ``number_of_returns``.
+
+    GPS time is not needed (a file cut from a larger one may hold a pulse's later returns without its
+    first: those are left out).
+    """
+    counts = np.asarray(number_of_returns)[first_returns(return_number)].astype(np.int64)
+    return np.bincount(np.maximum(counts, 1), minlength=2)
+
+
+def shares(counts: np.ndarray) -> np.ndarray:
+    """(k,) ``counts`` over their sum (zeros when the sum is 0)."""
+    counts = np.asarray(counts, np.float64)
+    total = counts.sum()
+    return counts / total if total else counts
+
+
+def total_variation(p: np.ndarray, q: np.ndarray) -> float:
+    """Total variation distance between two discrete distributions (shares of the same categories,
+    the shorter padded with zeros): half the sum of absolute differences, 0 (same) to 1 (disjoint)."""
+    k = max(len(p), len(q))
+    p, q = (np.pad(np.asarray(v, np.float64), (0, k - len(v))) for v in (p, q))
+    return float(0.5 * np.abs(p - q).sum())
+
+
+def ks_statistic(a: np.ndarray, b: np.ndarray) -> float:
+    """Two-sample Kolmogorov-Smirnov statistic: the largest gap between the empirical distribution
+    functions of the samples (m,) and (k,), 0 to 1. nan when either is empty."""
+    from scipy.stats import ks_2samp
+    if len(a) == 0 or len(b) == 0:
+        return float("nan")
+    return float(ks_2samp(a, b).statistic)
+
+
+def earth_movers(a: np.ndarray, b: np.ndarray) -> float:
+    """1-D earth mover's (Wasserstein-1) distance between the samples (m,) and (k,), in their unit:
+    for a sample shifted by d, exactly d. nan when either is empty."""
+    from scipy.stats import wasserstein_distance
+    if len(a) == 0 or len(b) == 0:
+        return float("nan")
+    return float(wasserstein_distance(a, b))
+
+
+@dataclass(frozen=True)
+class GroundModel:
+    """Ground heights on a regular grid of nodes: ``z[i, j]`` at x = x0 + (i - 0.5) cell,
+    y = y0 + (j - 0.5) cell (the centres of the cells from ``x0, y0``, and a ring of cells around)."""
+
+    x0: float
+    y0: float
+    cell: float
+    z: np.ndarray          # (nx, ny)
+
+    def height(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """(n,) ground height under the (n,) points, bilinear between the nodes (held flat beyond)."""
+        from scipy.ndimage import map_coordinates
+        u = (np.asarray(x, np.float64) - self.x0) / self.cell + 0.5
+        v = (np.asarray(y, np.float64) - self.y0) / self.cell + 0.5
+        return map_coordinates(self.z, [u, v], order=1, mode="nearest")
+
+
+def ground_model(x: np.ndarray, y: np.ndarray, gx: np.ndarray, gy: np.ndarray, gz: np.ndarray,
+                 cell: float = CELL_M) -> GroundModel:
+    """The ground under the (n,) points ``x, y`` from the (g,) ground points ``gx, gy, gz``.
+
+    Each ``cell`` holding ground points gives one node (their mean x, y, z); the grid's nodes take the
+    linear interpolation over the Delaunay triangles of these, or beyond their hull the nearest one.
+    The grid spans the points' bounds (it coarsens to at most MAX_GRID_CELLS cells for a wide file).
+    matplotlib's triangle finder looks the grid up (scipy's ``find_simplex`` walks slowly, by seconds,
+    on some regular grids of queries).
+
+    :raises ValueError: no ground points.
+    """
+    from matplotlib.tri import LinearTriInterpolator, Triangulation
+    from scipy.interpolate import NearestNDInterpolator
+    if len(gx) == 0:
+        raise ValueError("no ground points")
+    x0, y0 = grid_origin(x, y)
+    span = max(np.max(x) - x0, np.max(y) - y0, cell)
+    cell = max(cell, span / np.sqrt(MAX_GRID_CELLS))
+    nx, ny = (int(np.floor((np.max(v) - o) / cell)) + 3 for v, o in ((x, x0), (y, y0)))
+    keys = cell_keys(gx, gy, cell, (x0, y0))
+    _, inverse, count = np.unique(keys, return_inverse=True, return_counts=True)
+    local = np.column_stack([np.bincount(inverse, gx - x0), np.bincount(inverse, gy - y0)]) / count[:, None]
+    height = np.bincount(inverse, gz) / count
+    # local coordinates: Qhull loses precision on UTM's millions of metres
+    grid = np.meshgrid((np.arange(nx) - 0.5) * cell, (np.arange(ny) - 0.5) * cell, indexing="ij")
+    nearest = NearestNDInterpolator(local, height)
+    try:
+        linear = LinearTriInterpolator(Triangulation(local[:, 0], local[:, 1]), height)(*grid)
+        z = np.where(np.ma.getmaskarray(linear), nearest(*grid), np.ma.getdata(linear))
+    except (ValueError, RuntimeError):   # fewer than 3 nodes, or all on a line
+        z = nearest(*grid)
+    return GroundModel(x0, y0, cell, np.asarray(z, np.float64).reshape(nx, ny))
+
+
+def lowest_point_ground(x: np.ndarray, y: np.ndarray, z: np.ndarray, cell: float = FILTER_CELL_M,
+                        window: int = FILTER_WINDOW, rise: float = FILTER_RISE_M,
+                        band: float = FILTER_BAND_M) -> np.ndarray:
+    """(n,) bool: ground points found by a lowest-point filter, for clouds without ground classes.
+
+    The lowest point of each ``cell`` is a ground candidate when it lies within ``rise`` metres of the
+    lowest candidate in the ``window`` × ``window`` cells around it (a crown's lowest point, higher than
+    the ground beside it, is dropped); the surface through the kept candidates (:func:`ground_model`)
+    makes every point within ``band`` metres of it ground. Slopes up to about rise / (window // 2
+    cells) pass: 1.5 m over 4 m, 20° with the defaults. The cells grow for a file so wide that they
+    would number more than MAX_GRID_CELLS.
+    """
+    from scipy.ndimage import minimum_filter
+    origin = grid_origin(x, y)
+    cell = max(cell, max(np.max(x) - origin[0], np.max(y) - origin[1]) / np.sqrt(MAX_GRID_CELLS))
+    ix = np.floor((x - origin[0]) / cell).astype(np.int64)
+    iy = np.floor((y - origin[1]) / cell).astype(np.int64)
+    lowest = np.full((ix.max() + 1, iy.max() + 1), np.inf)
+    np.minimum.at(lowest, (ix, iy), z)
+    around = minimum_filter(lowest, size=window, mode="constant", cval=np.inf)
+    keep = np.isfinite(lowest) & (lowest <= around + rise)
+    candidate = keep[ix, iy] & (z == lowest[ix, iy])
+    surface = ground_model(x, y, x[candidate], y[candidate], z[candidate])
+    return np.abs(z - surface.height(x, y)) <= band
+
+
+def vertical_profile(height: np.ndarray, bin_m: float = 1.0, within=PROFILE_RANGE_M) -> tuple[np.ndarray, np.ndarray]:
+    """The (n,) heights' profile: (lower edges (b,), share of the points in each bin (b,)), bins of
+    ``bin_m`` from the floor of the lowest height to past the highest; heights beyond ``within`` (a
+    bird, a pit) are counted in its end bins."""
+    if len(height) == 0:
+        return np.zeros(0), np.zeros(0)
+    height = np.clip(height, *within)
+    lo = np.floor(np.min(height) / bin_m) * bin_m
+    index = np.floor((height - lo) / bin_m).astype(np.int64)
+    return lo + bin_m * np.arange(index.max() + 1), shares(np.bincount(index))
+
+
+def canopy_heights(first_height: np.ndarray, threshold: float = CANOPY_M) -> dict:
+    """p50, p95, p99 (m) of the heights above the ground of first returns (f,) at least ``threshold``
+    high: the canopy's height distribution (nan values when none is that high)."""
+    canopy = first_height[first_height >= threshold]
+    if len(canopy) == 0:
+        return {"p50": float("nan"), "p95": float("nan"), "p99": float("nan")}
+    return {f"p{q}": float(v) for q, v in zip((50, 95, 99), np.percentile(canopy, [50, 95, 99]))}
+
+
+def canopy_cells(fx: np.ndarray, fy: np.ndarray, first_height: np.ndarray, origin, cell: float = CELL_M,
+                 threshold: float = CANOPY_M) -> tuple[np.ndarray, np.ndarray]:
+    """(cell keys (c,), canopy (c,) bool) of the cells holding first returns (f,): canopy where the
+    highest first return is at least ``threshold`` above the ground."""
+    keys = cell_keys(fx, fy, cell, origin)
+    unique, inverse = np.unique(keys, return_inverse=True)
+    top = np.full(len(unique), -np.inf)
+    np.maximum.at(top, inverse, first_height)
+    return unique, top >= threshold
+
+
+def canopy_cover(canopy: np.ndarray) -> float:
+    """Share of the cells holding first returns that are canopy (see :func:`canopy_cells`)."""
+    return float(np.mean(canopy)) if len(canopy) else float("nan")
+
+
+def ground_under_canopy(lx: np.ndarray, ly: np.ndarray, last_ground: np.ndarray, origin, cells: np.ndarray,
+                        canopy: np.ndarray, cell: float = CELL_M) -> float:
+    """Share of the last returns (l,) in canopy cells that are ground points: how often a pulse that
+    meets the canopy still reaches the ground. nan when no last return lies under canopy.
+
+    :param last_ground: (l,) bool, the last returns that are ground points.
+    :param cells, canopy: from :func:`canopy_cells` with the same ``origin`` and ``cell``.
+    """
+    keys = cell_keys(lx, ly, cell, origin)
+    at = np.clip(np.searchsorted(cells, keys), 0, max(len(cells) - 1, 0))
+    under = (cells[at] == keys) & canopy[at] if len(cells) else np.zeros(len(keys), bool)
+    return float(np.mean(last_ground[under])) if under.any() else float("nan")
+
+
+def normalised_intensity(intensity: np.ndarray, reference: float) -> np.ndarray:
+    """(n,) intensity over ``reference`` (the median of first-return ground echoes), so that files
+    with other intensity scales (16-bit counts, amplitudes) compare."""
+    return np.asarray(intensity, np.float64) / reference
+
+
+def percentiles(values: np.ndarray, qs=(5, 50, 95)) -> dict:
+    """``{"p5": ..., ...}`` of the (n,) values; nan values when empty."""
+    if len(values) == 0:
+        return {f"p{q}": float("nan") for q in qs}
+    return {f"p{q}": float(v) for q, v in zip(qs, np.percentile(values, qs))}

@@ -1,0 +1,322 @@
+"""``mitsuforest compare``: distances of constructed clouds against their analytic values, files of
+every kind read alike, bad input refused in one line, and the real scans where ../shared has them."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import laspy
+import numpy as np
+import pytest
+
+from mitsuforest.cli import main
+from mitsuforest.compare import Cloud, compare_clouds, compare_files, describe, load_cloud
+from mitsuforest.compare import metrics as m
+
+ROOT = Path(__file__).resolve().parents[1]
+# shared/ lies beside the project (CI), or beside the folder of git worktrees that holds it
+REAL = next((p for p in (ROOT.parent / "shared" / "data" / "real", ROOT.parent.parent / "shared" / "data" / "real")
+             if p.is_dir()), ROOT.parent / "shared" / "data" / "real")
+DISTANCES = {"returns_tv", "height_ks", "height_emd_m", "canopy_p95_m", "ground_share", "intensity_ks",
+             "density_ratio"}
+SIDE = 20.0     # the constructed plot, m
+STEP = 0.5      # its pulses' spacing, m: 4 pulses in each 1 m cell
+
+
+def _forest(canopy_m=10.0, two_returns="every other", slope=0.0):
+    """A plot of SIDE × SIDE m scanned every STEP m: ground (z = slope·x) everywhere, one canopy layer
+    ``canopy_m`` above it over the left half (x < 10). There, ``two_returns`` of the pulses ("every
+    other", "all") return from the canopy and then the ground, the others from the canopy only;
+    on the right half each pulse returns once from the ground.
+
+    Returns our point array (POINT_DTYPE: classes ground 1, tree_leaves 3). With "every other":
+    2,000 points, 1,600 pulses (1,200 with one return, 400 with two), 1,200 ground points and 800
+    canopy points, half the plot canopy; intensity 1.0 ground, 0.5 canopy, 0.25 ground behind canopy.
+    """
+    from mitsuforest.scan import POINT_DTYPE
+    cx, cy = np.meshgrid(np.arange(0.25, SIDE, STEP), np.arange(0.25, SIDE, STEP), indexing="ij")
+    cx, cy = cx.ravel(), cy.ravel()
+    column = np.round((cx - 0.25) / STEP).astype(int)
+    under = cx < SIDE / 2
+    two = under & ((column % 2 == 0) if two_returns == "every other" else np.ones_like(under))
+    rows = []   # x, y, height above ground, class, return number, number of returns, intensity, angle
+    for sel, h, cls, rn, nr, amp in ((~under, 0.0, 1, 1, 1, 1.0), (under & ~two, canopy_m, 3, 1, 1, 0.5),
+                                     (two, canopy_m, 3, 1, 2, 0.5), (two, 0.0, 1, 2, 2, 0.25)):
+        k = int(sel.sum())
+        rows.append((cx[sel], cy[sel], np.full(k, h), np.full(k, cls), np.full(k, rn), np.full(k, nr),
+                     np.full(k, amp), (cx[sel] - SIDE / 2) * 2.0))
+    cols = [np.concatenate(c) for c in zip(*rows)]
+    points = np.zeros(len(cols[0]), POINT_DTYPE)
+    points["x"], points["y"] = cols[0], cols[1]
+    points["z"] = cols[2] + slope * cols[0]
+    points["classification"], points["return_number"], points["number_of_returns"] = cols[3], cols[4], cols[5]
+    points["intensity"], points["scan_angle"] = cols[6], cols[7]
+    return points
+
+
+def test_a_cloud_against_itself_is_at_distance_zero():
+    points = _forest()
+    d = compare_clouds(points, points)["distance"]
+    assert set(d) == DISTANCES
+    assert {k: v for k, v in d.items() if k != "density_ratio"} == dict.fromkeys(DISTANCES - {"density_ratio"}, 0.0)
+    assert d["density_ratio"] == 1.0
+
+
+def test_the_constructed_forest_measures_as_built():
+    s = compare_clouds(_forest(), _forest())["a"]
+    assert s["points"] == 2000 and s["pulses"] == 1600
+    assert s["covered_area_m2"] == 400 and s["density_per_m2"] == 5.0 and s["pulse_density_per_m2"] == 4.0
+    assert s["spacing_m"] == pytest.approx(STEP)
+    assert s["pulses_by_returns"] == {"1": 0.75, "2": 0.25}
+    assert s["canopy_height_m"] == pytest.approx({"p50": 10.0, "p95": 10.0, "p99": 10.0}, abs=1e-9)
+    assert s["canopy_cover_2m"] == 0.5
+    assert s["ground_share"] == pytest.approx(1200 / 2000)
+    assert s["ground_share_under_canopy"] == 0.5     # last returns under canopy: 400 ground, 400 canopy-only
+    assert s["intensity"]["reference"] == 1.0 and s["intensity"]["by_return"]["2"]["p50"] == 0.25
+    assert s["height_profile"]["lowest_m"] == 0.0 and s["height_profile"]["shares"][0] == 0.6
+    assert s["height_profile"]["shares"][10] == 0.4 and sum(s["height_profile"]["shares"]) == pytest.approx(1)
+    assert s["scan_angle_deg"]["max_abs"] == pytest.approx(19.5)
+    assert s["ground"] == {"from": "class 1 (our ground)", "points": 1200} and s["notes"] == []
+
+
+@pytest.mark.parametrize("d", [0.5, 3.0])
+def test_a_canopy_raised_by_d(d):
+    """800 of 2,000 heights move up by d: EMD 0.4 d, KS 0.4 (the CDFs part between 10 and 10 + d)."""
+    dist = compare_clouds(_forest(), _forest(canopy_m=10.0 + d))["distance"]
+    assert dist["height_emd_m"] == pytest.approx(0.4 * d)
+    assert dist["height_ks"] == pytest.approx(0.4)
+    assert dist["canopy_p95_m"] == pytest.approx(d)
+    assert dist["returns_tv"] == 0 and dist["ground_share"] == 0 and dist["density_ratio"] == 1
+
+
+def test_another_returns_mix():
+    """Every canopy pulse returning twice: pulses 50 % / 50 % against 75 % / 25 %, TV 0.25; under the
+    canopy every last return is ground (1.0 against 0.5)."""
+    dist = compare_clouds(_forest(), _forest(two_returns="all"))["distance"]
+    assert dist["returns_tv"] == pytest.approx(0.25)
+    assert dist["ground_share"] == pytest.approx(0.5)
+    assert dist["density_ratio"] == pytest.approx(2400 / 2000)
+
+
+def test_a_thinned_copy_has_half_the_density():
+    points = _forest()
+    dist = compare_clouds(points, points[::2])["distance"]   # each 1 m cell keeps points
+    assert dist["density_ratio"] == 0.5
+
+
+def test_without_ground_classes_the_lowest_point_filter_finds_a_sloped_ground():
+    """A 20 % slope and no classes: the filter's ground gives the canopy its 10 m, as the classes do."""
+    points = _forest(slope=0.2)
+    classed = describe(load_cloud_like(points)).summary
+    bare = describe(load_cloud_like(points, classes=False)).summary
+    assert classed["canopy_height_m"]["p50"] == pytest.approx(10.0, abs=1e-6)
+    assert bare["canopy_height_m"]["p50"] == pytest.approx(10.0, abs=0.02)
+    assert bare["ground"]["points"] == 1200 and "lowest-point filter" in bare["ground"]["from"]
+    assert any(n.startswith("no classes: ground from the lowest-point filter") for n in bare["notes"])
+
+
+def load_cloud_like(points, classes=True) -> Cloud:
+    from mitsuforest.compare.cloud import as_cloud
+    cloud = as_cloud(points)
+    if not classes:
+        cloud.classification = None
+    return cloud
+
+
+# Files: ours and another tool's ---------------------------------------------------------------------
+
+def _our_pcd(path, points):
+    from mitsuforest.write.pcd import pcd_header
+    path.write_bytes(pcd_header(points.dtype, len(points)).encode("ascii") + points.tobytes())
+    return path
+
+
+def _foreign_las(path, points, point_format=6, ground=True):
+    """A LAS as another tool writes it: ASPRS classes (2 ground, 5 high vegetation), 16-bit intensity,
+    no extra dimensions."""
+    las = laspy.LasData(laspy.LasHeader(point_format=point_format, version="1.4" if point_format >= 6 else "1.2"))
+    las.header.offsets, las.header.scales = [470000.0, 3810000.0, 2000.0], [0.001] * 3
+    las.x, las.y, las.z = points["x"] + 470000.0, points["y"] + 3810000.0, points["z"] + 2000.0
+    las.classification = np.where(points["classification"] == 1, 2 if ground else 1, 5).astype(np.uint8)
+    las.return_number, las.number_of_returns = points["return_number"], points["number_of_returns"]
+    las.intensity = np.round(points["intensity"] * 40000).astype(np.uint16)
+    if point_format >= 6:
+        las.scan_angle = np.round(points["scan_angle"] / 0.006).astype(np.int16)
+    else:
+        las.scan_angle_rank = np.round(points["scan_angle"]).astype(np.int8)
+    las.write(str(path))
+    return path
+
+
+@pytest.mark.parametrize("kind", ["foreign LAS 1.4 (format 6)", "foreign LAS 1.2 (format 1)",
+                                  "foreign LAS 1.2 (format 0, no GPS time)", "our LAS", "our LAZ"])
+def test_every_kind_of_file_reads_as_our_pcd(kind, tmp_path):
+    """The same points from our PCD and from LAS/LAZ files of ours or another tool (ASPRS classes, no
+    instance fields, a georeferenced offset) are at distance zero; scan angles are read in degrees."""
+    from mitsuforest.write.las import write_las
+    points = _forest()
+    pcd = _our_pcd(tmp_path / "ours.pcd", points)
+    if kind.startswith("foreign"):
+        other = _foreign_las(tmp_path / "other.las", points, point_format=int(kind.split("format ")[1][0]))
+    else:
+        other = tmp_path / ("ours.laz" if "LAZ" in kind else "ours.las")
+        write_las(other, points, offset=[0, 0, 0])
+    result = compare_files(pcd, other)
+    b = result["b"]
+    assert b["classes"] == ("ASPRS" if kind.startswith("foreign") else "mitsuforest")
+    assert b["ground"]["points"] == 1200 and b["canopy_height_m"]["p95"] == pytest.approx(10.0, abs=1e-3)
+    assert b["scan_angle_deg"]["max_abs"] == pytest.approx(20.0 if "1.2" in kind else 19.5, abs=0.01)  # whole degrees
+    d = result["distance"]
+    assert d["returns_tv"] == 0 and d["ground_share"] == 0 and d["density_ratio"] == 1
+    assert d["height_ks"] == 0 and d["height_emd_m"] < 1e-3 and d["intensity_ks"] == 0
+
+
+def test_noise_and_withheld_points_are_left_out(tmp_path):
+    points = _forest()
+    path = _foreign_las(tmp_path / "a.las", points)
+    las = laspy.read(str(path))
+    las.classification[:3] = 7
+    las.classification[3:5] = 18
+    las.withheld[10:14] = True
+    las.write(str(path))
+    cloud = load_cloud(path)
+    assert len(cloud) == len(points) - 9
+    assert cloud.notes == ["5 noise points (ASPRS classes 7, 18) left out", "4 withheld points left out"]
+
+
+def test_the_command_writes_table_json_and_figure(tmp_path, capsys):
+    points = _forest()
+    a = _our_pcd(tmp_path / "a.pcd", points)
+    b = _foreign_las(tmp_path / "b.las", _forest(canopy_m=12.0))
+    out = tmp_path / "cmp"
+    assert main(["compare", str(a), str(b), "-o", str(out)]) == 0
+    table = capsys.readouterr().out
+    assert "canopy_p95_m +2.00" in table and "height_emd_m 0.80" in table and "A: a.pcd" in table
+    saved = json.loads((out / "compare.json").read_text())
+    assert set(saved) == {"a", "b", "distance"} and set(saved["distance"]) == DISTANCES
+    assert saved["distance"]["canopy_p95_m"] == pytest.approx(2.0)
+    png = (out / "compare.png").read_bytes()
+    assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 50_000
+    assert sorted(p.name for p in out.iterdir()) == ["compare.json", "compare.png"]   # no temporary left
+
+
+def test_no_ground_class_is_said_on_stderr(tmp_path, capsys):
+    points = _forest()
+    a = _foreign_las(tmp_path / "a.las", points, ground=False)
+    assert main(["compare", str(a), str(a), "-o", str(tmp_path / "o")]) == 0
+    err = capsys.readouterr().err
+    assert err.count("no ground points (class 2 (ASPRS ground)): ground from the lowest-point filter") == 2
+
+
+def test_a_bare_xyz_pcd_compares_with_what_stands_in(tmp_path, capsys):
+    """Another tool's PCD with x, y, z only: single-return pulses, the filter's ground, no intensity."""
+    points = _forest()
+    bare = np.zeros(len(points), [("x", "<f4"), ("y", "<f4"), ("z", "<f4")])
+    for axis in "xyz":
+        bare[axis] = points[axis]
+    path = _our_pcd(tmp_path / "bare.pcd", bare)
+    assert main(["compare", str(_our_pcd(tmp_path / "ours.pcd", points)), str(path), "-o", str(tmp_path / "o")]) == 0
+    err = capsys.readouterr().err
+    for said in ("no return numbers: every point taken as a single-return pulse", "no intensity",
+                 "no classes: ground from the lowest-point filter"):
+        assert f"mitsuforest: bare.pcd: {said}" in err, err
+    saved = json.loads((tmp_path / "o" / "compare.json").read_text())
+    assert saved["b"]["pulses_by_returns"] == {"1": 1.0} and saved["b"]["intensity"] is None
+    assert saved["distance"]["intensity_ks"] is None and saved["distance"]["returns_tv"] == pytest.approx(0.25)
+    assert saved["b"]["canopy_height_m"]["p95"] == pytest.approx(10.0)   # the filter's ground is the plane z = 0
+
+
+def test_an_output_folder_that_is_a_file_is_refused_first(tmp_path, capsys):
+    a = _our_pcd(tmp_path / "a.pcd", _forest())
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    assert main(["compare", str(a), str(a), "-o", str(blocker)]) == 2
+    assert capsys.readouterr().err.strip() == f"mitsuforest: {blocker}: the output folder is a file"
+
+
+def _empty_pcd(path):
+    from mitsuforest.scan import POINT_DTYPE
+    return _our_pcd(path, np.zeros(0, POINT_DTYPE))
+
+
+BAD = {
+    "missing": (lambda t: t / "nope.laz", "file not found"),
+    "empty": (lambda t: _empty_pcd(t / "empty.pcd"), "the file holds no points"),
+    "damaged": (lambda t: _damaged(t / "bad.las"), "cannot read"),
+    "a folder": (lambda t: t, "is a folder"),
+}
+
+
+def _damaged(path):
+    path.write_bytes(bytes(range(256)) * 40)
+    return path
+
+
+@pytest.mark.parametrize("case", sorted(BAD))
+@pytest.mark.parametrize("side", ["A", "B"])
+def test_bad_input_gets_one_line_and_exit_2(case, side, tmp_path, capsys):
+    make, message = BAD[case]
+    bad = make(tmp_path)
+    good = _our_pcd(tmp_path / "good.pcd", _forest())
+    args = [bad, good] if side == "A" else [good, bad]
+    out = tmp_path / "out"
+    assert main(["compare", *map(str, args), "-o", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and err.startswith(f"mitsuforest: {bad}: ") and message in err, err
+    assert not out.exists() or not any(out.iterdir())
+
+
+# The real scans in ../shared/data/real ------------------------------------------------------------------
+
+needs_real = pytest.mark.skipif(not (REAL / "UAS_Clip.laz").is_file() or not (REAL / "MixedConifer.laz").is_file(),
+                                reason=f"the real scans are not in {REAL} (GPL data kept beside the project)")
+
+
+@pytest.fixture(scope="module")
+def real_result():
+    return compare_clouds(REAL / "UAS_Clip.laz", REAL / "MixedConifer.laz")
+
+
+@needs_real
+def test_the_uas_clip_measures_as_its_readme_says(real_result):
+    """README of shared/data/real: points by number_of_returns 141,723 / 143,458 / 75,163 / 24,411 /
+    5,272 / 850, as pulses 57.7 % single-return; up to 6 returns; ~559 points/m² over ~700 m²; scan
+    angles up to ±70°; ASPRS classes with ground."""
+    cloud = load_cloud(REAL / "UAS_Clip.laz")
+    assert len(cloud) == 390_877 - 2 and cloud.notes == ["2 noise points (ASPRS classes 7, 18) left out"]
+    by_points = np.bincount(cloud.number_of_returns)[1:]
+    assert by_points.tolist() == pytest.approx([141_723, 143_458, 75_163, 24_411, 5_272, 850], abs=2)
+    s = real_result["a"]
+    as_pulses = m.shares(by_points / np.arange(1, 7))    # each pulse once: its points over its returns
+    assert s["pulses_by_returns"]["1"] == pytest.approx(0.577, abs=0.002)
+    assert [s["pulses_by_returns"][str(k)] for k in range(1, 7)] == pytest.approx(as_pulses, abs=0.003)
+    assert max(map(int, s["pulses_by_returns"])) == 6
+    assert 650 < s["covered_area_m2"] < 760 and 500 < s["density_per_m2"] < 600
+    assert s["scan_angle_deg"]["max_abs"] == pytest.approx(70, abs=0.1)
+    assert s["ground"]["from"] == "class 2 (ASPRS ground)"
+    assert 25 < s["canopy_height_m"]["p99"] < 35                         # canopy up to ~34 m
+
+
+@needs_real
+def test_the_real_scans_compare_with_finite_distances(real_result):
+    d = real_result["distance"]
+    assert set(d) == DISTANCES and all(isinstance(v, float) and math.isfinite(v) for v in d.values()), d
+    assert 0 < d["returns_tv"] < 1 and 0 < d["height_ks"] < 1 and d["height_emd_m"] > 0
+    assert d["density_ratio"] == pytest.approx(real_result["b"]["density_per_m2"] / real_result["a"]["density_per_m2"])
+    assert real_result["b"]["pulses_by_returns"]["1"] == pytest.approx(26_087 / 37_657)   # every point a first return
+
+
+@needs_real
+def test_the_lowest_point_filter_finds_the_uas_clips_classified_ground():
+    """With its classes ignored, the filter's ground model lies within a few cm of the classified one
+    (README, "Comparing scans")."""
+    cloud = load_cloud(REAL / "UAS_Clip.laz")
+    classified = cloud.classification == 2
+    reference = m.ground_model(cloud.x, cloud.y, cloud.x[classified], cloud.y[classified], cloud.z[classified])
+    found = m.lowest_point_ground(cloud.x, cloud.y, cloud.z)
+    model = m.ground_model(cloud.x, cloud.y, cloud.x[found], cloud.y[found], cloud.z[found])
+    gap = np.abs(model.z - reference.z)
+    assert np.median(gap) < 0.05 and np.percentile(gap, 90) < 0.12, np.percentile(gap, [50, 90])
+    assert np.mean(found[classified]) > 0.95        # the classified ground is found
