@@ -321,3 +321,40 @@ def test_a_plot_failing_on_a_worker_fails_alone(tmp_path, capsys, cluster):
     assert "1 of 2 plots failed (first: plot_0001: " in err and "understory.rocks: 400 rocks do not fit" in err, err
     assert [r["id"] for r in _index(out) if r["kind"] == "plot"] == ["plot_0000"]
     assert json.loads((out / "dataset_manifest.json").read_text())["plots"]["failed"].keys() == {"plot_0001"}
+
+
+class _KeyRecorder:
+    """A stand-in Dask client that records the keys it is given (every plot counts as unfinished)."""
+
+    def __init__(self):
+        self.keys = []
+
+    def submit(self, *args, key, **kwargs):
+        self.keys.append(key)
+        return type("Future", (), {"key": key})()
+
+    def gather(self, futures):
+        return [None] * len(futures)
+
+
+@pytest.mark.parametrize("legs_per_task", [0, 1])
+def test_task_keys_are_unique_per_dataset_and_kept_by_a_rerun(tmp_path, legs_per_task):
+    """Two datasets on one shared scheduler never share a task key (their plots have the same names);
+    the same dataset submitted again gets the same keys, and each key names its plot."""
+    from mitsuforest.dataset import load_dataset, runner
+    split = f"legs_per_task: {legs_per_task}\n" if legs_per_task else ""
+    one = load_dataset(_dataset_file(tmp_path, "plots: 2\n" + split))
+    other_seed = load_dataset(_dataset_file(tmp_path, "plots: 2\nseed: 7\n" + split))
+
+    def keys(dataset, root):
+        client = _KeyRecorder()
+        submit = runner._submit_split_plots if legs_per_task else runner._submit_plots
+        submit(client, dataset, str(root), 1)
+        return client.keys
+
+    first = keys(one, tmp_path / "a")
+    assert len(first) == len(set(first)) >= 2
+    assert keys(one, tmp_path / "a") == first                         # a re-run keeps its keys
+    assert not set(first) & set(keys(one, tmp_path / "b"))          # the same file into another folder
+    assert not set(first) & set(keys(other_seed, tmp_path / "a"))   # another dataset into the same folder
+    assert {runner._plot_of(k) for k in first} == {"plot_0000", "plot_0001"}
