@@ -107,6 +107,20 @@ def test_code_hash_changes_with_a_library_version(monkeypatch):
         cache.code_hash.cache_clear()
 
 
+@pytest.mark.parametrize("dist", ["numpy", "trimesh", "manifold3d", "pymeshfix", "scipy"])
+def test_code_hash_changes_with_each_library_that_shapes_a_model(monkeypatch, dist):
+    """A new version of any one library whose results a model's bytes hold (pymeshfix repairs imported
+    wood; scipy finds trimesh's loose parts) makes a new key, so no stale repair is reused."""
+    version = cache.importlib.metadata.version
+    before = cache.code_hash()
+    monkeypatch.setattr(cache.importlib.metadata, "version", lambda d: "0.0" if d == dist else version(d))
+    cache.code_hash.cache_clear()
+    try:
+        assert cache.code_hash() != before
+    finally:
+        cache.code_hash.cache_clear()
+
+
 @pytest.mark.parametrize("damage", [b"", b"not a zip file", b"PK\x03\x04 truncated zip"])
 def test_damaged_entry_is_rebuilt(model_cache, damage):
     build = Builds()
