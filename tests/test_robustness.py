@@ -178,6 +178,46 @@ def test_staging_removes_only_its_own_and_dead_renders_folders(tmp_path, pids):
     assert (tmp_path / "test.pcd").read_text() == "ours"
 
 
+@pytest.fixture
+def disk_events(monkeypatch):
+    """Every os.fsync and os.replace, in order: ("fsync", inode) and ("replace", inode of the source)."""
+    events, fsync, replace = [], os.fsync, os.replace
+
+    def record_fsync(fd):
+        events.append(("fsync", os.fstat(fd).st_ino))
+        fsync(fd)
+
+    def record_replace(source, target):
+        events.append(("replace", os.stat(source).st_ino))
+        replace(source, target)
+    monkeypatch.setattr(os, "fsync", record_fsync)
+    monkeypatch.setattr(os, "replace", record_replace)
+    return events
+
+
+def test_atomic_write_flushes_the_file_before_its_rename_and_the_folder_after(tmp_path, disk_events):
+    from mitsuforest.write.atomic import write_text
+    write_text(tmp_path / "a.txt", "content")
+    file, folder = (tmp_path / "a.txt").stat().st_ino, tmp_path.stat().st_ino
+    assert disk_events == [("fsync", file), ("replace", file), ("fsync", folder)]
+
+
+def test_staging_commit_flushes_each_file_before_its_rename_and_the_folder_after(tmp_path, disk_events):
+    staging = Staging(tmp_path, "test")
+    staging.file(".pcd").write_text("points")
+    staging.file("_manifest.json").write_text("{}")
+    staging.commit()
+    pcd, manifest = (tmp_path / "test.pcd").stat().st_ino, (tmp_path / "test_manifest.json").stat().st_ino
+    folder = tmp_path.stat().st_ino
+    renames = [e for e in disk_events if e[0] == "replace"]
+    assert renames == [("replace", pcd), ("replace", manifest)]            # the manifest last
+    for ino in (pcd, manifest):
+        assert disk_events.index(("fsync", ino)) < disk_events.index(("replace", ino))
+    assert disk_events[-1] == ("fsync", folder)                              # every name in place on disk
+    before_manifest = disk_events[:disk_events.index(("replace", manifest))]
+    assert before_manifest[-1] == ("fsync", folder)                          # the others' names before it
+
+
 def test_two_stagings_of_one_process_are_apart(tmp_path):
     a, b = Staging(tmp_path, "test"), Staging(tmp_path, "test")
     assert a.path != b.path and a.path.name.endswith(f"-{HOST}-{os.getpid()}")

@@ -19,7 +19,7 @@ import numpy as np
 
 from ..errors import UserError
 
-from .atomic import TMP_MARK, owner_is_gone, owner_tag, write_json, write_text
+from .atomic import TMP_MARK, fsync_file, fsync_folder, owner_is_gone, owner_tag, write_json, write_text
 from .las import write_las
 from .pcd import read_pcd
 from .figures import write_profile_figure, write_returns_figure, write_tile_figure, write_top_figure
@@ -139,16 +139,29 @@ class Staging:
     def file(self, suffix: str) -> Path:
         return self.path / (self.name + suffix)
 
+    def sync(self) -> None:
+        """Flush every staged file to disk (the slow part of :meth:`commit`, which may come first, where a
+        signal can still stop it; the files are then flushed again at no cost)."""
+        for p in self.path.iterdir():
+            fsync_file(p)
+
     def commit(self) -> list[Path]:
-        """Remove the previous render's files, then move the new ones in, the manifest last."""
+        """Remove the previous render's files, then move the new ones in, the manifest last. Each file
+        is flushed to disk before its rename, and the folder before the manifest's rename and after it,
+        so a crash of the machine never leaves a renamed file without its content, nor the manifest
+        without the files it lists."""
+        self.sync()
         for old in existing_outputs(self.folder, self.name):
             (self.folder / old).unlink()
         staged = sorted(self.path.iterdir(), key=lambda p: p.name.endswith("_manifest.json"))
         moved = []
         for p in staged:
             target = self.folder / p.name
+            if p.name.endswith("_manifest.json"):
+                fsync_folder(self.folder)
             os.replace(p, target)
             moved.append(target)
+        fsync_folder(self.folder)
         self.path.rmdir()
         return moved
 
