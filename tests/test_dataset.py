@@ -358,3 +358,25 @@ def test_task_keys_are_unique_per_dataset_and_kept_by_a_rerun(tmp_path, legs_per
     assert not set(first) & set(keys(one, tmp_path / "b"))          # the same file into another folder
     assert not set(first) & set(keys(other_seed, tmp_path / "a"))   # another dataset into the same folder
     assert {runner._plot_of(k) for k in first} == {"plot_0000", "plot_0001"}
+
+
+@pytest.mark.parametrize("fmt", ["las", "laz"])
+def test_tiles_of_a_plot_written_only_as_las_keep_every_field(tmp_path, fmt):
+    """A plot written only as LAS/LAZ is read back for its tiles with every field the LAS holds (the
+    species was read as 0): all of POINT_DTYPE but pulse_id and range, to the LAS's precision."""
+    from mitsuforest.dataset.files import read_plot_points
+    from mitsuforest.scan.tracer import POINT_DTYPE
+    from mitsuforest.write.las import write_las
+    rng = np.random.default_rng(4)
+    points = np.zeros(50, POINT_DTYPE)
+    for name in POINT_DTYPE.names:
+        points[name] = rng.integers(1, 4, len(points))
+    points["x"], points["y"], points["z"] = rng.uniform(0, 12, (3, len(points))).round(4)
+    points["intensity"], points["gps_time"] = rng.uniform(0, 1, len(points)), rng.uniform(0, 100, len(points))
+    points["scan_angle"] = rng.integers(-5000, 5000, len(points)) * 0.006
+    write_las(tmp_path / f"p.{fmt}", points, [0.0, 0.0, 0.0])
+    read = read_plot_points(tmp_path, "p", [fmt])
+    assert set(read.dtype.names) == set(POINT_DTYPE.names) - {"pulse_id", "range"}
+    assert read["species"].tolist() == points["species"].tolist() and set(read["species"]) == {1, 2, 3}
+    for name in read.dtype.names:
+        assert np.allclose(read[name], points[name], atol=1e-4), name
