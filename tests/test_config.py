@@ -56,6 +56,10 @@ CASES = {
                        "survey.scan_frequency: 500 Hz is outside the sensor's range 10-200 Hz"),
     "fractional seed": ("seed: 1.5\n" + GOOD, "seed: must be an integer, got 1.5"),
     "plot under a metre": (GOOD.replace("size: [10, 10]", "size: [0.1, 10]"), "area.size[0]: must be >= 1, got 0.1"),
+    "nested 1,000 deep": (GOOD + "deep: " + "[" * 1000 + "]" * 1000 + "\n",
+                          "scene.yaml: line 8, column 106: nested deeper than 100 levels"),
+    "nested 1,000 deep in blocks": (GOOD + "".join(f"{'  ' * i}k:\n" for i in range(1000)),
+                                    "scene.yaml: line 107, column 199: nested deeper than 100 levels"),
 }
 
 

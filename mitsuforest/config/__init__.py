@@ -234,8 +234,29 @@ SCENE_SPEC = {
 }
 
 
+MAX_YAML_DEPTH = 100   # nesting levels; a scene needs about 6. PyYAML composes recursively: 1,000 levels overflow
+
+
+class _TooDeep(yaml.YAMLError):
+    def __init__(self, mark):
+        super().__init__()
+        self.problem_mark, self.problem = mark, f"nested deeper than {MAX_YAML_DEPTH} levels"
+
+
 class _UniqueKeyLoader(yaml.SafeLoader):
-    """A safe loader that refuses a mapping with a key given twice (PyYAML keeps the last silently)."""
+    """A safe loader that refuses a mapping with a key given twice (PyYAML keeps the last silently) and
+    nesting deeper than :data:`MAX_YAML_DEPTH` (a RecursionError otherwise)."""
+
+    _depth = 0
+
+    def compose_node(self, parent, index):
+        if self._depth >= MAX_YAML_DEPTH:
+            raise _TooDeep(self.peek_event().start_mark)
+        self._depth += 1
+        try:
+            return super().compose_node(parent, index)
+        finally:
+            self._depth -= 1
 
     def construct_mapping(self, node, deep=False):
         seen = set()
@@ -257,7 +278,8 @@ def read_yaml(path) -> tuple[object, Context]:
     except yaml.YAMLError as e:
         mark = getattr(e, "problem_mark", None)
         where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark else ""
-        raise ConfigError(path, "", f"YAML syntax error: {where}{getattr(e, 'problem', None) or e}") from None
+        kind = "" if isinstance(e, _TooDeep) else "YAML syntax error: "
+        raise ConfigError(path, "", f"{kind}{where}{getattr(e, 'problem', None) or e}") from None
     except UnicodeDecodeError:
         raise ConfigError(path, "", "not a text file") from None
     return data, Context(display_path(path))
