@@ -234,6 +234,7 @@ SCENE_SPEC = {
 }
 
 
+MAX_OFFSET = 1e9   # m: beyond every projected CRS (eastings and northings are below 1e7 m); float64 keeps 0.1 mm to ~1e11 m
 MAX_YAML_DEPTH = 100   # nesting levels; a scene needs about 6. PyYAML composes recursively: 1,000 levels overflow
 
 
@@ -359,6 +360,10 @@ def _parsed_scene(data, ctx: Context) -> dict:
 
 def _check_scene(scene: dict, ctx: Context):
     forest, survey, sensor = scene["forest"], scene["survey"], scene["sensor"]
+    for i, value in enumerate(scene["origin"]["offset"]):
+        if abs(value) > MAX_OFFSET:
+            ctx.fail(f"origin.offset[{i}]", f"{value:g} m is no map coordinate: projected CRSs stay within "
+                     f"±{MAX_OFFSET:g} m, and far beyond that float64 cannot keep the points' 0.1 mm")
     ground_layer = scene["understory"]["grass"]["cover"] + scene["understory"]["litter"]["cover"]
     if ground_layer > 1:
         ctx.fail("understory.litter.cover", f"grass and litter patches do not overlap: their covers add up to "

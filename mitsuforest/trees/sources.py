@@ -21,6 +21,7 @@ UP_AXES = ("z", "y")
 REPAIR_MODES = ("fix", "skip")
 DEFAULT_LEAF_PATTERNS = ("*leaf*", "*leaves*", "*foliage*", "*needle*")
 MIN_HEIGHT, MAX_HEIGHT = 0.1, 150.0   # m: outside this an imported tree has the wrong units
+MAX_RADIUS = 10.0                      # m: a QSM cylinder wider than this (the widest stems are ~5 m) has the wrong units
 
 
 @dataclass(frozen=True)
