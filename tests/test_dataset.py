@@ -76,6 +76,7 @@ def _same_files(a: Path, b: Path) -> list[str]:
     return [n for n in names if not (b / n).is_file() or (a / n).read_bytes() != (b / n).read_bytes()]
 
 
+@pytest.mark.slow
 def test_plots_are_the_bytes_of_single_renders(three_plots, tmp_path):
     from mitsuforest.pipeline import render
     out, manifest = three_plots
@@ -89,6 +90,7 @@ def test_plots_are_the_bytes_of_single_renders(three_plots, tmp_path):
     assert trees <= {1, 2, 3}
 
 
+@pytest.mark.slow
 def test_index_lists_every_file_with_its_checksum(three_plots):
     from mitsuforest.dataset.files import sha256
     out, _ = three_plots
@@ -105,6 +107,7 @@ def test_index_lists_every_file_with_its_checksum(three_plots):
     assert manifest["points"] == sum(int(r["points"]) for r in plots)
 
 
+@pytest.mark.slow
 def test_splits_never_share_a_plot(three_plots):
     out, _ = three_plots
     splits = json.loads((out / "splits.json").read_text())
@@ -115,6 +118,7 @@ def test_splits_never_share_a_plot(three_plots):
     assert all(n in splits[split_of[n]] for n in names)                  # tiles follow their plot
 
 
+@pytest.mark.slow
 def test_tiles_partition_the_points(three_plots):
     from mitsuforest.dataset.tiles import core_tile, tile_extent
     from mitsuforest.write import read_pcd
@@ -141,6 +145,7 @@ def test_tiles_partition_the_points(three_plots):
         assert np.array_equal(np.sort(joined), np.sort(key))               # ... nothing twice
 
 
+@pytest.mark.slow
 def test_tile_tree_tables(three_plots):
     out, _ = three_plots
     folder = out / "plots" / "plot_0000"
@@ -160,6 +165,7 @@ def test_tile_tree_tables(three_plots):
     assert all(line.endswith(",0") for line in corner if ",tree," in line)
 
 
+@pytest.mark.slow
 def test_plot_split_by_legs_is_the_bytes_of_one_process(tmp_path, cluster):
     from mitsuforest.dataset import run_dataset
     from mitsuforest.pipeline import render
@@ -173,6 +179,7 @@ def test_plot_split_by_legs_is_the_bytes_of_one_process(tmp_path, cluster):
     assert not (out / "plots" / "plot_0000" / ".parts").exists()
 
 
+@pytest.mark.slow
 def test_killed_worker_and_killed_client_then_rerun(tmp_path, cluster):
     """A worker killed mid-task: its task is retried and the dataset completes. The whole command
     killed: the re-run finishes it, each plot once; a damaged file makes only its plot run again."""
@@ -310,6 +317,7 @@ def test_plot_draws_do_not_depend_on_the_plot_count(tmp_path):
         [(1, 5), (1, 10), (1, 20), (2, 5), (2, 10), (2, 20)]
 
 
+@pytest.mark.slow
 def test_a_plot_failing_on_a_worker_fails_alone(tmp_path, capsys, cluster):
     """Found only while planning (on the worker): that plot fails, the other is finished and indexed."""
     from mitsuforest.cli import main

@@ -69,6 +69,7 @@ def test_write_failure_reports_the_cause_and_leaves_nothing(tmp_path, monkeypatc
     assert list(out.iterdir()) == []
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("fmt", ["pcd", "laz"])
 def test_real_write_failure_names_the_file_and_leaves_nothing(fmt, tmp_path):
     """A real failing write (a 64 kB file size limit standing in for a full disk): the write names no
@@ -109,6 +110,7 @@ def test_output_folder_that_cannot_be_made_is_refused_before_work(tmp_path, monk
     assert (tmp_path / "taken").read_text() == "x"
 
 
+@pytest.mark.slow
 def test_second_render_into_a_busy_folder_is_refused(tmp_path, capsys):
     """Render A is scanning; render B of the same scene into the same folder refuses in one line, and A
     is untouched."""
@@ -276,6 +278,7 @@ def _wait_until_mapped(proc, library: str, timeout: float = 60.0) -> None:
     raise AssertionError(f"the process did not load {library}")
 
 
+@pytest.mark.slow
 def test_interrupt_during_the_heavy_imports_exits_130_without_traceback(tmp_path):
     """SIGINT sent while Mitsuba, Dr.Jit and trimesh import (timed from the moment numpy, the first of
     them, is loaded, so that the machine's load does not move the moment) and just after: exit 130,
@@ -329,6 +332,7 @@ def test_pcd_coordinates_are_float32_without_an_offset(tmp_path):
 STAGES = ("plan", "trees", "scene", "scan", "write", "commit")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("sig", ["SIGINT", "SIGTERM"])
 def test_signal_at_every_stage_leaves_nothing(sig, tmp_path, monkeypatch, capsys):
     """The signal is sent by the stage itself, so each run is cut exactly where it is meant to be:

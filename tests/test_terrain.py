@@ -189,6 +189,7 @@ def test_ground_rising_above_the_flight_is_refused(tmp_path):
     assert make_plan(scene.with_({"survey.altitude": 41})).legs[0].start[2] == pytest.approx(87.0)
 
 
+@pytest.mark.slow
 def test_the_example_dem_scene_renders(tmp_path):
     """examples/dem.yaml on examples/data/dem.tif (made by examples/data/make_dem.py), cut to one 20 s
     leg: ground points lie on the DEM's analytic surface (95 % within 2 cm), in its CRS's metres; trees, shrubs
