@@ -110,6 +110,28 @@ def test_output_folder_that_cannot_be_made_is_refused_before_work(tmp_path, monk
     assert (tmp_path / "taken").read_text() == "x"
 
 
+@pytest.mark.parametrize("command", ["render", "plan", "trees", "export", "dataset"])
+def test_an_empty_output_folder_is_refused(tmp_path, monkeypatch, capsys, command):
+    """``-o ""`` would be the working folder (Path("") is "."): refused in one line, nothing written."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "scene.yaml").write_text(GOOD)
+    assert main([command, *([] if command == "trees" else ["scene.yaml"]), "-o", ""]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == "mitsuforest: -o: must name a folder, got an empty path (give . for the working folder)"
+    assert [p.name for p in tmp_path.iterdir()] == ["scene.yaml"]
+
+
+@pytest.mark.parametrize("command", ["render", "plan", "trees", "export"])
+def test_an_output_folder_in_proc_is_refused_before_work(tmp_path, monkeypatch, capsys, command):
+    """``os.access`` lets root write anywhere, /proc too; the folder is tried before any work."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "scene.yaml").write_text(GOOD)
+    assert main([command, *([] if command == "trees" else ["scene.yaml"]), "-o", "/proc/mitsuforest/out"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("mitsuforest: /proc/mitsuforest/out: the output folder cannot be written (/proc: "), err
+    assert err.count("\n") == 0
+
+
 @pytest.mark.slow
 def test_second_render_into_a_busy_folder_is_refused(tmp_path, capsys):
     """Render A is scanning; render B of the same scene into the same folder refuses in one line, and A

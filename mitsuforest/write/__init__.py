@@ -70,7 +70,8 @@ def write_plan(folder, name: str, plan) -> Path:
 
 def check_output_folder(folder) -> None:
     """Refuse, before any work, an output folder that cannot be made or written: a file, a path under a
-    file, or a folder this user cannot write (the nearest existing folder on the way is checked)."""
+    file, or a folder this user cannot write (the nearest existing folder on the way is checked, by making
+    and removing a folder in it: ``os.access`` says yes to root, also in ``/proc`` or ``/sys``)."""
     folder = Path(folder).absolute()
     existing = next(p for p in (folder, *folder.parents) if p.exists())
     if not existing.is_dir():
@@ -78,6 +79,10 @@ def check_output_folder(folder) -> None:
         raise UserError(f"{folder}: the output folder {what}")
     if not os.access(existing, os.W_OK | os.X_OK):
         raise UserError(f"{folder}: the output folder cannot be written ({existing}: permission denied)")
+    try:
+        os.rmdir(tempfile.mkdtemp(prefix=".write-test-", dir=existing))
+    except OSError as e:
+        raise UserError(f"{folder}: the output folder cannot be written ({existing}: {e.strerror or e})") from None
 
 
 @contextmanager
