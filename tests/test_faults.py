@@ -2,6 +2,7 @@
 up front with one line naming the file, key and reason, exit 2, nothing written, within a second."""
 
 import time
+from pathlib import Path
 
 import pytest
 from test_config import GOOD
@@ -130,6 +131,35 @@ def test_an_output_folder_in_proc_is_refused_before_work(tmp_path, monkeypatch, 
     err = capsys.readouterr().err.strip()
     assert err.startswith("mitsuforest: /proc/mitsuforest/out: the output folder cannot be written (/proc: "), err
     assert err.count("\n") == 0
+
+
+def _denied(name, real):
+    """``real`` (a reader such as open), raising PermissionError for files called ``name``: a file this
+    user cannot read (chmod 000 does not stop root, who runs the tests)."""
+    def reader(path, *args, **kwargs):
+        if Path(path).name == name:
+            raise PermissionError(13, "Permission denied", str(path))
+        return real(path, *args, **kwargs)
+    return reader
+
+
+@pytest.mark.parametrize("unreadable", ["scene.yaml", "sensor.yaml", "tree.csv"])
+def test_an_unreadable_input_file_is_bad_input(tmp_path, monkeypatch, capsys, unreadable):
+    """A scene, sensor or tree file that cannot be read is named in one line with exit 2 (bad input),
+    not reported as a failing write (exit 1)."""
+    from mitsuforest.trees import sources
+    from test_config import SENSORS
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "sensor.yaml").write_text((SENSORS / "riegl_vux-1uav22.yaml").read_text())
+    (tmp_path / "tree.csv").write_text("radius,start_x,start_y,start_z,end_x,end_y,end_z\n0.1,0,0,0,0,0,5\n")
+    scene = GOOD.replace(str(SENSORS / "riegl_vux-1uav22.yaml"), "sensor.yaml")
+    (tmp_path / "scene.yaml").write_text(scene.replace("trees: 1", "trees: 1, models: [{qsm: tree.csv}]"))
+    monkeypatch.setattr(Path, "read_text", _denied(unreadable, Path.read_text))
+    monkeypatch.setattr(sources, "open", _denied(unreadable, open), raising=False)
+    assert main(["render", "scene.yaml", "-o", "out"]) == 2
+    err = capsys.readouterr().err
+    assert err == f"mitsuforest: {unreadable}: cannot be read (Permission denied)\n"
+    assert not (tmp_path / "out").exists()
 
 
 @pytest.mark.slow

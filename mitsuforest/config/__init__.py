@@ -275,14 +275,18 @@ def read_yaml(path) -> tuple[object, Context]:
     if not path.is_file():
         raise ConfigError(display_path(path), "", "file not found" if not path.exists() else "not a file")
     try:
-        data = yaml.load(path.read_text(), Loader=_UniqueKeyLoader)
+        text = path.read_text()
+    except OSError as e:   # unreadable (permissions): bad input, not a failing write
+        raise ConfigError(display_path(path), "", f"cannot be read ({e.strerror or e})") from None
+    except UnicodeDecodeError:
+        raise ConfigError(path, "", "not a text file") from None
+    try:
+        data = yaml.load(text, Loader=_UniqueKeyLoader)
     except yaml.YAMLError as e:
         mark = getattr(e, "problem_mark", None)
         where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark else ""
         kind = "" if isinstance(e, _TooDeep) else "YAML syntax error: "
         raise ConfigError(path, "", f"{kind}{where}{getattr(e, 'problem', None) or e}") from None
-    except UnicodeDecodeError:
-        raise ConfigError(path, "", "not a text file") from None
     return data, Context(display_path(path))
 
 
