@@ -255,6 +255,36 @@ def test_more_than_15_returns_are_written_as_15(tmp_path, suffix):
     assert np.allclose(las.x, points["x"])
 
 
+OFFSET = [500000.0, 6000000.0, 0.0]
+
+
+@pytest.mark.parametrize("suffix", [".las", ".laz"])
+def test_las_creation_date_is_never_the_day_of_the_run(tmp_path, monkeypatch, suffix):
+    """The header's creation date is 2000-01-01, or the day of SOURCE_DATE_EPOCH: a file written on
+    another day has the same bytes (a dataset rendered across midnight gave other LAZ bytes)."""
+    import datetime
+
+    import laspy.header
+
+    class OtherDay(datetime.date):
+        @classmethod
+        def today(cls):
+            return cls(2031, 7, 9)
+    monkeypatch.delenv("SOURCE_DATE_EPOCH", raising=False)
+    write_las(tmp_path / ("today" + suffix), _points(), OFFSET)
+    monkeypatch.setattr(laspy.header, "date", OtherDay)
+    write_las(tmp_path / ("other_day" + suffix), _points(), OFFSET)
+    assert (tmp_path / ("today" + suffix)).read_bytes() == (tmp_path / ("other_day" + suffix)).read_bytes()
+    assert laspy.read(str(tmp_path / ("today" + suffix))).header.creation_date == datetime.date(2000, 1, 1)
+    monkeypatch.setenv("SOURCE_DATE_EPOCH", "1700000000")   # 2023-11-14 22:13:20 UTC
+    write_las(tmp_path / ("epoch" + suffix), _points(), OFFSET)
+    assert laspy.read(str(tmp_path / ("epoch" + suffix))).header.creation_date == datetime.date(2023, 11, 14)
+    monkeypatch.setenv("SOURCE_DATE_EPOCH", "yesterday")
+    with pytest.raises(UserError, match="SOURCE_DATE_EPOCH: must be whole seconds since 1970-01-01 UTC, got 'yesterday'"):
+        write_las(tmp_path / ("bad" + suffix), _points(), OFFSET)
+    assert not (tmp_path / ("bad" + suffix)).exists()
+
+
 def test_las_without_crs_has_no_crs_vlr_but_the_wkt_bit(tmp_path):
     write_las(tmp_path / "t.las", _points(), [500000.0, 6000000.0, 0.0])
     header = laspy.read(str(tmp_path / "t.las")).header
