@@ -102,6 +102,35 @@ def test_helios_compare_without_helios_says_so(tmp_path):
     assert missing.returncode == 2 and missing.stderr == f"--helios {tmp_path / 'none'}: no such executable\n"
 
 
+FAILING_HELIOS = '''
+import sys
+print("arguments:", " ".join(sys.argv[3:]))
+print("ERROR: the kd-tree does not fit in memory", file=sys.stderr)
+sys.exit(3)
+'''
+
+
+@pytest.mark.slow
+def test_helios_compare_keeps_the_helios_log_and_passes_its_flags(tmp_path):
+    """HELIOS++'s output (stdout and stderr) is kept in WORK/logs/helios.log, a failing run prints its
+    tail and the log's path, and --helios-args reach the helios++ command."""
+    fake = tmp_path / "helios++"
+    fake.write_text(f"#!{sys.executable}\n" + FAILING_HELIOS)
+    fake.chmod(0o755)
+    from test_config import GOOD
+    (tmp_path / "small.yaml").write_text(GOOD)   # one tree, no understory: a quick export
+    work = tmp_path / "work"
+    proc = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "helios_compare.py"), "--helios", str(fake),
+                           "--scene", str(tmp_path / "small.yaml"), "--quick", "--work", str(work),
+                           "--helios-args", "--kdtJobs 1 --nthreads 2"],
+                          cwd=ROOT, capture_output=True, text=True, timeout=600)
+    log = work / "logs" / "helios.log"
+    assert proc.returncode == 1, proc.stderr
+    assert set(log.read_text().splitlines()) == {f"arguments: {work / 'helios_out'} --kdtJobs 1 --nthreads 2",
+                                                 "ERROR: the kd-tree does not fit in memory"}
+    assert f"failed (3); its log, {log}, ends:" in proc.stderr and "ERROR: the kd-tree" in proc.stderr
+
+
 FAKE_HELIOS = '''
 import sys
 from pathlib import Path
