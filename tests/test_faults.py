@@ -232,6 +232,39 @@ def _las(tmp_path, label=True, n=1000):
     return path
 
 
+def _laz(tmp_path, n=1000):
+    """A finished LAZ of ``n`` points and where its points begin."""
+    import laspy
+    import numpy as np
+
+    from mitsuforest.scan import POINT_DTYPE
+    from mitsuforest.write.las import write_las
+    points = np.zeros(n, POINT_DTYPE)
+    points["x"], points["return_number"], points["number_of_returns"] = np.arange(n) * 0.01, 1, 1
+    path = tmp_path / "p.laz"
+    write_las(path, points, [0.0, 0.0, 0.0])
+    with laspy.open(str(path)) as reader:
+        return path, reader.header.offset_to_point_data
+
+
+def _laz_killed_before_a_chunk(tmp_path):
+    """A LAZ as a render killed before its first chunk leaves it: counts 0, nothing after the header."""
+    path, start = _laz(tmp_path)
+    return _cut(_counted(path, 0), start)
+
+
+def _laz_killed_after_a_chunk(tmp_path):
+    """A LAZ as a render killed after its first chunk leaves it: counts 0, the chunk table's offset still
+    the placeholder lazrs writes first (where the points begin), no table."""
+    path, start = _laz(tmp_path)
+    return _patched(_counted(path, 0), start, start.to_bytes(8, "little"))
+
+
+def _counted(path, count):
+    """``path`` with its header's point counts (legacy 32-bit and LAS 1.4 64-bit) set to ``count``."""
+    return _patched(_patched(path, 107, min(count, 2**32 - 1).to_bytes(4, "little")), 247, count.to_bytes(8, "little"))
+
+
 def _random(tmp_path, name):
     path = tmp_path / name
     path.write_bytes(bytes(range(256)) * 40)
@@ -268,6 +301,13 @@ DAMAGED = {
     "las of random bytes": (lambda t: _random(t, "r.las"), "cannot read"),
     "las cut after its VLRs": (lambda t: _cut(_las(t), 1200), "truncated: the header promises 1,000 points"),
     "las of an unknown point format": (lambda t: _patched(_las(t), 104, bytes([42])), "cannot read"),
+    "las of a killed render": (lambda t: _counted(_las(t), 0), "the header counts 0 points but 1,000 follow: an "
+                               "unfinished file (its writer stopped before closing it, as a killed render's does)"),
+    "laz of a render killed before its first chunk": (lambda t: _laz_killed_before_a_chunk(t), "the file ends where "
+                                                      "its compressed points begin: an unfinished file"),
+    "laz of a render killed later": (lambda t: _laz_killed_after_a_chunk(t), "no chunk table (its offset reads "),
+    "laz with absurd count": (lambda t: _counted(_laz(t)[0], 999_999_999_999), "damaged: the header counts "
+                              "999,999,999,999 points, more than its 1 compressed chunk of 50,000 can hold"),
 }
 
 
