@@ -154,6 +154,14 @@ def test_mesh_terrain_from_a_file(tmp_path):
     assert np.abs(plan.terrain.z - 0.1 * gx).max() < 1e-6     # PLY stores float32
 
 
+@pytest.mark.parametrize("text", ["hello world\nnot a mesh\n", ""])
+def test_a_terrain_mesh_without_triangles_is_named_so(tmp_path, text):
+    """Garbage that trimesh reads as an empty mesh was called 'does not cover the whole plot'."""
+    (tmp_path / "ground.obj").write_text(text)
+    with pytest.raises(ConfigError, match=r"terrain.path: .*ground.obj: the terrain mesh has no triangles"):
+        make_plan(load_scene(scene_file(tmp_path, terrain={"type": "mesh", "path": "ground.obj"})))
+
+
 def test_leg_reach_uses_the_dem_height_range(tmp_path):
     """A DEM rising 40 m across the plot: a leg's reach is set by the depth from the platform to the
     DEM's lowest point in the plot (30 m altitude above the mean, plus mean - lowest), not by
