@@ -11,8 +11,13 @@ Without ``helios++`` (the binary) or ``helios`` (the command pip installs, which
 ``--assets`` the working folder and ``--legacyEnergyModel``) on PATH, or ``--helios``, it says so and
 exits 0. See README, "HELIOS++", for building HELIOS++ from source.
 
+Each process's output (stdout and stderr) is kept in ``WORK/logs/``: ``helios.log`` holds HELIOS++'s
+own log, whose errors (a kd-tree that does not fit, say) show there; a failing run prints its tail.
+``--helios-args`` passes flags to HELIOS++ (``--kdtJobs 1`` for large scenes).
+
     python benchmarks/helios_compare.py                                  # demo scene, its middle leg
-    python benchmarks/helios_compare.py --scene scenes/open.yaml --leg 5 --helios ~/helios/build/helios++
+    python benchmarks/helios_compare.py --scene scenes/open.yaml --leg 5 --helios ~/helios/build/helios++ \
+        --helios-args "--kdtJobs 1"
 """
 
 from __future__ import annotations
@@ -20,6 +25,7 @@ from __future__ import annotations
 import argparse
 import csv
 import os
+import shlex
 import shutil
 import subprocess
 import sys
@@ -42,6 +48,8 @@ def main(argv=None) -> int:
     p.add_argument("--helios", help="the helios++ executable (default: helios++, else helios, on PATH)")
     p.add_argument("--work", type=Path, help="working folder (default: a temporary one)")
     p.add_argument("--quick", action="store_true", help="100 kHz and 7 sub-rays (a smoke test)")
+    p.add_argument("--helios-args", default="", help="flags added to the helios++ command, one string "
+                   "(e.g. \"--kdtJobs 1\")")
     args = p.parse_args(argv)
     helios = args.helios or shutil.which("helios++") or shutil.which("helios")
     if args.helios and not shutil.which(args.helios):
@@ -54,18 +62,21 @@ def main(argv=None) -> int:
     work = args.work or Path(tempfile.mkdtemp(prefix="helios_compare-"))
     work.mkdir(parents=True, exist_ok=True)
     scene_file = one_leg_scene(args.scene, args.leg, work, args.quick)
-    export = work / "export"
-    run([sys.executable, "-m", "mitsuforest", "export", str(scene_file), "-o", str(export)])
+    export, logs = work / "export", work / "logs"
+    logs.mkdir(exist_ok=True)
+    run([sys.executable, "-m", "mitsuforest", "export", str(scene_file), "-o", str(export)], logs / "export.log")
     name = yaml.safe_load(scene_file.read_text())["name"]
     ours_dir, helios_dir = work / "ours", work / "helios_out"
+    theirs = run([helios, str(export / f"{name}_helios_survey.xml"), "--output", str(helios_dir),
+                  *shlex.split(args.helios_args)], logs / "helios.log", cwd=work)   # first: its errors come early
     ours = run([sys.executable, "-m", "mitsuforest", "render", str(scene_file), "-o", str(ours_dir),
-                "--overwrite", "--quiet"])
-    theirs = run([helios, str(export / f"{name}_helios_survey.xml"), "--output", str(helios_dir)], cwd=work)
+                "--overwrite", "--quiet"], logs / "render.log")
     tree_of_part = {int(r["part_id"]): int(r["instance"]) if int(r["treeid"]) else 0
                     for r in read_csv(export / f"{name}_helios_parts.csv")}
     a = ours_points(ours_dir / f"{name}.pcd")
     b = helios_points(helios_dir, tree_of_part)
     report(args.scene, ours, theirs, a, b)
+    print(f"logs: {logs}")
     return 0
 
 
@@ -90,17 +101,19 @@ def one_leg_scene(scene: Path, leg: int | None, work: Path, quick: bool = False)
     return path
 
 
-def run(command, cwd=None) -> dict:
-    """Run a command in its own process: wall seconds and its peak resident memory (GB)."""
+def run(command, log: Path, cwd=None) -> dict:
+    """Run a command in its own process, its stdout and stderr kept in ``log``: wall seconds and its peak
+    resident memory (GB). A failing command ends this script with the tail of its log."""
     start = time.perf_counter()
-    proc = subprocess.Popen(command, cwd=cwd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    _, status, usage = os.wait4(proc.pid, 0)
+    with open(log, "wb") as out:
+        proc = subprocess.Popen(command, cwd=cwd, stdout=out, stderr=subprocess.STDOUT)
+        _, status, usage = os.wait4(proc.pid, 0)
     seconds = time.perf_counter() - start
-    err = proc.stderr.read().decode(errors="replace")
-    proc.returncode = os.waitstatus_to_exitcode(status)
-    if proc.returncode != 0:
-        sys.exit(f"{' '.join(map(str, command))} failed ({proc.returncode}):\n{err[-3000:]}")
-    return {"seconds": seconds, "peak_gb": usage.ru_maxrss * 1024 / 1e9, "log": err}
+    code = os.waitstatus_to_exitcode(status)
+    if code != 0:
+        tail = log.read_bytes()[-3000:].decode(errors="replace")
+        sys.exit(f"{' '.join(map(str, command))} failed ({code}); its log, {log}, ends:\n{tail}")
+    return {"seconds": seconds, "peak_gb": usage.ru_maxrss * 1024 / 1e9, "log": log}
 
 
 def read_csv(path: Path) -> list[dict]:

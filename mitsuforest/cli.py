@@ -31,7 +31,7 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("scene", type=Path, help="scene file (scenes/*.yaml) or HELIOS++ survey (.xml)")
     r.add_argument("--assets", type=Path, action="append", default=[],
                    help="HELIOS++ survey: a folder searched for relative paths, as helios++ --assets (repeatable)")
-    r.add_argument("-o", "--output", type=Path, help="output folder (default: the scene's output.dir)")
+    r.add_argument("-o", "--output", type=_folder, help="output folder (default: the scene's output.dir)")
     r.add_argument("--variant", help="Mitsuba variant, e.g. llvm_ad_mono or cuda_ad_mono (default: scene's, auto)")
     r.add_argument("--seed", type=int, help="override the scene's seed")
     r.add_argument("--overwrite", action="store_true", help="replace earlier results in the output folder")
@@ -42,13 +42,13 @@ def _parser() -> argparse.ArgumentParser:
                                     "A folder holding a finished render of the scene is refused: "
                                     "its plan is the render's.")
     pl.add_argument("scene", type=Path, help="scene file")
-    pl.add_argument("-o", "--output", type=Path, help="output folder (default: the scene's output.dir)")
+    pl.add_argument("-o", "--output", type=_folder, help="output folder (default: the scene's output.dir)")
     pl.add_argument("--seed", type=int, help="override the scene's seed")
 
     t = sub.add_parser("trees", help="write the tree archetypes' meshes, volumes and a picture",
                        description="Write each archetype's and imported model's wood and leaf meshes (PLY), "
                                   "volumes.csv, trees.png and (for imported meshes) repairs.csv.")
-    t.add_argument("-o", "--output", type=Path, default=Path("out/trees"), help="output folder (default: out/trees)")
+    t.add_argument("-o", "--output", type=_folder, default=Path("out/trees"), help="output folder (default: out/trees)")
     t.add_argument("--scene", type=Path, help="take the archetypes and forest.models from this scene file (default: the built-in ten)")
 
     e = sub.add_parser("export", help="write the planned scene as meshes and a HELIOS++ survey that runs as it is",
@@ -57,7 +57,7 @@ def _parser() -> argparse.ArgumentParser:
                                    "platform and scanner (one part per component, id = object_id): "
                                    "helios++ OUTPUT/<name>_helios_survey.xml flies our survey.")
     e.add_argument("scene", type=Path, help="scene file")
-    e.add_argument("-o", "--output", type=Path, required=True, help="output folder")
+    e.add_argument("-o", "--output", type=_folder, required=True, help="output folder")
     e.add_argument("--seed", type=int, help="override the scene's seed")
 
     d = sub.add_parser("dataset", help="render many plots (or large ones split by leg) on Dask",
@@ -65,7 +65,7 @@ def _parser() -> argparse.ArgumentParser:
                                    "--scheduler), with tiles, index.csv, splits.json and dataset_manifest.json. "
                                    "Finished plots are kept; run again to finish an interrupted dataset.")
     d.add_argument("dataset", type=Path, help="dataset file (examples/dataset.yaml)")
-    d.add_argument("-o", "--output", type=Path, help="output folder (default: out/<dataset name>)")
+    d.add_argument("-o", "--output", type=_folder, help="output folder (default: out/<dataset name>)")
     d.add_argument("--workers", type=int, help="worker processes of the embedded LocalCluster (default: one per core)")
     d.add_argument("--scheduler", help="address of a running Dask scheduler, e.g. tcp://HOST:8786")
     d.add_argument("--threads", type=int, help="Dr.Jit threads per worker (default: cores / workers locally, "
@@ -88,8 +88,19 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
+def _folder(text: str) -> Path:
+    """An output folder argument: an empty one is refused (``Path("")`` would be the working folder)."""
+    if not text:
+        raise UserError("-o: must name a folder, got an empty path (give . for the working folder)")
+    return Path(text)
+
+
 def main(argv=None) -> int:
-    args = _parser().parse_args(argv)
+    try:
+        args = _parser().parse_args(argv)
+    except UserError as e:    # raised by an argument's type (_folder): one line, like the file's errors
+        print(f"mitsuforest: {e}", file=sys.stderr)
+        return e.exit_code
     previous = signal.signal(signal.SIGTERM, raise_terminated) if in_main_thread() else None
     try:
         if args.command not in ("info", "compare"):

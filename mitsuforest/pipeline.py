@@ -139,6 +139,7 @@ def _scan_and_write(scene, plan, models, scan_scene, timings, run_scan, keep_poi
             manifest["timings_s"] = dict(timings)
             write_manifest(staging, manifest)
             _refuse_existing(staging.folder, scene.name, overwrite)   # results that appeared meanwhile
+            staging.sync()             # flushing to disk may take seconds: before signals are deferred
             try:
                 with deferred_signals():   # never half the files in place
                     files = staging.commit()

@@ -29,6 +29,9 @@ CASES = {
     "name with a backslash": (GOOD.replace("name: t", "name: 'a\\b'"), "name: must be a plain file name"),
     "name dot": (GOOD.replace("name: t", "name: ."), "name: must not start with a dot"),
     "name dot dot": (GOOD.replace("name: t", "name: .."), "name: must not start with a dot"),
+    "name with a newline": (GOOD.replace("name: t", 'name: "a\\nb"'), "name: must not hold control characters, got 'a\\nb'"),
+    "name with an escape code": (GOOD.replace("name: t", 'name: "t\\e[31mred"'),
+                                 "name: must not hold control characters, got 't\\x1b[31mred'"),
     "hidden name": (GOOD.replace("name: t", "name: .t"), "name: must not start with a dot"),
     "wrong type": (GOOD.replace("altitude: 30", "altitude: high"), "survey.altitude: must be a number, got 'high'"),
     "negative altitude": (GOOD.replace("altitude: 30", "altitude: -30"), "survey.altitude: must be > 0, got -30"),
@@ -56,6 +59,15 @@ CASES = {
                        "survey.scan_frequency: 500 Hz is outside the sensor's range 10-200 Hz"),
     "fractional seed": ("seed: 1.5\n" + GOOD, "seed: must be an integer, got 1.5"),
     "plot under a metre": (GOOD.replace("size: [10, 10]", "size: [0.1, 10]"), "area.size[0]: must be >= 1, got 0.1"),
+    "offset beyond any map": (GOOD + "origin: {offset: [0, -1e300, 0]}\n",
+                              "origin.offset[1]: -1e+300 m is no map coordinate: projected CRSs stay within ±1e+09 m"),
+    "ground above the flight": (GOOD + "terrain: {type: noise, amplitude: 80}\n",
+                                "terrain.amplitude: the ground rises 27.1 m above its mean height, higher than the flight at "
+                                "survey.altitude 30 m less the sensor's minimum range 3 m"),
+    "nested 1,000 deep": (GOOD + "deep: " + "[" * 1000 + "]" * 1000 + "\n",
+                          "scene.yaml: line 8, column 106: nested deeper than 100 levels"),
+    "nested 1,000 deep in blocks": (GOOD + "".join(f"{'  ' * i}k:\n" for i in range(1000)),
+                                    "scene.yaml: line 107, column 199: nested deeper than 100 levels"),
 }
 
 

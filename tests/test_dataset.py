@@ -76,6 +76,7 @@ def _same_files(a: Path, b: Path) -> list[str]:
     return [n for n in names if not (b / n).is_file() or (a / n).read_bytes() != (b / n).read_bytes()]
 
 
+@pytest.mark.slow
 def test_plots_are_the_bytes_of_single_renders(three_plots, tmp_path):
     from mitsuforest.pipeline import render
     out, manifest = three_plots
@@ -89,6 +90,7 @@ def test_plots_are_the_bytes_of_single_renders(three_plots, tmp_path):
     assert trees <= {1, 2, 3}
 
 
+@pytest.mark.slow
 def test_index_lists_every_file_with_its_checksum(three_plots):
     from mitsuforest.dataset.files import sha256
     out, _ = three_plots
@@ -105,6 +107,7 @@ def test_index_lists_every_file_with_its_checksum(three_plots):
     assert manifest["points"] == sum(int(r["points"]) for r in plots)
 
 
+@pytest.mark.slow
 def test_splits_never_share_a_plot(three_plots):
     out, _ = three_plots
     splits = json.loads((out / "splits.json").read_text())
@@ -115,6 +118,7 @@ def test_splits_never_share_a_plot(three_plots):
     assert all(n in splits[split_of[n]] for n in names)                  # tiles follow their plot
 
 
+@pytest.mark.slow
 def test_tiles_partition_the_points(three_plots):
     from mitsuforest.dataset.tiles import core_tile, tile_extent
     from mitsuforest.write import read_pcd
@@ -141,6 +145,7 @@ def test_tiles_partition_the_points(three_plots):
         assert np.array_equal(np.sort(joined), np.sort(key))               # ... nothing twice
 
 
+@pytest.mark.slow
 def test_tile_tree_tables(three_plots):
     out, _ = three_plots
     folder = out / "plots" / "plot_0000"
@@ -160,6 +165,7 @@ def test_tile_tree_tables(three_plots):
     assert all(line.endswith(",0") for line in corner if ",tree," in line)
 
 
+@pytest.mark.slow
 def test_plot_split_by_legs_is_the_bytes_of_one_process(tmp_path, cluster):
     from mitsuforest.dataset import run_dataset
     from mitsuforest.pipeline import render
@@ -173,6 +179,7 @@ def test_plot_split_by_legs_is_the_bytes_of_one_process(tmp_path, cluster):
     assert not (out / "plots" / "plot_0000" / ".parts").exists()
 
 
+@pytest.mark.slow
 def test_killed_worker_and_killed_client_then_rerun(tmp_path, cluster):
     """A worker killed mid-task: its task is retried and the dataset completes. The whole command
     killed: the re-run finishes it, each plot once; a damaged file makes only its plot run again."""
@@ -310,6 +317,7 @@ def test_plot_draws_do_not_depend_on_the_plot_count(tmp_path):
         [(1, 5), (1, 10), (1, 20), (2, 5), (2, 10), (2, 20)]
 
 
+@pytest.mark.slow
 def test_a_plot_failing_on_a_worker_fails_alone(tmp_path, capsys, cluster):
     """Found only while planning (on the worker): that plot fails, the other is finished and indexed."""
     from mitsuforest.cli import main
@@ -321,3 +329,62 @@ def test_a_plot_failing_on_a_worker_fails_alone(tmp_path, capsys, cluster):
     assert "1 of 2 plots failed (first: plot_0001: " in err and "understory.rocks: 400 rocks do not fit" in err, err
     assert [r["id"] for r in _index(out) if r["kind"] == "plot"] == ["plot_0000"]
     assert json.loads((out / "dataset_manifest.json").read_text())["plots"]["failed"].keys() == {"plot_0001"}
+
+
+class _KeyRecorder:
+    """A stand-in Dask client that records the keys it is given (every plot counts as unfinished)."""
+
+    def __init__(self):
+        self.keys = []
+
+    def submit(self, *args, key, **kwargs):
+        self.keys.append(key)
+        return type("Future", (), {"key": key})()
+
+    def gather(self, futures):
+        return [None] * len(futures)
+
+
+@pytest.mark.parametrize("legs_per_task", [0, 1])
+def test_task_keys_are_unique_per_dataset_and_kept_by_a_rerun(tmp_path, legs_per_task):
+    """Two datasets on one shared scheduler never share a task key (their plots have the same names);
+    the same dataset submitted again gets the same keys, and each key names its plot."""
+    from mitsuforest.dataset import load_dataset, runner
+    split = f"legs_per_task: {legs_per_task}\n" if legs_per_task else ""
+    one = load_dataset(_dataset_file(tmp_path, "plots: 2\n" + split))
+    other_seed = load_dataset(_dataset_file(tmp_path, "plots: 2\nseed: 7\n" + split))
+
+    def keys(dataset, root):
+        client = _KeyRecorder()
+        submit = runner._submit_split_plots if legs_per_task else runner._submit_plots
+        submit(client, dataset, str(root), 1)
+        return client.keys
+
+    first = keys(one, tmp_path / "a")
+    assert len(first) == len(set(first)) >= 2
+    assert keys(one, tmp_path / "a") == first                         # a re-run keeps its keys
+    assert not set(first) & set(keys(one, tmp_path / "b"))          # the same file into another folder
+    assert not set(first) & set(keys(other_seed, tmp_path / "a"))   # another dataset into the same folder
+    assert {runner._plot_of(k) for k in first} == {"plot_0000", "plot_0001"}
+
+
+@pytest.mark.parametrize("fmt", ["las", "laz"])
+def test_tiles_of_a_plot_written_only_as_las_keep_every_field(tmp_path, fmt):
+    """A plot written only as LAS/LAZ is read back for its tiles with every field the LAS holds (the
+    species was read as 0): all of POINT_DTYPE but pulse_id and range, to the LAS's precision."""
+    from mitsuforest.dataset.files import read_plot_points
+    from mitsuforest.scan.tracer import POINT_DTYPE
+    from mitsuforest.write.las import write_las
+    rng = np.random.default_rng(4)
+    points = np.zeros(50, POINT_DTYPE)
+    for name in POINT_DTYPE.names:
+        points[name] = rng.integers(1, 4, len(points))
+    points["x"], points["y"], points["z"] = rng.uniform(0, 12, (3, len(points))).round(4)
+    points["intensity"], points["gps_time"] = rng.uniform(0, 1, len(points)), rng.uniform(0, 100, len(points))
+    points["scan_angle"] = rng.integers(-5000, 5000, len(points)) * 0.006
+    write_las(tmp_path / f"p.{fmt}", points, [0.0, 0.0, 0.0])
+    read = read_plot_points(tmp_path, "p", [fmt])
+    assert set(read.dtype.names) == set(POINT_DTYPE.names) - {"pulse_id", "range"}
+    assert read["species"].tolist() == points["species"].tolist() and set(read["species"]) == {1, 2, 3}
+    for name in read.dtype.names:
+        assert np.allclose(read[name], points[name], atol=1e-4), name

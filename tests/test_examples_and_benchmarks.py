@@ -22,6 +22,7 @@ def shared_render(tmp_path_factory):
     return tmp_path_factory.mktemp("examples")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", EXAMPLES)
 def test_example_runs(name, shared_render):
     out = shared_render / name.removesuffix(".py")
@@ -57,17 +58,20 @@ def test_own_models_data_is_what_the_example_writes(tmp_path):
         assert (tmp_path / name).read_bytes() == (ROOT / "examples" / "data" / name).read_bytes(), name
 
 
+@pytest.mark.slow
 def test_stability_benchmark_quick():
     """The figures only (tests/test_stability.py checks the cases)."""
     stdout = _run([str(ROOT / "benchmarks" / "stability.py"), "--quick"], ROOT)
     assert "chains_vs_maxima" in stdout and "too_many_returns" in stdout
 
 
+@pytest.mark.slow
 def test_speed_vs_error_benchmark_quick(tmp_path):
     stdout = _run([str(ROOT / "benchmarks" / "speed_vs_error.py"), "--quick", "--out", str(tmp_path)], ROOT)
     assert "7 fixed" in stdout and "7 stratified" in stdout and "chains_not_maxima" in stdout and (tmp_path / "speed_vs_error.json").exists()
 
 
+@pytest.mark.slow
 def test_full_scenes_benchmark_quick(tmp_path):
     stdout = _run([str(ROOT / "benchmarks" / "full_scenes.py", ), "open", "--quick", "--out", str(tmp_path)], ROOT)
     assert "pts/m2 (paper 3593)" in stdout
@@ -81,6 +85,7 @@ def test_full_scenes_benchmark_quick(tmp_path):
     assert sum(returns.values()) <= run["pulses_cast"]
 
 
+@pytest.mark.slow
 def test_profile_leg_benchmark():
     stdout = _run([str(ROOT / "benchmarks" / "profile_leg.py"), "--scene", str(ROOT / "scenes" / "demo.yaml"),
                    "--leg", "1"], ROOT)
@@ -95,6 +100,35 @@ def test_helios_compare_without_helios_says_so(tmp_path):
     missing = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "helios_compare.py"), "--helios",
                               str(tmp_path / "none")], cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert missing.returncode == 2 and missing.stderr == f"--helios {tmp_path / 'none'}: no such executable\n"
+
+
+FAILING_HELIOS = '''
+import sys
+print("arguments:", " ".join(sys.argv[3:]))
+print("ERROR: the kd-tree does not fit in memory", file=sys.stderr)
+sys.exit(3)
+'''
+
+
+@pytest.mark.slow
+def test_helios_compare_keeps_the_helios_log_and_passes_its_flags(tmp_path):
+    """HELIOS++'s output (stdout and stderr) is kept in WORK/logs/helios.log, a failing run prints its
+    tail and the log's path, and --helios-args reach the helios++ command."""
+    fake = tmp_path / "helios++"
+    fake.write_text(f"#!{sys.executable}\n" + FAILING_HELIOS)
+    fake.chmod(0o755)
+    from test_config import GOOD
+    (tmp_path / "small.yaml").write_text(GOOD)   # one tree, no understory: a quick export
+    work = tmp_path / "work"
+    proc = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "helios_compare.py"), "--helios", str(fake),
+                           "--scene", str(tmp_path / "small.yaml"), "--quick", "--work", str(work),
+                           "--helios-args", "--kdtJobs 1 --nthreads 2"],
+                          cwd=ROOT, capture_output=True, text=True, timeout=600)
+    log = work / "logs" / "helios.log"
+    assert proc.returncode == 1, proc.stderr
+    assert set(log.read_text().splitlines()) == {f"arguments: {work / 'helios_out'} --kdtJobs 1 --nthreads 2",
+                                                 "ERROR: the kd-tree does not fit in memory"}
+    assert f"failed (3); its log, {log}, ends:" in proc.stderr and "ERROR: the kd-tree" in proc.stderr
 
 
 FAKE_HELIOS = '''
@@ -115,6 +149,7 @@ np.savetxt(folder / "leg000_points.xyz", np.column_stack(columns), fmt="%.4f")
 '''
 
 
+@pytest.mark.slow
 def test_helios_compare_runs_against_a_stand_in(tmp_path):
     """A stand-in for helios++ that flies the exported survey with ``render SURVEY.xml`` and writes
     HELIOS++'s .xyz columns: the comparison's plumbing, and trees in place on both sides."""
@@ -129,27 +164,32 @@ def test_helios_compare_runs_against_a_stand_in(tmp_path):
     assert offsets and max(offsets) < 0.001, stdout   # the same seed: the same points
 
 
+@pytest.mark.slow
 def test_dataset_benchmark_quick(tmp_path):
     stdout = _run([str(ROOT / "benchmarks" / "dataset.py"), "--quick", "--out", str(tmp_path)], ROOT)
     assert "| 2 |" in stdout and "leg tasks" in stdout and "merge" in stdout
 
 
+@pytest.mark.slow
 def test_own_models_benchmark_quick():
     stdout = _run([str(ROOT / "benchmarks" / "own_models.py"), "--quick"], ROOT)
     assert "load + split + repair + union" in stdout and "scene with 3 placed copies" in stdout
 
 
 
+@pytest.mark.slow
 def test_terrain_benchmark_quick():
     stdout = _run([str(ROOT / "benchmarks" / "terrain.py"), "--quick"], ROOT)
     assert "dem: 200 x 200 cells" in stdout and "mesh: 20,000 triangles" in stdout
 
 
+@pytest.mark.slow
 def test_pictures_benchmark_quick():
     stdout = _run([str(ROOT / "benchmarks" / "pictures.py"), "--quick"], ROOT)
     assert "points: 2,000,000" in stdout and "pictures in all" in stdout
 
 
+@pytest.mark.slow
 def test_readme_python_block_runs():
     """README's "From Python" block, run as written (from the repository root), gives the values its
     comments state and points with labels."""

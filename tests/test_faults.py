@@ -2,6 +2,7 @@
 up front with one line naming the file, key and reason, exit 2, nothing written, within a second."""
 
 import time
+from pathlib import Path
 
 import pytest
 from test_config import GOOD
@@ -69,6 +70,7 @@ def test_write_failure_reports_the_cause_and_leaves_nothing(tmp_path, monkeypatc
     assert list(out.iterdir()) == []
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("fmt", ["pcd", "laz"])
 def test_real_write_failure_names_the_file_and_leaves_nothing(fmt, tmp_path):
     """A real failing write (a 64 kB file size limit standing in for a full disk): the write names no
@@ -109,6 +111,58 @@ def test_output_folder_that_cannot_be_made_is_refused_before_work(tmp_path, monk
     assert (tmp_path / "taken").read_text() == "x"
 
 
+@pytest.mark.parametrize("command", ["render", "plan", "trees", "export", "dataset"])
+def test_an_empty_output_folder_is_refused(tmp_path, monkeypatch, capsys, command):
+    """``-o ""`` would be the working folder (Path("") is "."): refused in one line, nothing written."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "scene.yaml").write_text(GOOD)
+    assert main([command, *([] if command == "trees" else ["scene.yaml"]), "-o", ""]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == "mitsuforest: -o: must name a folder, got an empty path (give . for the working folder)"
+    assert [p.name for p in tmp_path.iterdir()] == ["scene.yaml"]
+
+
+@pytest.mark.parametrize("command", ["render", "plan", "trees", "export"])
+def test_an_output_folder_in_proc_is_refused_before_work(tmp_path, monkeypatch, capsys, command):
+    """``os.access`` lets root write anywhere, /proc too; the folder is tried before any work."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "scene.yaml").write_text(GOOD)
+    assert main([command, *([] if command == "trees" else ["scene.yaml"]), "-o", "/proc/mitsuforest/out"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("mitsuforest: /proc/mitsuforest/out: the output folder cannot be written (/proc: "), err
+    assert err.count("\n") == 0
+
+
+def _denied(name, real):
+    """``real`` (a reader such as open), raising PermissionError for files called ``name``: a file this
+    user cannot read (chmod 000 does not stop root, who runs the tests)."""
+    def reader(path, *args, **kwargs):
+        if Path(path).name == name:
+            raise PermissionError(13, "Permission denied", str(path))
+        return real(path, *args, **kwargs)
+    return reader
+
+
+@pytest.mark.parametrize("unreadable", ["scene.yaml", "sensor.yaml", "tree.csv"])
+def test_an_unreadable_input_file_is_bad_input(tmp_path, monkeypatch, capsys, unreadable):
+    """A scene, sensor or tree file that cannot be read is named in one line with exit 2 (bad input),
+    not reported as a failing write (exit 1)."""
+    from mitsuforest.trees import sources
+    from test_config import SENSORS
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "sensor.yaml").write_text((SENSORS / "riegl_vux-1uav22.yaml").read_text())
+    (tmp_path / "tree.csv").write_text("radius,start_x,start_y,start_z,end_x,end_y,end_z\n0.1,0,0,0,0,0,5\n")
+    scene = GOOD.replace(str(SENSORS / "riegl_vux-1uav22.yaml"), "sensor.yaml")
+    (tmp_path / "scene.yaml").write_text(scene.replace("trees: 1", "trees: 1, models: [{qsm: tree.csv}]"))
+    monkeypatch.setattr(Path, "read_text", _denied(unreadable, Path.read_text))
+    monkeypatch.setattr(sources, "open", _denied(unreadable, open), raising=False)
+    assert main(["render", "scene.yaml", "-o", "out"]) == 2
+    err = capsys.readouterr().err
+    assert err == f"mitsuforest: {unreadable}: cannot be read (Permission denied)\n"
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.slow
 def test_second_render_into_a_busy_folder_is_refused(tmp_path, capsys):
     """Render A is scanning; render B of the same scene into the same folder refuses in one line, and A
     is untouched."""
@@ -178,6 +232,39 @@ def _las(tmp_path, label=True, n=1000):
     return path
 
 
+def _laz(tmp_path, n=1000):
+    """A finished LAZ of ``n`` points and where its points begin."""
+    import laspy
+    import numpy as np
+
+    from mitsuforest.scan import POINT_DTYPE
+    from mitsuforest.write.las import write_las
+    points = np.zeros(n, POINT_DTYPE)
+    points["x"], points["return_number"], points["number_of_returns"] = np.arange(n) * 0.01, 1, 1
+    path = tmp_path / "p.laz"
+    write_las(path, points, [0.0, 0.0, 0.0])
+    with laspy.open(str(path)) as reader:
+        return path, reader.header.offset_to_point_data
+
+
+def _laz_killed_before_a_chunk(tmp_path):
+    """A LAZ as a render killed before its first chunk leaves it: counts 0, nothing after the header."""
+    path, start = _laz(tmp_path)
+    return _cut(_counted(path, 0), start)
+
+
+def _laz_killed_after_a_chunk(tmp_path):
+    """A LAZ as a render killed after its first chunk leaves it: counts 0, the chunk table's offset still
+    the placeholder lazrs writes first (where the points begin), no table."""
+    path, start = _laz(tmp_path)
+    return _patched(_counted(path, 0), start, start.to_bytes(8, "little"))
+
+
+def _counted(path, count):
+    """``path`` with its header's point counts (legacy 32-bit and LAS 1.4 64-bit) set to ``count``."""
+    return _patched(_patched(path, 107, min(count, 2**32 - 1).to_bytes(4, "little")), 247, count.to_bytes(8, "little"))
+
+
 def _random(tmp_path, name):
     path = tmp_path / name
     path.write_bytes(bytes(range(256)) * 40)
@@ -214,6 +301,13 @@ DAMAGED = {
     "las of random bytes": (lambda t: _random(t, "r.las"), "cannot read"),
     "las cut after its VLRs": (lambda t: _cut(_las(t), 1200), "truncated: the header promises 1,000 points"),
     "las of an unknown point format": (lambda t: _patched(_las(t), 104, bytes([42])), "cannot read"),
+    "las of a killed render": (lambda t: _counted(_las(t), 0), "the header counts 0 points but 1,000 follow: an "
+                               "unfinished file (its writer stopped before closing it, as a killed render's does)"),
+    "laz of a render killed before its first chunk": (lambda t: _laz_killed_before_a_chunk(t), "the file ends where "
+                                                      "its compressed points begin: an unfinished file"),
+    "laz of a render killed later": (lambda t: _laz_killed_after_a_chunk(t), "no chunk table (its offset reads "),
+    "laz with absurd count": (lambda t: _counted(_laz(t)[0], 999_999_999_999), "damaged: the header counts "
+                              "999,999,999,999 points, more than its 1 compressed chunk of 50,000 can hold"),
 }
 
 
@@ -276,6 +370,7 @@ def _wait_until_mapped(proc, library: str, timeout: float = 60.0) -> None:
     raise AssertionError(f"the process did not load {library}")
 
 
+@pytest.mark.slow
 def test_interrupt_during_the_heavy_imports_exits_130_without_traceback(tmp_path):
     """SIGINT sent while Mitsuba, Dr.Jit and trimesh import (timed from the moment numpy, the first of
     them, is loaded, so that the machine's load does not move the moment) and just after: exit 130,
@@ -329,6 +424,7 @@ def test_pcd_coordinates_are_float32_without_an_offset(tmp_path):
 STAGES = ("plan", "trees", "scene", "scan", "write", "commit")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("sig", ["SIGINT", "SIGTERM"])
 def test_signal_at_every_stage_leaves_nothing(sig, tmp_path, monkeypatch, capsys):
     """The signal is sent by the stage itself, so each run is cut exactly where it is meant to be:

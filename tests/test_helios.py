@@ -214,6 +214,20 @@ def test_a_survey_that_cannot_be_read_is_named_once(survey, message, tmp_path, m
     assert capsys.readouterr().err == f"mitsuforest: {message}\n"
 
 
+def test_an_unreadable_survey_is_bad_input(tmp_path, monkeypatch, capsys):
+    """A survey this user cannot read (chmod 000 does not stop root, who runs the tests): exit 2, not a
+    failing write's exit 1."""
+    from mitsuforest.helios import survey
+    (tmp_path / "survey.xml").write_text("<document/>")
+    def denied(path, *args, **kwargs):
+        raise PermissionError(13, "Permission denied", str(path))
+    monkeypatch.setattr(survey.ET, "parse", denied)
+    monkeypatch.chdir(tmp_path)
+    assert main(["render", "survey.xml", "-o", "out"]) == 2
+    assert capsys.readouterr().err == "mitsuforest: survey.xml: cannot be read (Permission denied)\n"
+    assert not (tmp_path / "out").exists()
+
+
 def test_a_missing_material_file_is_named(tmp_path, monkeypatch, capsys):
     """Without its .mtl the ground part has no helios_isGround: the refusal says why."""
     _demo_like_survey(tmp_path)

@@ -198,6 +198,7 @@ def _wait_for_points(proc, out, timeout=300):
     raise AssertionError("the render did not reach the scan")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("how", ["kill", "interrupt", "terminate"])
 def test_stopped_render_leaves_nothing_that_looks_complete(tmp_path, how):
     # 36 minutes of flight (624 M pulse slots): far longer than the wait for its first points on a CPU or GPU.

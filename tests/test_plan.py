@@ -113,6 +113,7 @@ def test_plan_command(tmp_path, capsys):
     assert (tmp_path / "closed_plan.json").exists()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["open", "closed"])
 def test_understory_never_enters_a_stem(name):
     """No vertex of any bush, rock, stump or log lies inside a tree's stem (checked on the meshes)."""

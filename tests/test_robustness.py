@@ -107,6 +107,20 @@ def test_code_hash_changes_with_a_library_version(monkeypatch):
         cache.code_hash.cache_clear()
 
 
+@pytest.mark.parametrize("dist", ["numpy", "trimesh", "manifold3d", "pymeshfix", "scipy"])
+def test_code_hash_changes_with_each_library_that_shapes_a_model(monkeypatch, dist):
+    """A new version of any one library whose results a model's bytes hold (pymeshfix repairs imported
+    wood; scipy finds trimesh's loose parts) makes a new key, so no stale repair is reused."""
+    version = cache.importlib.metadata.version
+    before = cache.code_hash()
+    monkeypatch.setattr(cache.importlib.metadata, "version", lambda d: "0.0" if d == dist else version(d))
+    cache.code_hash.cache_clear()
+    try:
+        assert cache.code_hash() != before
+    finally:
+        cache.code_hash.cache_clear()
+
+
 @pytest.mark.parametrize("damage", [b"", b"not a zip file", b"PK\x03\x04 truncated zip"])
 def test_damaged_entry_is_rebuilt(model_cache, damage):
     build = Builds()
@@ -164,6 +178,46 @@ def test_staging_removes_only_its_own_and_dead_renders_folders(tmp_path, pids):
     assert (tmp_path / "test.pcd").read_text() == "ours"
 
 
+@pytest.fixture
+def disk_events(monkeypatch):
+    """Every os.fsync and os.replace, in order: ("fsync", inode) and ("replace", inode of the source)."""
+    events, fsync, replace = [], os.fsync, os.replace
+
+    def record_fsync(fd):
+        events.append(("fsync", os.fstat(fd).st_ino))
+        fsync(fd)
+
+    def record_replace(source, target):
+        events.append(("replace", os.stat(source).st_ino))
+        replace(source, target)
+    monkeypatch.setattr(os, "fsync", record_fsync)
+    monkeypatch.setattr(os, "replace", record_replace)
+    return events
+
+
+def test_atomic_write_flushes_the_file_before_its_rename_and_the_folder_after(tmp_path, disk_events):
+    from mitsuforest.write.atomic import write_text
+    write_text(tmp_path / "a.txt", "content")
+    file, folder = (tmp_path / "a.txt").stat().st_ino, tmp_path.stat().st_ino
+    assert disk_events == [("fsync", file), ("replace", file), ("fsync", folder)]
+
+
+def test_staging_commit_flushes_each_file_before_its_rename_and_the_folder_after(tmp_path, disk_events):
+    staging = Staging(tmp_path, "test")
+    staging.file(".pcd").write_text("points")
+    staging.file("_manifest.json").write_text("{}")
+    staging.commit()
+    pcd, manifest = (tmp_path / "test.pcd").stat().st_ino, (tmp_path / "test_manifest.json").stat().st_ino
+    folder = tmp_path.stat().st_ino
+    renames = [e for e in disk_events if e[0] == "replace"]
+    assert renames == [("replace", pcd), ("replace", manifest)]            # the manifest last
+    for ino in (pcd, manifest):
+        assert disk_events.index(("fsync", ino)) < disk_events.index(("replace", ino))
+    assert disk_events[-1] == ("fsync", folder)                              # every name in place on disk
+    before_manifest = disk_events[:disk_events.index(("replace", manifest))]
+    assert before_manifest[-1] == ("fsync", folder)                          # the others' names before it
+
+
 def test_two_stagings_of_one_process_are_apart(tmp_path):
     a, b = Staging(tmp_path, "test"), Staging(tmp_path, "test")
     assert a.path != b.path and a.path.name.endswith(f"-{HOST}-{os.getpid()}")
@@ -199,6 +253,36 @@ def test_more_than_15_returns_are_written_as_15(tmp_path, suffix):
     assert np.asarray(las.return_number).tolist() == list(range(1, 16)) + [15] * 5
     assert set(np.asarray(las.number_of_returns).tolist()) == {15}
     assert np.allclose(las.x, points["x"])
+
+
+OFFSET = [500000.0, 6000000.0, 0.0]
+
+
+@pytest.mark.parametrize("suffix", [".las", ".laz"])
+def test_las_creation_date_is_never_the_day_of_the_run(tmp_path, monkeypatch, suffix):
+    """The header's creation date is 2000-01-01, or the day of SOURCE_DATE_EPOCH: a file written on
+    another day has the same bytes (a dataset rendered across midnight gave other LAZ bytes)."""
+    import datetime
+
+    import laspy.header
+
+    class OtherDay(datetime.date):
+        @classmethod
+        def today(cls):
+            return cls(2031, 7, 9)
+    monkeypatch.delenv("SOURCE_DATE_EPOCH", raising=False)
+    write_las(tmp_path / ("today" + suffix), _points(), OFFSET)
+    monkeypatch.setattr(laspy.header, "date", OtherDay)
+    write_las(tmp_path / ("other_day" + suffix), _points(), OFFSET)
+    assert (tmp_path / ("today" + suffix)).read_bytes() == (tmp_path / ("other_day" + suffix)).read_bytes()
+    assert laspy.read(str(tmp_path / ("today" + suffix))).header.creation_date == datetime.date(2000, 1, 1)
+    monkeypatch.setenv("SOURCE_DATE_EPOCH", "1700000000")   # 2023-11-14 22:13:20 UTC
+    write_las(tmp_path / ("epoch" + suffix), _points(), OFFSET)
+    assert laspy.read(str(tmp_path / ("epoch" + suffix))).header.creation_date == datetime.date(2023, 11, 14)
+    monkeypatch.setenv("SOURCE_DATE_EPOCH", "yesterday")
+    with pytest.raises(UserError, match="SOURCE_DATE_EPOCH: must be whole seconds since 1970-01-01 UTC, got 'yesterday'"):
+        write_las(tmp_path / ("bad" + suffix), _points(), OFFSET)
+    assert not (tmp_path / ("bad" + suffix)).exists()
 
 
 def test_las_without_crs_has_no_crs_vlr_but_the_wkt_bit(tmp_path):

@@ -4,7 +4,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from helpers import analytic_scene, plane_model, pulses, scene_file
+from helpers import ROOT, analytic_scene, plane_model, pulses, scene_file
 
 from mitsuforest.classes import GROUND, ROCK
 from mitsuforest.pipeline import render
@@ -273,3 +273,27 @@ def test_same_bytes_for_any_batch_size(tmp_path, variant, pattern):
     for suffix in (".pcd", ".laz"):
         a, b = ((f / f"test{suffix}").read_bytes() for f in files)
         assert len(a) > 100_000 and a == b, suffix
+
+
+def test_variant_scope_puts_back_the_variant_it_found():
+    """Nested scopes, and a block that fails, leave the variant they found (this test ends with the
+    process's own, whatever it was)."""
+    import mitsuba as mi
+    from mitsuforest.scene.variant import variant_scope
+    with variant_scope("scalar_rgb"):
+        with variant_scope("llvm_ad_mono"):
+            assert mi.variant() == "llvm_ad_mono" and mi.Float is mi.llvm_ad_mono.Float
+        assert mi.variant() == "scalar_rgb" and mi.Float is mi.scalar_rgb.Float
+        with pytest.raises(ZeroDivisionError), variant_scope("llvm_ad_mono"):
+            1 / 0
+        assert mi.variant() == "scalar_rgb"
+
+
+def test_first_variant_scope_of_a_process_leaves_its_variant():
+    """Mitsuba 3.9 cannot go back to no variant: a process's first scope leaves its own (documented)."""
+    import subprocess
+    import sys
+    script = ("import mitsuba as mi\nfrom mitsuforest.scene.variant import variant_scope\n"
+              "assert mi.variant() is None\nwith variant_scope('scalar_rgb'):\n    pass\nprint(mi.variant())\n")
+    proc = subprocess.run([sys.executable, "-c", script], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0 and proc.stdout == "scalar_rgb\n", proc.stderr

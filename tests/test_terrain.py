@@ -154,6 +154,14 @@ def test_mesh_terrain_from_a_file(tmp_path):
     assert np.abs(plan.terrain.z - 0.1 * gx).max() < 1e-6     # PLY stores float32
 
 
+@pytest.mark.parametrize("text", ["hello world\nnot a mesh\n", ""])
+def test_a_terrain_mesh_without_triangles_is_named_so(tmp_path, text):
+    """Garbage that trimesh reads as an empty mesh was called 'does not cover the whole plot'."""
+    (tmp_path / "ground.obj").write_text(text)
+    with pytest.raises(ConfigError, match=r"terrain.path: .*ground.obj: the terrain mesh has no triangles"):
+        make_plan(load_scene(scene_file(tmp_path, terrain={"type": "mesh", "path": "ground.obj"})))
+
+
 def test_leg_reach_uses_the_dem_height_range(tmp_path):
     """A DEM rising 40 m across the plot: a leg's reach is set by the depth from the platform to the
     DEM's lowest point in the plot (30 m altitude above the mean, plus mean - lowest), not by
@@ -177,6 +185,19 @@ def test_leg_reach_uses_the_dem_height_range(tmp_path):
         make_plan(scene(80.0))
 
 
+def test_ground_rising_above_the_flight_is_refused(tmp_path):
+    """A DEM rising 80 m across the 40 m plot (6 to 86 m, mean 46) under a flight 30 m above its mean:
+    its top lies above the platform (the ideal sensor: no minimum range), so the scene is refused before
+    any work; 1 m above the top, it is flown."""
+    dem = write_dem(tmp_path / "dem.tif", lambda x, y: 100.0 + 2.0 * (x - EAST))
+    scene = load_scene(dem_scene(tmp_path, dem))
+    with pytest.raises(ConfigError, match="survey.altitude: the ground rises 40.0 m above its mean height, higher "
+                                          "than the flight at survey.altitude 30 m; fly higher"):
+        make_plan(scene)
+    assert make_plan(scene.with_({"survey.altitude": 41})).legs[0].start[2] == pytest.approx(87.0)
+
+
+@pytest.mark.slow
 def test_the_example_dem_scene_renders(tmp_path):
     """examples/dem.yaml on examples/data/dem.tif (made by examples/data/make_dem.py), cut to one 20 s
     leg: ground points lie on the DEM's analytic surface (95 % within 2 cm), in its CRS's metres; trees, shrubs

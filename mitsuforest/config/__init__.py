@@ -234,8 +234,30 @@ SCENE_SPEC = {
 }
 
 
+MAX_OFFSET = 1e9   # m: beyond every projected CRS (eastings and northings are below 1e7 m); float64 keeps 0.1 mm to ~1e11 m
+MAX_YAML_DEPTH = 100   # nesting levels; a scene needs about 6. PyYAML composes recursively: 1,000 levels overflow
+
+
+class _TooDeep(yaml.YAMLError):
+    def __init__(self, mark):
+        super().__init__()
+        self.problem_mark, self.problem = mark, f"nested deeper than {MAX_YAML_DEPTH} levels"
+
+
 class _UniqueKeyLoader(yaml.SafeLoader):
-    """A safe loader that refuses a mapping with a key given twice (PyYAML keeps the last silently)."""
+    """A safe loader that refuses a mapping with a key given twice (PyYAML keeps the last silently) and
+    nesting deeper than :data:`MAX_YAML_DEPTH` (a RecursionError otherwise)."""
+
+    _depth = 0
+
+    def compose_node(self, parent, index):
+        if self._depth >= MAX_YAML_DEPTH:
+            raise _TooDeep(self.peek_event().start_mark)
+        self._depth += 1
+        try:
+            return super().compose_node(parent, index)
+        finally:
+            self._depth -= 1
 
     def construct_mapping(self, node, deep=False):
         seen = set()
@@ -253,13 +275,18 @@ def read_yaml(path) -> tuple[object, Context]:
     if not path.is_file():
         raise ConfigError(display_path(path), "", "file not found" if not path.exists() else "not a file")
     try:
-        data = yaml.load(path.read_text(), Loader=_UniqueKeyLoader)
+        text = path.read_text()
+    except OSError as e:   # unreadable (permissions): bad input, not a failing write
+        raise ConfigError(display_path(path), "", f"cannot be read ({e.strerror or e})") from None
+    except UnicodeDecodeError:
+        raise ConfigError(path, "", "not a text file") from None
+    try:
+        data = yaml.load(text, Loader=_UniqueKeyLoader)
     except yaml.YAMLError as e:
         mark = getattr(e, "problem_mark", None)
         where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark else ""
-        raise ConfigError(path, "", f"YAML syntax error: {where}{getattr(e, 'problem', None) or e}") from None
-    except UnicodeDecodeError:
-        raise ConfigError(path, "", "not a text file") from None
+        kind = "" if isinstance(e, _TooDeep) else "YAML syntax error: "
+        raise ConfigError(path, "", f"{kind}{where}{getattr(e, 'problem', None) or e}") from None
     return data, Context(display_path(path))
 
 
@@ -337,6 +364,10 @@ def _parsed_scene(data, ctx: Context) -> dict:
 
 def _check_scene(scene: dict, ctx: Context):
     forest, survey, sensor = scene["forest"], scene["survey"], scene["sensor"]
+    for i, value in enumerate(scene["origin"]["offset"]):
+        if abs(value) > MAX_OFFSET:
+            ctx.fail(f"origin.offset[{i}]", f"{value:g} m is no map coordinate: projected CRSs stay within "
+                     f"±{MAX_OFFSET:g} m, and far beyond that float64 cannot keep the points' 0.1 mm")
     ground_layer = scene["understory"]["grass"]["cover"] + scene["understory"]["litter"]["cover"]
     if ground_layer > 1:
         ctx.fail("understory.litter.cover", f"grass and litter patches do not overlap: their covers add up to "

@@ -163,6 +163,8 @@ def name_problem(name: str) -> str | None:
         return "must not be empty"
     if any(c in name for c in "/\\\0"):
         return f"must be a plain file name, without / or \\, got {name!r}"
+    if any(ord(c) < 32 or 127 <= ord(c) < 160 for c in name):   # newlines, tabs, terminal escape codes
+        return f"must not hold control characters, got {name!r}"
     if name.startswith("."):
         return f"must not start with a dot (a hidden file; . and .. are folders), got {name!r}"
     if len(name.encode()) > MAX_NAME_BYTES:

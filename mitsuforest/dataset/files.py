@@ -127,7 +127,7 @@ def read_plot_points(folder, name: str, formats) -> np.ndarray:
     las = laspy.read(str(folder / f"{name}.{fmt}"))
     dtype = [("treeid", "<u2"), ("x", "<f8"), ("y", "<f8"), ("z", "<f8"), ("classification", "u1"),
              ("instance", "<u4"), ("object_id", "<u4"), ("number_of_returns", "u1"), ("return_number", "u1"),
-             ("intensity", "<f4"), ("gps_time", "<f8"), ("scan_angle", "<f4")]
+             ("intensity", "<f4"), ("gps_time", "<f8"), ("scan_angle", "<f4"), ("species", "u1")]
     out = np.zeros(len(las.points), dtype)
     for key, value in (("treeid", las.treeid), ("x", las.x), ("y", las.y), ("z", las.z),
                        ("classification", las.label), ("instance", las.instance), ("object_id", las.object_id),
@@ -135,6 +135,8 @@ def read_plot_points(folder, name: str, formats) -> np.ndarray:
                        ("intensity", las.amplitude), ("gps_time", las.gps_time),
                        ("scan_angle", np.asarray(las.scan_angle) * 0.006)):
         out[key] = np.asarray(value)
+    if "species" in las.point_format.extra_dimension_names:   # files written before it was added lack it
+        out["species"] = np.asarray(las.species)
     return out
 
 

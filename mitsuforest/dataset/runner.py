@@ -9,6 +9,8 @@ stops with the command.
 
 from __future__ import annotations
 
+import hashlib
+import json
 import logging
 import os
 import time
@@ -107,8 +109,7 @@ def _run(client, dataset: Dataset, root: str, threads, splits, progress: bool):
         futures, kept = _submit_split_plots(client, dataset, root, threads)
         records += [_with_values({**r, "skipped": True}, dataset) for r in kept]
     else:
-        futures = [client.submit(tasks.render_plot, root, p.name, dataset.tiles, threads, key=f"plot-{p.name}",
-                                 retries=RETRIES, pure=False) for p in dataset.plots]
+        futures = _submit_plots(client, dataset, root, threads)
     bars = _Bars(progress, len(dataset.plots), sum(_pulses(p.scene) for p in dataset.plots))
     bars.plot(len(records), sum(r["pulses"] for r in records))
     try:
@@ -118,11 +119,39 @@ def _run(client, dataset: Dataset, root: str, threads, splits, progress: bool):
     return records, failures
 
 
+def dataset_token(dataset: Dataset, root: str) -> str:
+    """A short hash of the dataset (every value of its file, defaults filled) and its output folder: part of
+    every task key, so that two datasets on one shared scheduler never share a key (their plots have the same
+    names), while a re-run of the same dataset keeps its keys."""
+    text = json.dumps([dataset.resolved, dataset.file, str(root)], sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def task_key(kind: str, token: str, plot: str, *rest) -> str:
+    """A Dask key, ``KIND-TOKEN-PLOT[-REST...]`` (kind: ``plot``, ``check`` or ``legs``)."""
+    return "-".join([kind, token, plot, *map(str, rest)])
+
+
+def _plot_of(key: str) -> str:
+    """The plot a task key names (a plot's name may hold ``-``; the token never does)."""
+    kind, _, rest = key.partition("-")
+    plot = rest.partition("-")[2]
+    return plot.rsplit("-", 1)[0] if kind == "legs" else plot
+
+
+def _submit_plots(client, dataset: Dataset, root: str, threads) -> list:
+    """One task per plot; returns the futures."""
+    token = dataset_token(dataset, root)
+    return [client.submit(tasks.render_plot, root, p.name, dataset.tiles, threads, key=task_key("plot", token, p.name),
+                          retries=RETRIES, pure=False) for p in dataset.plots]
+
+
 def _submit_split_plots(client, dataset: Dataset, root: str, threads):
     """Per plot not finished yet: one task per ``legs_per_task`` legs, then one merging them (Dask runs it
     when they are done). Returns (futures, records of the finished plots)."""
-    checks = client.gather([client.submit(tasks.check_plot, root, p.name, key=f"check-{p.name}", pure=False)
-                            for p in dataset.plots])
+    token = dataset_token(dataset, root)
+    checks = client.gather([client.submit(tasks.check_plot, root, p.name, key=task_key("check", token, p.name),
+                                          pure=False) for p in dataset.plots])
     futures, kept = [], []
     for plot, record in zip(dataset.plots, checks):
         if record is not None:
@@ -130,10 +159,10 @@ def _submit_split_plots(client, dataset: Dataset, root: str, threads):
             continue
         legs = len(_legs(plot.scene))
         parts = [client.submit(tasks.scan_legs, root, plot.name, first, min(first + dataset.legs_per_task, legs),
-                               threads, key=f"legs-{plot.name}-{first}", retries=RETRIES, pure=False)
+                               threads, key=task_key("legs", token, plot.name, first), retries=RETRIES, pure=False)
                  for first in range(0, legs, dataset.legs_per_task)]
         futures += [*parts, client.submit(tasks.merge_plot, root, plot.name, parts, dataset.tiles, threads,
-                                          key=f"plot-{plot.name}", retries=RETRIES, pure=False)]
+                                          key=task_key("plot", token, plot.name), retries=RETRIES, pure=False)]
     return futures, kept
 
 
@@ -142,7 +171,7 @@ def _follow(futures, records: list, dataset: Dataset, root: str, splits, bars) -
     (its other tasks are cancelled). The index is rewritten every INDEX_EVERY_S. Returns the failures."""
     from dask.distributed import as_completed
     failures, last_index = {}, time.perf_counter()
-    plot_of = {f.key: f.key.split("-")[1] for f in futures}     # keys: plot-NAME, legs-NAME-FIRST
+    plot_of = {f.key: _plot_of(f.key) for f in futures}
     for future in as_completed(futures):
         name = plot_of[future.key]
         if name in failures or future.status == "cancelled":

@@ -98,6 +98,8 @@ class _Reader:
                 self.docs[path] = ET.parse(path).getroot()
             except ET.ParseError as e:
                 self.fail(element, f"{named}not valid XML ({e})")
+            except OSError as e:   # unreadable (permissions): bad input, not a failing write
+                self.fail(element, f"{named}cannot be read ({e.strerror or e})")
         return self.docs[path]
 
     def locate_document(self, text: str) -> Path:

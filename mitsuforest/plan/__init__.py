@@ -86,7 +86,9 @@ MAX_LEG_PULSES = 2 ** 32     # time slots are numbered in 32 bits within a leg
 
 
 def _checked_legs(scene, legs: list[Leg], terrain: Terrain) -> list[Leg]:
-    """Refuse legs that overflow the per-leg pulse counter or never come within reach of the plot."""
+    """Refuse legs that overflow the per-leg pulse counter, never come within reach of the plot, or fly
+    into the ground."""
+    _check_ground_below_flight(scene, legs, terrain)
     for i, leg in enumerate(legs):
         key = f"survey.lines[{i}]" if scene.survey.lines else "survey"
         count = leg.pulse_count(scene.pulse_frequency)
@@ -98,6 +100,19 @@ def _checked_legs(scene, legs: list[Leg], terrain: Terrain) -> list[Leg]:
             raise _Refusal(key, f"the leg passes {gap:,.1f} m from the plot, beyond the sensor's reach of "
                            f"{reach:,.1f} m at this altitude")
     return legs
+
+
+def _check_ground_below_flight(scene, legs: list[Leg], terrain: Terrain) -> None:
+    """The plot's highest ground must lie at least the sensor's minimum range below the lowest leg: higher
+    ground would put the platform in or under the terrain (points above it, pulses fired upwards)."""
+    top, flight = float(terrain.z.max()), min(min(leg.start[2], leg.end[2]) for leg in legs)
+    clearance = scene.sensor.range_min
+    if top > flight - clearance:
+        key = "terrain.amplitude" if scene.terrain.type == "noise" else "survey.altitude"
+        less = f" less the sensor's minimum range {clearance:g} m" if clearance else ""
+        raise _Refusal(key, f"the ground rises {top - terrain.mean_height:,.1f} m above its mean height, higher than "
+                       f"the flight at survey.altitude {scene.survey.altitude:g} m{less}; fly higher or give gentler "
+                       "terrain")
 
 
 def _leg_gap(leg: Leg, size) -> float:

@@ -100,6 +100,8 @@ def _mesh_heights(path, x, y):
         mesh = trimesh.load(path, force="mesh")
     except Exception as e:  # trimesh raises many kinds for unreadable files
         raise UserError(f"{path}: cannot read terrain mesh: {e}") from None
+    if not len(mesh.faces):   # trimesh reads text it cannot parse (an OBJ of garbage) as an empty mesh
+        raise UserError(f"{path}: the terrain mesh has no triangles (not a mesh file trimesh can read?)")
     z = heights_under(mesh.triangles, x, y)
     if np.isnan(z).any():
         raise UserError(f"{path}: terrain mesh does not cover the whole plot")

@@ -1,7 +1,9 @@
 """Choosing the Mitsuba variant (CPU: llvm_ad_mono, GPU: cuda_ad_mono).
 
-The variant is never set globally: the stages that need Mitsuba run under ``mi.variant_context``, so
-scenes of two variants can live in one process (the tests run both where a GPU is present).
+The stages that need Mitsuba run under :func:`variant_scope`, which sets the variant for the block and
+puts back the one it found, so scenes of two variants can live in one process (the tests run both where
+a GPU is present). Mitsuba's variant is one per process, and Mitsuba 3.9 has no way back to "no variant"
+(``set_variant`` takes variant names only), so a process's first scope leaves its variant set.
 """
 
 from __future__ import annotations
@@ -105,16 +107,17 @@ def scene_variant(scene) -> str:
 
 @contextmanager
 def variant_scope(variant: str):
-    """Run a block under a Mitsuba variant and restore the previous one afterwards.
+    """Run a block under a Mitsuba variant and put back the variant found, also when the block fails.
 
-    ``mi.variant_context`` of Mitsuba 3.9 fails on exit when no variant was set before it (it calls
-    ``set_variant(None)``); this does the same without that case.
+    With no variant set before (a process's first scope), the block's variant stays set: Mitsuba 3.9
+    cannot unset one (``set_variant(None)`` fails, which is why ``mi.variant_context`` fails on exit
+    then).
     """
     import mitsuba as mi
     previous = mi.variant()
-    if previous is not None:
-        with mi.variant_context(variant):
-            yield
-        return
     mi.set_variant(variant)
-    yield
+    try:
+        yield
+    finally:
+        if previous is not None:
+            mi.set_variant(previous)

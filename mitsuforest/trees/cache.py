@@ -29,7 +29,9 @@ from .volume import WoodVolume
 log = logging.getLogger(__name__)
 
 NOT_GENERATORS = ("cache.py", "gallery.py")                   # trees/ modules that make no geometry
-GENERATOR_LIBRARIES = ("numpy", "trimesh", "manifold3d")      # their results can change between versions
+# Libraries whose results a model's bytes hold, so their versions are in the key: pymeshfix repairs imported
+# wood (trees/repair.py), scipy finds the loose parts for trimesh (trimesh.graph.connected_components).
+GENERATOR_LIBRARIES = ("numpy", "trimesh", "manifold3d", "pymeshfix", "scipy")
 LOAD_ERRORS = (OSError, EOFError, ValueError, KeyError, TypeError, zipfile.BadZipFile)
 
 _write_failed = False   # set once a write failed, so the warning is given once per process

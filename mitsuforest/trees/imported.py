@@ -23,7 +23,7 @@ from .meshfile import check_height, joined, read_pieces, split_by_patterns, stem
 from .models import Component, Model, Part, merge
 from .qsm import read_qsm
 from .repair import PartRepair, UnrepairablePart, boundary_loops, loose_parts, repair_part
-from .sources import UNITS, MeshTree, ModelFileError, QsmTree, content_hash, source_name
+from .sources import MAX_RADIUS, UNITS, MeshTree, ModelFileError, QsmTree, content_hash, source_name
 from .tubes import signed_volume, tube
 from .volume import WoodVolume, union_volume
 
@@ -129,6 +129,10 @@ def qsm_tree_model(entry: QsmTree, name: str) -> Model:
     cyl = read_qsm(entry.qsm)
     start, end = (to_tree_frame(p, entry.units, entry.up) for p in (cyl.start, cyl.end))
     radius = cyl.radius * UNITS[entry.units]
+    widest = int(np.argmax(radius))
+    if radius[widest] > MAX_RADIUS:   # before the tubes: a 1e9 m cylinder would be meshed and unioned
+        raise ModelFileError(entry.qsm, f"line {cyl.line[widest]}", f"radius {radius[widest]:,.4g} m with units: "
+                             f"{entry.units} is wider than any tree (at most {MAX_RADIUS:g} m); check units")
     lowest = int(np.argmin(np.minimum(start[:, 2], end[:, 2])))   # a table may list a cylinder top down
     base = min(start[lowest], end[lowest], key=lambda p: p[2]).copy()
     start, end = start - base, end - base

@@ -21,6 +21,7 @@ UP_AXES = ("z", "y")
 REPAIR_MODES = ("fix", "skip")
 DEFAULT_LEAF_PATTERNS = ("*leaf*", "*leaves*", "*foliage*", "*needle*")
 MIN_HEIGHT, MAX_HEIGHT = 0.1, 150.0   # m: outside this an imported tree has the wrong units
+MAX_RADIUS = 10.0                      # m: a QSM cylinder wider than this (the widest stems are ~5 m) has the wrong units
 
 
 @dataclass(frozen=True)
@@ -77,12 +78,15 @@ def content_hash(paths) -> str:
     digest = hashlib.sha256()
     for path in paths:
         digest.update(Path(path).suffix.lower().encode() + b"\0kind\0")
-        _hash_file(digest, path)
-        for companion in companion_files(path):
-            if Path(companion).is_file():
-                _hash_file(digest, companion)
-            else:
-                digest.update(b"\0missing\0" + Path(companion).name.encode())
+        try:
+            _hash_file(digest, path)
+            for companion in companion_files(path):
+                if Path(companion).is_file():
+                    _hash_file(digest, companion)
+                else:
+                    digest.update(b"\0missing\0" + Path(companion).name.encode())
+        except OSError as e:   # unreadable (permissions): bad input, not a failing write
+            raise ModelFileError(e.filename or path, "", f"cannot be read ({e.strerror or e})") from None
         digest.update(b"\0file\0")
     return digest.hexdigest()
 

@@ -19,7 +19,7 @@ import numpy as np
 
 from ..errors import UserError
 
-from .atomic import TMP_MARK, owner_is_gone, owner_tag, write_json, write_text
+from .atomic import TMP_MARK, fsync_file, fsync_folder, owner_is_gone, owner_tag, write_json, write_text
 from .las import write_las
 from .pcd import read_pcd
 from .figures import write_profile_figure, write_returns_figure, write_tile_figure, write_top_figure
@@ -70,7 +70,8 @@ def write_plan(folder, name: str, plan) -> Path:
 
 def check_output_folder(folder) -> None:
     """Refuse, before any work, an output folder that cannot be made or written: a file, a path under a
-    file, or a folder this user cannot write (the nearest existing folder on the way is checked)."""
+    file, or a folder this user cannot write (the nearest existing folder on the way is checked, by making
+    and removing a folder in it: ``os.access`` says yes to root, also in ``/proc`` or ``/sys``)."""
     folder = Path(folder).absolute()
     existing = next(p for p in (folder, *folder.parents) if p.exists())
     if not existing.is_dir():
@@ -78,6 +79,10 @@ def check_output_folder(folder) -> None:
         raise UserError(f"{folder}: the output folder {what}")
     if not os.access(existing, os.W_OK | os.X_OK):
         raise UserError(f"{folder}: the output folder cannot be written ({existing}: permission denied)")
+    try:
+        os.rmdir(tempfile.mkdtemp(prefix=".write-test-", dir=existing))
+    except OSError as e:
+        raise UserError(f"{folder}: the output folder cannot be written ({existing}: {e.strerror or e})") from None
 
 
 @contextmanager
@@ -139,16 +144,29 @@ class Staging:
     def file(self, suffix: str) -> Path:
         return self.path / (self.name + suffix)
 
+    def sync(self) -> None:
+        """Flush every staged file to disk (the slow part of :meth:`commit`, which may come first, where a
+        signal can still stop it; the files are then flushed again at no cost)."""
+        for p in self.path.iterdir():
+            fsync_file(p)
+
     def commit(self) -> list[Path]:
-        """Remove the previous render's files, then move the new ones in, the manifest last."""
+        """Remove the previous render's files, then move the new ones in, the manifest last. Each file
+        is flushed to disk before its rename, and the folder before the manifest's rename and after it,
+        so a crash of the machine never leaves a renamed file without its content, nor the manifest
+        without the files it lists."""
+        self.sync()
         for old in existing_outputs(self.folder, self.name):
             (self.folder / old).unlink()
         staged = sorted(self.path.iterdir(), key=lambda p: p.name.endswith("_manifest.json"))
         moved = []
         for p in staged:
             target = self.folder / p.name
+            if p.name.endswith("_manifest.json"):
+                fsync_folder(self.folder)
             os.replace(p, target)
             moved.append(target)
+        fsync_folder(self.folder)
         self.path.rmdir()
         return moved
 

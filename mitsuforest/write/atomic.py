@@ -9,6 +9,7 @@ never disturbed.
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import math
 import os
@@ -52,10 +53,42 @@ def atomic_path(path):
     tmp = path.with_name(f"{path.name}{TMP_MARK}{owner_tag()}")
     try:
         yield tmp
-        os.replace(tmp, path)
+        durable_replace(tmp, path)
     finally:
         if tmp.exists():
             tmp.unlink()
+
+
+def durable_replace(source, target) -> None:
+    """Rename ``source`` to ``target`` so that a crash of the machine leaves the old file or the whole new
+    one: ``source``'s content is flushed to disk before the rename, and the folder's entry after it."""
+    fsync_file(source)
+    os.replace(source, target)
+    fsync_folder(Path(target).parent)
+
+
+def fsync_file(path) -> None:
+    """Flush a file's content to disk."""
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def fsync_folder(path) -> None:
+    """Flush a folder's entries (names renamed into it) to disk, where the system can: Windows opens no
+    folder, and some file systems cannot sync one (EINVAL)."""
+    if os.name == "nt":
+        return
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    except OSError as e:
+        if e.errno != errno.EINVAL:
+            raise
+    finally:
+        os.close(fd)
 
 
 def write_text(path, text: str) -> None:

@@ -35,7 +35,7 @@ def load_points(path) -> tuple[dict, list[str], dict]:
     except PointFileError as e:
         raise UserError(f"{path}: {e}") from None
     except (ValueError, KeyError, OSError, MemoryError, EOFError) as e:
-        raise UserError(f"{path}: cannot read: {e}") from None
+        raise UserError(f"{path}: cannot read: {e or type(e).__name__}") from None
     except Exception as e:  # laspy and lazrs raise their own kinds for damaged files
         raise UserError(f"{path}: cannot read: {type(e).__name__}: {e}") from None
     raise UserError(f"{path}: unknown point file type {suffix!r} (expected .pcd, .las or .laz)")
@@ -65,6 +65,9 @@ def _load_las(path: Path) -> tuple[dict, list[str], dict]:
             held = max(path.stat().st_size - header.offset_to_point_data, 0) // header.point_format.size
             raise PointFileError(f"truncated: the header promises {header.point_count:,} points, the file "
                                  f"holds {held:,}")
+        problem = _uncounted_points(path, header) if not header.are_points_compressed else _laz_problem(path, header)
+        if problem:
+            raise PointFileError(problem)
         las = reader.read()
     names = list(las.point_format.dimension_names)
     cols = {n: np.asarray(las[n]) for n in names}
@@ -73,6 +76,44 @@ def _load_las(path: Path) -> tuple[dict, list[str], dict]:
         cols["classification"] = cols["label"]
         return cols, names, CLASS_NAMES
     return cols, names, {k: f"{v} (ASPRS {k})" for k, v in ASPRS_NAMES.items()}
+
+
+UNFINISHED = "an unfinished file (its writer stopped before closing it, as a killed render's does)"
+
+
+def _uncounted_points(path: Path, header) -> str | None:
+    """An uncompressed file whose header counts 0 points while points follow (laspy reads none)."""
+    end = header.start_of_first_evlr if getattr(header, "number_of_evlrs", 0) else path.stat().st_size
+    held = max(end - header.offset_to_point_data, 0) // header.point_format.size
+    if header.point_count == 0 and held:
+        return f"the header counts 0 points but {held:,} follow: {UNFINISHED}"
+    return None
+
+
+def _laz_problem(path: Path, header) -> str | None:
+    """What makes a LAZ file unreadable before its points are decompressed: no chunk table (a LAZ file
+    gets it when it is closed, so one of a killed render has none, and laspy would read 0 points), or a
+    point count its chunks cannot hold (laspy would try to allocate it)."""
+    start, size = header.offset_to_point_data, path.stat().st_size
+    with open(path, "rb") as f:
+        f.seek(start)
+        raw = f.read(8)
+        if len(raw) < 8:
+            return f"the file ends where its compressed points begin: {UNFINISHED}"
+        table = int.from_bytes(raw, "little", signed=True)
+        if table == -1 and size >= start + 16:   # LASzip's streamed files keep the offset in their last 8 bytes
+            f.seek(size - 8)
+            table = int.from_bytes(f.read(8), "little", signed=True)
+        if not start + 8 <= table <= size - 8:
+            return f"no chunk table (its offset reads {table:,}), so the points cannot be found: {UNFINISHED}"
+        f.seek(table)
+        chunks = int.from_bytes(f.read(8)[4:], "little")
+    vlr = next((v for v in header.vlrs if v.user_id == "laszip encoded"), None)
+    chunk_size = int.from_bytes(vlr.record_data_bytes()[12:16], "little") if vlr else 0xFFFFFFFF
+    if chunk_size != 0xFFFFFFFF and header.point_count > chunks * chunk_size:
+        return (f"damaged: the header counts {header.point_count:,} points, more than its {chunks:,} compressed "
+                f"chunk{'s' if chunks != 1 else ''} of {chunk_size:,} can hold")
+    return None
 
 
 def summary(path) -> str:

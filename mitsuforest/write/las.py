@@ -16,8 +16,10 @@ as LAS 1.4 requires for point format 6 (with or without a CRS).
 from __future__ import annotations
 
 import contextlib
+import datetime
 import errno
 import json
+import os
 from pathlib import Path
 
 import laspy
@@ -32,6 +34,7 @@ ASPRS_CODE = {GROUND: 2, TREE_WOOD: 5, TREE_LEAVES: 5, BUSH: 4, GROUND_VEGETATIO
 INTENSITY_SCALE = 1e-6   # amplitude units per LAS intensity count (65535 ≙ a 6.5 % full-beam target at 1 m)
 COORDINATE_SCALE = 1e-4  # m
 LAS_MAX_RETURNS = 15     # point format 6 has 4 bits for each return field; the PCD keeps larger counts
+DEFAULT_CREATION_DATE = datetime.date(2000, 1, 1)   # the header's date without SOURCE_DATE_EPOCH (not today)
 
 try:
     from lazrs import LazrsError
@@ -78,10 +81,24 @@ def _proj_reason(error: Exception) -> str:
     return str(error).rpartition("proj_create: ")[2].removesuffix(")") or str(error)
 
 
+def creation_date() -> datetime.date:
+    """The header's file creation date: the UTC day of ``SOURCE_DATE_EPOCH`` when it is set (the
+    reproducible-builds convention), else :data:`DEFAULT_CREATION_DATE`, never the day of the run, so a
+    scene gives the same bytes on any day."""
+    epoch = os.environ.get("SOURCE_DATE_EPOCH", "").strip()
+    if not epoch:
+        return DEFAULT_CREATION_DATE
+    try:
+        return datetime.datetime.fromtimestamp(int(epoch), datetime.timezone.utc).date()
+    except (ValueError, OverflowError, OSError):
+        raise UserError(f"SOURCE_DATE_EPOCH: must be whole seconds since 1970-01-01 UTC, got {epoch!r}") from None
+
+
 def las_header(offset, crs: str | None = None) -> laspy.LasHeader:
     """A LAS 1.4 point format 6 header with our extra dimensions, the coding VLR and, when ``crs``
     is given, its WKT VLR (see :func:`crs_wkt`, which raises :class:`UserError` for a bad one)."""
     header = laspy.LasHeader(point_format=6, version="1.4")
+    header.creation_date = creation_date()
     header.offsets = np.asarray(offset, float)
     header.scales = np.full(3, COORDINATE_SCALE)
     header.add_extra_dims([
