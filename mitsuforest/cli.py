@@ -1,4 +1,4 @@
-"""The ``mitsuforest`` command line: render, plan, trees, export, dataset, info.
+"""The ``mitsuforest`` command line: render, plan, trees, export, dataset, twin, info.
 
 User errors (bad files, bad values, refused overwrites, a busy or unwritable output folder) print
 one line ``mitsuforest: ...`` and exit with code 2, without a traceback. A write that fails mid-run
@@ -71,6 +71,17 @@ def _parser() -> argparse.ArgumentParser:
     d.add_argument("--threads", type=int, help="Dr.Jit threads per worker (default: cores / workers locally, "
                                                "all cores of each machine with --scheduler)")
     d.add_argument("--quiet", action="store_true", help="no progress bars or summary")
+
+    tw = sub.add_parser("twin", help="write a scene that reproduces a real scan",
+                        description="Write DIR/<name>.yaml (renderable as it is), its DEM GeoTIFF, trees.csv and "
+                                    "twin.json from a real LAS/LAZ scan: ground, trees on a canopy height model, "
+                                    "understory and the survey estimated from the points.")
+    tw.add_argument("file", type=Path, help="a .las or .laz scan (or our .pcd)")
+    tw.add_argument("-o", "--output", type=Path, required=True, help="output folder")
+    tw.add_argument("--species", nargs="+", default=[], metavar="NAME",
+                    help="procedural species of the trees, drawn in turn (default: pinus_radiata)")
+    tw.add_argument("--sensor", type=Path, help="a sensor file to use instead of the estimated sensor")
+    tw.add_argument("--name", help="the scene's name (default: the file's stem)")
 
     i = sub.add_parser("info", help="summarise a point file", description="Summarise a PCD, LAS or LAZ file.")
     i.add_argument("file", type=Path, help="a .pcd, .las or .laz file")
@@ -201,6 +212,22 @@ def _dataset(args) -> int:
     return 0
 
 
+def _twin(args) -> int:
+    from .classes import TREE_SPECIES
+    from .twin import make_twin
+    for s in args.species:
+        if s not in TREE_SPECIES:
+            raise UserError(f"--species: must be one of {', '.join(TREE_SPECIES)}, got {s!r}")
+    if args.sensor is not None:
+        from .config import load_sensor
+        load_sensor(args.sensor)                    # a bad sensor file is refused before any work
+    report = make_twin(args.file, args.output, species=args.species, sensor=args.sensor, name=args.name)
+    name = args.name or args.file.stem
+    print(f"{name}: {report['trees']['count']} trees, {report['understory']['bushes']} bushes, "
+          f"plot {report['plot']['size'][0]:g} x {report['plot']['size'][1]:g} m; wrote {args.output / (name + '.yaml')}")
+    return 0
+
+
 def _info(args) -> int:
     from .write.info import summary
     print(summary(args.file))
@@ -208,7 +235,7 @@ def _info(args) -> int:
 
 
 _COMMANDS = {"render": _render, "plan": _plan, "trees": _trees, "export": _export, "dataset": _dataset,
-             "info": _info}
+             "twin": _twin, "info": _info}
 
 if __name__ == "__main__":
     raise SystemExit(main())
