@@ -43,9 +43,10 @@ def plot_frame(x, y, z_ground) -> TwinFrame:
     return TwinFrame((float(x0), float(y0), float(z0)), (float(w), float(h)))
 
 
-def analyse(scan, settings: detection.DetectionSettings = detection.DetectionSettings()) -> dict:
+def analyse(scan, settings: detection.DetectionSettings | None = None) -> dict:
     """Everything the twin scene needs from a :class:`~.points.RealScan` (pure): frame, DEM, trees,
-    bushes, survey estimate and the notes on what was assumed."""
+    bushes, survey estimate and the notes on what was assumed. Without ``settings``, the detection's
+    defaults with a CHM cell for the scan's density (:func:`~.detection.chm_cell`)."""
     notes = []
     if scan.ground is not None and scan.ground.any():
         is_ground, ground_source = scan.ground, "the file's ground class"
@@ -58,6 +59,9 @@ def analyse(scan, settings: detection.DetectionSettings = detection.DetectionSet
     shape = (int(frame.size[1] / DEM_CELL) + 2, int(frame.size[0] / DEM_CELL) + 2)
     dem = ground.dem(scan.x[is_ground], scan.y[is_ground], scan.z[is_ground], x0, y0, shape, DEM_CELL)
     h = scan.z - ground.ground_height(dem, x0, y0, DEM_CELL, scan.x, scan.y)
+    if settings is None:
+        first = np.count_nonzero(scan.return_number == 1) / (frame.size[0] * frame.size[1])
+        settings = detection.DetectionSettings(cell=detection.chm_cell(first))
     cx, cy = frame.offset[0], frame.offset[1]
     chm_shape = (int(math.ceil(frame.size[1] / settings.cell)), int(math.ceil(frame.size[0] / settings.cell)))
     chm = detection.canopy_height_model(scan.x, scan.y, h, cx, cy, chm_shape, settings.cell)

@@ -47,7 +47,7 @@ def read_scan(path) -> RealScan:
     ground = None
     if classes is not None and classes.any():
         ground = classes == (GROUND if "label" in names else 2)
-    returns = _column(cols, "return_number", n, 1)
+    returns = np.maximum(_column(cols, "return_number", n, 1), 1)     # 0: a writer that did not fill it
     counts = np.maximum(_column(cols, "number_of_returns", n, 1), returns)
     return RealScan(
         path=str(path), x=x, y=y, z=z, ground=ground, return_number=returns, number_of_returns=counts,

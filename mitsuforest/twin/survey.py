@@ -8,7 +8,8 @@
   lines (linear least squares): altitude above the ground, speed and heading follow.
 * Scan rate: a rotating or oscillating mirror crosses the plot once per scan line, so the returns come
   in bursts one scan period apart: the period is the median spacing of burst starts.
-* Pulse rate: pulses in a burst (one per first return) over the burst's duration.
+* Pulse rate: one over the median spacing of first returns in a burst (or, where GPS times are too
+  coarse to tell pulses apart, the burst's pulses over its duration).
 * Field of view: at least twice the largest scan angle seen.
 
 What cannot be estimated (no GPS time, no pulse with two returns, too few bursts) is left ``None``
@@ -123,9 +124,16 @@ def scan_period(groups: list[np.ndarray]) -> float | None:
 
 
 def pulse_rate(groups_first: list[np.ndarray]) -> float | None:
-    """Pulses per second inside bursts of first-return times (bursts of at least 10 pulses)."""
-    rates = [(len(b) - 1) / (b[-1] - b[0]) for b in groups_first if len(b) >= 10 and b[-1] > b[0]]
-    return float(np.median(rates)) if rates else None
+    """Pulses per second inside bursts of first-return times (bursts of at least 10 pulses): one over the
+    median spacing of consecutive pulses, which pulses without a return do not bias; where the GPS time
+    is too coarse to tell pulses apart (more than 5 % share a time), the pulses of a burst over its length."""
+    bursts_ = [b for b in groups_first if len(b) >= 10 and b[-1] > b[0]]
+    if not bursts_:
+        return None
+    spacing = np.concatenate([np.diff(b) for b in bursts_])
+    if np.mean(spacing == 0) <= 0.05:
+        return float(1.0 / np.median(spacing[spacing > 0]))
+    return float(np.median([(len(b) - 1) / (b[-1] - b[0]) for b in bursts_]))
 
 
 def estimate(scan, ground_height: float) -> SurveyEstimate:

@@ -1,0 +1,138 @@
+"""mitsuforest twin: a scene from a scan recovers the trees, ground and survey of one of our own scans."""
+
+import json
+import subprocess
+import sys
+
+import laspy
+import numpy as np
+import pytest
+import yaml
+
+from conftest import ROOT, _demo_scene
+
+LEGS = [[[4.0, -5.0], [4.0, 25.0]], [[16.0, 25.0], [16.0, -5.0]]]   # 12 m apart, 30 m above the flat ground
+
+
+PINES = [{"species": "pinus_radiata", "base": k} for k in (1, 2, 3)]
+
+
+@pytest.fixture(scope="module")
+def demo_twin(tmp_path_factory):
+    """The demo plot with upright pines (single leaders: a tree's top stands over its stem) and bushes,
+    scanned along two legs 12 m apart with 7 sub-rays (a thin beam gives one return a pulse, and the
+    trajectory needs pulses with two), and its twin."""
+    from mitsuforest.pipeline import render
+    from mitsuforest.twin import make_twin
+    scene = _demo_scene(tmp_path_factory, "llvm_ad_mono", rocks=0, deadwood=0, stumps=0).with_(
+        {"survey.lines": LEGS, "output.formats": ["laz"], "forest.tilt": 0, "forest.archetypes": PINES})
+    result = render(scene, progress=False, log=lambda *_: None)
+    laz = next(f for f in map(str, result.files) if f.endswith(".laz"))
+    out = tmp_path_factory.mktemp("twin")
+    report = make_twin(laz, out, species=["pinus_radiata"], log=lambda *_: None)
+    return result, laz, out, report
+
+
+def test_twin_finds_the_trees_where_and_as_tall_as_they_are(demo_twin):
+    from mitsuforest.twin.detection import match, scores
+    result, _, out, _ = demo_twin
+    plan = result.plan
+    truth = np.array([t.position[:2] for t in plan.trees])
+    heights = np.array([plan.models[t.model].archetype.height for t in plan.trees])
+    rows = np.genfromtxt(out / "trees.csv", delimiter=",", names=True, dtype=None, encoding=None)
+    found = np.column_stack([rows["x"], rows["y"]]).reshape(-1, 2)
+    assert scores(found, truth, 1.5)["f1"] >= 0.9
+    i, j = match(found, truth, 1.5)
+    rmse = float(np.sqrt(np.mean((np.atleast_1d(rows["height"])[i] - heights[j]) ** 2)))
+    assert rmse < 1.0, rmse
+
+
+def test_twin_dem_is_the_ground_within_5_cm(demo_twin):
+    import rasterio
+    _, _, out, report = demo_twin
+    with rasterio.open(out / f"{report_name(out)}_dem.tif") as d:
+        z = d.read(1)
+    assert np.abs(z).max() < 0.05          # the demo's ground is flat at z = 0
+
+
+def report_name(out):
+    return next(out.glob("*.yaml")).stem
+
+
+def test_twin_estimates_altitude_and_line_spacing_of_the_survey(demo_twin):
+    _, _, out, report = demo_twin
+    survey = report["survey"]
+    assert survey["altitude"]["source"] == "estimated"
+    assert abs(survey["altitude"]["value"] - 30.0) < 1.0          # flown at 30 m over flat ground
+    assert abs(survey["speed"]["value"] - 2.0) < 0.1
+    scene = yaml.safe_load((out / f"{report_name(out)}.yaml").read_text())
+    xs = sorted(np.mean([p[0] for p in leg]) for leg in scene["survey"]["lines"])
+    assert len(xs) == 2 and abs((xs[1] - xs[0]) - 12.0) < 0.5   # the legs 12 m apart, within 0.5 m
+    assert abs(scene["survey"]["scan_frequency"] - 50.0) < 1.0
+    assert abs(scene["survey"]["pulse_frequency"] - 100_000) < 5_000
+
+
+def test_twin_scene_loads_and_plans_one_model_per_tree(demo_twin):
+    from mitsuforest.config import load_scene
+    from mitsuforest.plan import make_plan
+    _, _, out, report = demo_twin
+    scene = load_scene(out / f"{report_name(out)}.yaml")
+    plan = make_plan(scene)
+    assert len(plan.trees) == report["trees"]["count"] == len({t.model for t in plan.trees})
+
+
+def test_tree_list_places_each_tree_grown_to_its_size(tmp_path):
+    from mitsuforest.config import load_scene
+    from mitsuforest.plan import make_plan
+    (tmp_path / "trees.csv").write_text("x,y,height,crown_radius,species\n1005,2005,12,2.5,pinus_radiata\n"
+                                        "1014,2012,18,3.0,\n")
+    (tmp_path / "s.yaml").write_text(
+        "area: {size: [20, 20]}\norigin: {offset: [1000, 2000, 0]}\nforest: {trees_file: trees.csv}\n"
+        "understory: {bushes: 0, rocks: 0, deadwood: 0, stumps: 0}\n"
+        f"sensor: {ROOT / 'sensors' / 'ideal.yaml'}\nsurvey: {{lines: [[[10, -5], [10, 25]]]}}\n")
+    plan = make_plan(load_scene(tmp_path / "s.yaml"))
+    got = [(t.position[:2], plan.models[t.model].archetype) for t in plan.trees]
+    assert [p for p, _ in got] == [(5.0, 5.0), (14.0, 12.0)]
+    assert [(a.height, a.crown_diameter, a.species) for _, a in got] == [(12.0, 5.0, "pinus_radiata"),
+                                                                          (18.0, 6.0, "eucalyptus")]
+
+
+def _run(*args, cwd=ROOT):
+    return subprocess.run([sys.executable, "-m", "mitsuforest", *map(str, args)], cwd=cwd, capture_output=True,
+                          text=True)
+
+
+def test_twin_refuses_an_empty_or_damaged_file_in_one_line(tmp_path):
+    empty = tmp_path / "empty.las"
+    las = laspy.create(point_format=6, file_version="1.4")
+    las.write(str(empty))
+    damaged = tmp_path / "damaged.laz"
+    damaged.write_bytes(b"LASF" + b"\0" * 50)
+    for f, words in ((empty, "holds no points"), (damaged, "cannot read"), (tmp_path / "none.laz", "file not found")):
+        r = _run("twin", f, "-o", tmp_path / "out")
+        assert r.returncode == 2 and r.stderr.count("\n") == 1 and words in r.stderr, r.stderr
+        assert not (tmp_path / "out").exists()
+
+
+def test_twin_without_ground_points_or_gps_time_says_so_and_uses_named_fallbacks(tmp_path):
+    rng = np.random.default_rng(1)
+    n = 20_000
+    x, y = rng.uniform(0, 30, n), rng.uniform(0, 30, n)
+    z = 100.0 + 0.1 * x + np.where(rng.uniform(size=n) < 0.3, rng.uniform(0, 8, n), 0.0)
+    las = laspy.create(point_format=1, file_version="1.2")
+    las.header.offsets, las.header.scales = [500_000, 6_000_000, 0], [0.001] * 3
+    las.x, las.y, las.z = x + 500_000, y + 6_000_000, z
+    f = tmp_path / "plain.las"
+    las.write(str(f))
+    r = _run("twin", f, "-o", tmp_path / "out")
+    assert r.returncode == 0, r.stderr
+    assert "lowest-point filter" in r.stderr and "no GPS time" in r.stderr
+    report = json.loads((tmp_path / "out" / "twin.json").read_text())
+    assert report["survey"]["altitude"] == {"value": 30.0, "source": "default (the file has no GPS time)"}
+    import rasterio
+    with rasterio.open(tmp_path / "out" / "plain_dem.tif") as d:
+        dem, t = d.read(1), d.transform
+    cols = np.arange(dem.shape[1])
+    inner = dem[2:-2, 2:-2]
+    expected = 100.0 + 0.1 * (t.c + (cols[2:-2] + 0.5) * t.a - 500_000)
+    assert np.abs(inner - expected[None, :]).max() < 0.1      # the sloping ground, vegetation filtered out
