@@ -62,11 +62,13 @@ def survey_plan(analysis: dict, sensor=None) -> tuple[dict, dict | str, dict]:
     scan_frequency = round(pick("scan_frequency", est.scan_frequency), 3)
     fov = pick("field_of_view", fov_seen)
     out = {"altitude": round(altitude, 2), "speed": round(speed, 3), "margin": MARGIN}
-    if est.tracks and est.heading is not None:
-        local = [survey_estimation.leg_ends(tr, est.heading, frame.bounds, MARGIN) for tr in est.tracks]
+    if est.line_positions and est.heading is not None:
+        local = [survey_estimation.leg_ends(p, est.heading, frame.bounds, MARGIN) for p in est.line_positions]
         out["lines"] = [[[round(a - frame.offset[0], 2), round(b - frame.offset[1], 2)] for a, b in leg] for leg in local]
-        report["lines"] = {"value": len(local), "source": f"estimated ({len(local)} of the file's {est.lines} lines "
-                                                           "placed from their tracks)"}
+        placed = {k: est.line_sources.count(k) for k in ("track", "scan angle", "not placed")}
+        report["lines"] = {"value": len(local), "source": f"estimated: of the file's {est.lines} lines, "
+                           f"{placed['track']} on their tracks, {placed['scan angle']} by scan angle and beam side, "
+                           f"{placed['not placed']} not placed (too few pulses with two returns)"}
         spacing = None
     else:
         spacing = DEFAULTS["line_spacing"]

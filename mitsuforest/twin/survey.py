@@ -25,8 +25,7 @@ import numpy as np
 LINE_GAP = 1.0          # s: a pause this long between returns starts a new flight line
 MIN_BEAM_LENGTH = 1.0   # m between a pulse's first and last returns for its beam direction to count
 MIN_RAYS = 20           # pulses with two returns a line needs for its track
-GOOD_TRACK = 0.5        # m: RMS miss of the beams below which a track's speed and heading are trusted
-USABLE_TRACK = 5.0      # m: ... below which its position still places a flight line (heading from the good ones)
+GOOD_TRACK = 0.5        # m: RMS miss of the beams below which a track is trusted
 BURST_GAP = 0.5e-3      # s: returns further apart than this (and 20 median spacings) start a new burst
 
 
@@ -48,6 +47,8 @@ class SurveyEstimate:
 
     lines: int
     tracks: tuple[Track, ...] = ()
+    line_positions: tuple[tuple[float, float], ...] = ()   # a point each placed line passes through (file frame)
+    line_sources: tuple[str, ...] = ()         # per file line: track, scan angle or not placed
     altitude: float | None = None              # m above the mean ground
     speed: float | None = None                 # m/s
     heading: float | None = None               # deg clockwise from +y, of the line axis (0-180)
@@ -136,27 +137,53 @@ def pulse_rate(groups_first: list[np.ndarray]) -> float | None:
     return float(np.median([(len(b) - 1) / (b[-1] - b[0]) for b in bursts_]))
 
 
+@dataclass(frozen=True)
+class _Line:
+    """What one flight line's points say: its track (if any), the mean horizontal direction of its beams
+    towards the scanner, its points' centroid (x, y, z) and median absolute scan angle (deg)."""
+
+    track: Track | None
+    towards_scanner: np.ndarray | None
+    centroid: np.ndarray
+    scan_angle: float | None
+
+
+def _line(scan, g: np.ndarray, xyz: np.ndarray) -> _Line:
+    t = scan.gps_time
+    anchors, directions, times = beam_rays(xyz[g], t[g], scan.return_number[g], scan.number_of_returns[g])
+    track = fit_track(anchors, directions, times) if len(times) >= MIN_RAYS and np.ptp(times) > 0 else None
+    towards = None
+    if len(directions):
+        mean = directions[:, :2].mean(axis=0)
+        towards = mean / np.linalg.norm(mean) if np.linalg.norm(mean) > 0 else None
+    angle = float(np.median(np.abs(scan.scan_angle[g]))) if scan.scan_angle is not None else None
+    return _Line(track, towards, xyz[g].mean(axis=0), angle)
+
+
 def estimate(scan, ground_height: float) -> SurveyEstimate:
     """Estimate the survey of a :class:`~mitsuforest.twin.points.RealScan` whose mean ground height
-    (file coordinates) is ``ground_height``."""
+    (file coordinates) is ``ground_height``.
+
+    A line whose own track fits its beams well (within ``GOOD_TRACK``) is placed on it. Another line
+    with beams is placed parallel to the good tracks, on the side its beams point to, as far across as
+    its median scan angle says at the sensor's height: ``(z_sensor - z_points) · tan(angle)``.
+    """
     missing = {}
     t = scan.gps_time
-    groups = line_groups(scan.point_source_id, t)
+    groups = line_groups(scan.point_source_id, t) if t is not None else []
     if t is None:
         missing.update({k: "the file has no GPS time" for k in ("lines", "altitude", "speed", "scan_frequency",
                                                                  "pulse_frequency")})
     xyz = np.column_stack([scan.x, scan.y, scan.z])
-    tracks, periods, rates = [], [], []
-    for g in groups if t is not None else []:
-        first_times = t[g][scan.return_number[g] == 1]
-        line_bursts = bursts(t[g])
-        if (p := scan_period(line_bursts)) is not None:
+    periods, rates = [], []
+    for g in groups:
+        if (p := scan_period(bursts(t[g]))) is not None:
             periods.append(p)
-        if (r := pulse_rate(bursts(first_times))) is not None:
+        if (r := pulse_rate(bursts(t[g][scan.return_number[g] == 1]))) is not None:
             rates.append(r)
-        anchors, directions, times = beam_rays(xyz[g], t[g], scan.return_number[g], scan.number_of_returns[g])
-        if len(times) >= MIN_RAYS and np.ptp(times) > 0:
-            tracks.append(fit_track(anchors, directions, times))
+    lines = [_line(scan, g, xyz) for g in groups]
+    tracks = [ln.track for ln in lines if ln.track is not None]
+    good = [tr for tr in tracks if tr.residual <= GOOD_TRACK] or tracks
     if t is not None and not tracks:
         why = (f"no flight line has {MIN_RAYS} pulses with a first and a last return {MIN_BEAM_LENGTH:g} m apart "
                "(return numbers and GPS times of one pulse are needed)")
@@ -170,15 +197,37 @@ def estimate(scan, ground_height: float) -> SurveyEstimate:
         fov = float(2 * np.max(np.abs(scan.scan_angle)))
     else:
         missing["field_of_view"] = "the file has no scan angle"
-    good = [tr for tr in tracks if tr.residual <= GOOD_TRACK] or tracks
+    heading = _heading(good) if good else None
+    sensor_z = float(np.median([tr.position[2] for tr in good])) if good else None
+    positions, sources = _line_positions(lines, good, heading, sensor_z)
     return SurveyEstimate(
-        lines=len(groups), tracks=tuple(tr for tr in tracks if tr.residual <= USABLE_TRACK) or tuple(good),
-        altitude=float(np.median([tr.position[2] for tr in good]) - ground_height) if tracks else None,
-        speed=float(np.median([np.hypot(*tr.velocity[:2]) for tr in good])) if tracks else None,
-        heading=_heading(good) if tracks else None,
+        lines=len(groups), tracks=tuple(tracks), line_positions=positions, line_sources=sources,
+        altitude=sensor_z - ground_height if good else None,
+        speed=float(np.median([np.hypot(*tr.velocity[:2]) for tr in good])) if good else None,
+        heading=heading,
         scan_frequency=1.0 / float(np.median(periods)) if periods else None,
         pulse_frequency=float(np.median(rates)) if rates else None,
         field_of_view=fov, missing=missing)
+
+
+def _line_positions(lines: list[_Line], good: list[Track], heading, sensor_z) -> tuple[tuple, tuple]:
+    """A point (x, y) each placed line passes through, and how it was placed (see :func:`estimate`)."""
+    if heading is None:
+        return (), ()
+    across = np.array([np.cos(np.deg2rad(heading)), -np.sin(np.deg2rad(heading))])
+    positions, sources = [], []
+    for ln in lines:
+        if ln.track is not None and ln.track in good:
+            positions.append(tuple(map(float, ln.track.position[:2])))
+            sources.append("track")
+        elif ln.towards_scanner is not None and ln.scan_angle is not None:
+            side = 1.0 if ln.towards_scanner @ across >= 0 else -1.0
+            distance = max(sensor_z - ln.centroid[2], 0.0) * np.tan(np.deg2rad(ln.scan_angle))
+            positions.append(tuple(map(float, ln.centroid[:2] + side * distance * across)))
+            sources.append("scan angle")
+        else:
+            sources.append("not placed")
+    return tuple(positions), tuple(sources)
 
 
 def _heading(tracks) -> float:
@@ -189,11 +238,11 @@ def _heading(tracks) -> float:
     return float(np.rad2deg(doubled) % 180)
 
 
-def leg_ends(track: Track, heading: float, bounds, margin: float) -> tuple[tuple[float, float], tuple[float, float]]:
-    """A leg through the track's position along ``heading`` (deg), over the plot ``bounds``
+def leg_ends(position, heading: float, bounds, margin: float) -> tuple[tuple[float, float], tuple[float, float]]:
+    """A leg through ``position`` (x, y) along ``heading`` (deg), over the plot ``bounds``
     (xmin, ymin, xmax, ymax) projected on it, ``margin`` m beyond each end."""
     axis = np.array([np.sin(np.deg2rad(heading)), np.cos(np.deg2rad(heading))])
-    centre = np.array(track.position[:2])
+    centre = np.array(position[:2], float)
     corners = np.array([[bounds[0], bounds[1]], [bounds[2], bounds[1]], [bounds[0], bounds[3]], [bounds[2], bounds[3]]])
     along = (corners - centre) @ axis
     a, b = centre + (along.min() - margin) * axis, centre + (along.max() + margin) * axis
