@@ -136,3 +136,31 @@ def test_twin_without_ground_points_or_gps_time_says_so_and_uses_named_fallbacks
     inner = dem[2:-2, 2:-2]
     expected = 100.0 + 0.1 * (t.c + (cols[2:-2] + 0.5) * t.a - 500_000)
     assert np.abs(inner - expected[None, :]).max() < 0.1      # the sloping ground, vegetation filtered out
+
+
+def test_tree_list_refuses_a_tree_outside_the_plot_and_a_count_beside_it(tmp_path):
+    from mitsuforest.config import load_scene
+    from mitsuforest.errors import ConfigError
+    from mitsuforest.plan import make_plan
+    (tmp_path / "trees.csv").write_text("x,y,height,crown_radius\n5,5,12,2\n25,5,12,2\n")
+    base = (f"area: {{size: [20, 20]}}\nsensor: {ROOT / 'sensors' / 'ideal.yaml'}\n"
+            "understory: {bushes: 0, rocks: 0, deadwood: 0, stumps: 0}\n")
+    (tmp_path / "s.yaml").write_text(base + "forest: {trees_file: trees.csv}\n")
+    with pytest.raises(ConfigError, match=r"forest.trees_file: tree 2 stands at local x 25.00, y 5.00, outside the plot"):
+        make_plan(load_scene(tmp_path / "s.yaml"))
+    (tmp_path / "s.yaml").write_text(base + "forest: {trees_file: trees.csv, trees: 3}\n")
+    with pytest.raises(ConfigError, match="forest.trees_file: places the trees it lists"):
+        load_scene(tmp_path / "s.yaml")
+
+
+REAL = ROOT.parent / "shared" / "data" / "real"
+
+
+@pytest.mark.skipif(not (REAL / "MixedConifer.laz").is_file(), reason=f"the real scans are not beside the project ({REAL})")
+def test_tree_detection_on_mixedconifer_against_its_labels():
+    import importlib.util
+    spec = importlib.util.spec_from_file_location("twin_benchmark", ROOT / "benchmarks" / "twin.py")
+    benchmark = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(benchmark)
+    scores = benchmark.detection_scores(REAL / "MixedConifer.laz")
+    assert scores["f1"] >= 0.8, scores
