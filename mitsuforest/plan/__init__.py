@@ -167,7 +167,8 @@ def _listed_tree_models(scene, listed) -> dict[str, tuple[np.ndarray, ModelSpec]
     out = {}
     for i, t in enumerate(listed):
         template = nearest_template(t.species or default_species, t.height, archetypes)
-        a = grown_to(template, t.height, 2 * t.crown_radius, seed=int(scene.seed) * 100_003 + i + 1)
+        a = grown_to(template, t.height, 2 * t.crown_radius, seed=int(scene.seed) * 100_003 + i + 1,
+                     leaf_area=t.leaf_area)
         crown, components = _summarise(a)
         out[f"tree{i + 1:02d}"] = crown, ModelSpec("tree", components, archetype=a)
     return out

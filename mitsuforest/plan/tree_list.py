@@ -2,7 +2,8 @@
 
 A CSV file with a header; columns ``x``, ``y`` (in the frame of ``origin``: the local frame plus
 ``origin.offset``, as a DEM's), ``height`` and ``crown_radius`` (m), and optionally ``species`` (one of
-the procedural families; by default the scene's). Each refusal is a
+the procedural families; by default the scene's) and ``leaf_area`` (m², one-sided; by default the
+template's, in proportion to the crown volume). Each refusal is a
 :class:`~mitsuforest.errors.UserError` whose text the plan reports as ``FILE: forest.trees_file: reason``.
 """
 
@@ -27,6 +28,7 @@ class ListedTree:
     height: float
     crown_radius: float
     species: str | None
+    leaf_area: float | None = None
 
 
 def read_tree_list(path, offset=(0.0, 0.0, 0.0)) -> list[ListedTree]:
@@ -42,7 +44,7 @@ def read_tree_list(path, offset=(0.0, 0.0, 0.0)) -> list[ListedTree]:
     missing = [c for c in COLUMNS if c not in header]
     if missing:
         raise UserError(f"{path}: the tree list lacks the column(s) {', '.join(missing)} (header: {','.join(header)})")
-    at = {c: header.index(c) for c in (*COLUMNS, "species") if c in header}
+    at = {c: header.index(c) for c in (*COLUMNS, "species", "leaf_area") if c in header}
     out = []
     for line, row in enumerate(rows[1:], start=2):
         if not row or not "".join(row).strip():
@@ -55,8 +57,13 @@ def read_tree_list(path, offset=(0.0, 0.0, 0.0)) -> list[ListedTree]:
         species = row[at["species"]].strip() if "species" in at else ""
         if species and species not in TREE_SPECIES:
             raise UserError(f"{path}: line {line}: species must be one of {', '.join(TREE_SPECIES)}, got {species!r}")
+        leaf_area = None
+        if "leaf_area" in at and row[at["leaf_area"]].strip():
+            leaf_area = _number(row[at["leaf_area"]], path, line, "leaf_area")
+            if leaf_area < 0:
+                raise UserError(f"{path}: line {line}: leaf_area must be >= 0")
         out.append(ListedTree(values["x"] - offset[0], values["y"] - offset[1], values["height"],
-                              values["crown_radius"], species or None))
+                              values["crown_radius"], species or None, leaf_area))
     return out
 
 

@@ -108,12 +108,14 @@ def describe() -> str:
 ALLOMETRY_EXPONENT = 0.85
 
 
-def grown_to(template: Archetype, height: float, crown_diameter: float, seed: int) -> Archetype:
+def grown_to(template: Archetype, height: float, crown_diameter: float, seed: int,
+             leaf_area: float | None = None) -> Archetype:
     """``template`` grown to ``height`` (m) and ``crown_diameter`` (m): one tree of a listed forest.
 
-    The stem diameter follows Jucker et al.'s allometry from the template's, and the leaf area keeps the
-    template's leaf area per unit of crown volume (crown width² × crown length), so a small tree is not
-    as dense as a tall one; the other parameters (form, branching, leaves) are the template's.
+    The stem diameter follows Jucker et al.'s allometry from the template's, and the leaf area (unless
+    given, m²) keeps the template's leaf area per unit of crown volume (crown width² × crown length), so a
+    small tree is not as dense as a tall one; the other parameters (form, branching, leaves) are the
+    template's.
     """
     height = float(min(max(height, FIELDS["height"].metadata["lo"]), FIELDS["height"].metadata["hi"]))
     crown_diameter = float(min(max(crown_diameter, FIELDS["crown_diameter"].metadata["lo"]),
@@ -121,7 +123,9 @@ def grown_to(template: Archetype, height: float, crown_diameter: float, seed: in
     size = (height * crown_diameter) / (template.height * template.crown_diameter)
     dbh = min(max(template.dbh * size ** ALLOMETRY_EXPONENT, FIELDS["dbh"].metadata["lo"]), FIELDS["dbh"].metadata["hi"])
     crown_volume = (crown_diameter / template.crown_diameter) ** 2 * height / template.height
-    leaf_area = min(template.leaf_area * crown_volume, FIELDS["leaf_area"].metadata["hi"])
+    if leaf_area is None:
+        leaf_area = template.leaf_area * crown_volume
+    leaf_area = min(leaf_area, FIELDS["leaf_area"].metadata["hi"])
     return dataclasses.replace(template, height=round(height, 3), crown_diameter=round(crown_diameter, 3),
                                dbh=round(dbh, 4), leaf_area=round(leaf_area, 2), seed=int(seed), weight=1.0)
 

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import detection, ground, survey, understory
+from . import detection, foliage, ground, survey, understory
 from .points import read_scan
 
 __all__ = ["make_twin", "TwinFrame", "DEM_CELL"]
@@ -66,11 +66,17 @@ def analyse(scan, settings: detection.DetectionSettings | None = None) -> dict:
     chm_shape = (int(math.ceil(frame.size[1] / settings.cell)), int(math.ceil(frame.size[0] / settings.cell)))
     chm = detection.canopy_height_model(scan.x, scan.y, h, cx, cy, chm_shape, settings.cell)
     trees = detection.detect_trees(chm, cx, cy, settings)
+    first = scan.return_number == 1
+    row, col = ground.grid_index(scan.x[first], scan.y[first], cx, cy, settings.cell, chm_shape)
+    gap = foliage.crown_gap_fraction(h[first], chm[row, col] >= settings.min_height)
+    angle = float(np.median(np.abs(scan.scan_angle[first]))) if scan.scan_angle is not None else 0.0
+    lai = foliage.effective_lai(gap, angle) if gap is not None else None
     cells = understory.shrub_cells(scan.x, scan.y, h, cx, cy,
                                    (int(frame.size[1] / understory.CELL), int(frame.size[0] / understory.CELL)))
     estimate = survey.estimate(scan, float(np.mean(dem)))
     pulses = float(np.sum(1.0 / scan.number_of_returns))
     return {"frame": frame, "dem": dem, "dem_origin": (x0, y0), "ground_source": ground_source, "trees": trees,
+            "crown_gap_fraction": gap, "scan_angle": angle, "crown_lai": lai,
             "bushes": understory.bush_count(cells), "shrub_area_m2": float(cells.sum() * understory.CELL ** 2),
             "survey": estimate, "pulse_density": pulses / (frame.size[0] * frame.size[1]), "notes": notes,
             "settings": settings}

@@ -5,8 +5,9 @@ Remote Sensing* 70: 589-604): a CHM cell is a top when it is the highest within 
 diameter grows with its height, their crown-width regressions
 ``CW = 2.51503 + 0.00901 h²`` (pines) and ``CW = 3.09632 + 0.00895 h²`` (broadleaves), scaled by
 ``window_scale``. Crowns are grown from the tops by a marker watershed on the CHM (cells above
-``min_height`` and above ``crown_share`` of their top's height, no farther than the window from it),
-as Dalponte & Coomes (2016) do; a crown's radius is that of the disc of its area.
+``min_height`` and above ``crown_share`` of their top's height, no farther from it than ``crown_reach``
+times the regression's crown width: twice the radius it predicts), as Dalponte & Coomes (2016) do; a
+crown's radius is that of the disc of its area.
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ class DetectionSettings:
     crown_type: str = "conifer"     # WINDOW's regression
     window_scale: float = 0.6       # times the regression's crown width (tuned on MixedConifer's treeID)
     crown_share: float = 0.5        # a crown cell is at least this share of its top's height
+    crown_reach: float = 1.0        # a crown cell is at most this many regression crown widths from its top
 
 
 def chm_cell(first_returns_per_m2: float) -> float:
@@ -103,7 +105,8 @@ def crowns(chm: np.ndarray, tops: np.ndarray, settings: DetectionSettings) -> np
     top_height[1:] = chm[tops[:, 0], tops[:, 1]]
     rows, cols = np.indices(chm.shape)
     reach = np.zeros(len(tops) + 1)
-    reach[1:] = window_diameter(top_height[1:], settings) / settings.cell
+    a, b = WINDOW[settings.crown_type]
+    reach[1:] = settings.crown_reach * (a + b * top_height[1:] ** 2) / settings.cell
     centre_r, centre_c = np.zeros(len(tops) + 1), np.zeros(len(tops) + 1)
     centre_r[1:], centre_c[1:] = tops[:, 0], tops[:, 1]
     far = np.hypot(rows - centre_r[labels], cols - centre_c[labels]) > reach[labels]

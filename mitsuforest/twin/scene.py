@@ -119,13 +119,15 @@ def _write_dem(path: Path, dem: np.ndarray, x0: float, y0: float, crs: str | Non
         dataset.write(north_up, 1)
 
 
-def _write_trees(path: Path, trees, species: tuple[str, ...]) -> None:
+def _write_trees(path: Path, trees, species: tuple[str, ...], lai: float | None) -> None:
+    """``trees.csv``; with a crown LAI, each tree's leaf area is it times the tree's crown area."""
     with open(path, "w", newline="") as f:
         out = csv.writer(f)
-        out.writerow(["x", "y", "height", "crown_radius", "species"])
+        out.writerow(["x", "y", "height", "crown_radius", "species"] + (["leaf_area"] if lai is not None else []))
         for i in range(len(trees.x)):
+            leaf = [f"{lai * np.pi * trees.crown_radius[i] ** 2:.2f}"] if lai is not None else []
             out.writerow([f"{trees.x[i]:.3f}", f"{trees.y[i]:.3f}", f"{trees.height[i]:.3f}",
-                          f"{trees.crown_radius[i]:.3f}", species[i % len(species)]])
+                          f"{trees.crown_radius[i]:.3f}", species[i % len(species)]] + leaf)
 
 
 def write_twin(analysis: dict, scan, out: Path, name: str, species: tuple[str, ...], sensor, log) -> dict:
@@ -158,7 +160,11 @@ def write_twin(analysis: dict, scan, out: Path, name: str, species: tuple[str, .
         "plot": {"offset": list(frame.offset), "size": list(frame.size)},
         "ground": analysis["ground_source"],
         "trees": {"count": len(trees.x), "method": "variable-window local maxima (Popescu & Wynne 2004) on a CHM, "
-                  "crowns by marker watershed", "settings": dataclasses.asdict(analysis["settings"]), "species": list(species)},
+                  "crowns by marker watershed", "settings": dataclasses.asdict(analysis["settings"]),
+                  "species": list(species), "crown_gap_fraction": analysis["crown_gap_fraction"],
+                  "median_scan_angle": analysis["scan_angle"], "crown_lai": analysis["crown_lai"],
+                  "leaf_area": "crown LAI (Beer-Lambert, G = 0.5) x crown area" if analysis["crown_lai"] is not None
+                  else "the species template's, in proportion to crown volume"},
         "understory": {"bushes": analysis["bushes"], "shrub_area_m2": analysis["shrub_area_m2"],
                        "note": "bush count from the area of 1 m cells rich in returns 0.5-3 m above ground; "
                                "placed at random (the scene format has no bush positions)"},
@@ -169,7 +175,7 @@ def write_twin(analysis: dict, scan, out: Path, name: str, species: tuple[str, .
     try:
         x0, y0 = analysis["dem_origin"]
         _write_dem(staging / f"{name}_dem.tif", analysis["dem"], x0, y0, crs)
-        _write_trees(staging / "trees.csv", trees, species)
+        _write_trees(staging / "trees.csv", trees, species, analysis["crown_lai"])
         (staging / f"{name}.yaml").write_text(f"# A twin of {Path(scan.path).name} written by mitsuforest twin; "
                                               "see twin.json for what was estimated.\n"
                                               + yaml.safe_dump(scene, sort_keys=False, width=120))
