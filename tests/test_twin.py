@@ -164,3 +164,30 @@ def test_tree_detection_on_mixedconifer_against_its_labels():
     spec.loader.exec_module(benchmark)
     scores = benchmark.detection_scores(REAL / "MixedConifer.laz")
     assert scores["f1"] >= 0.8, scores
+
+
+def test_crown_lai_inverts_beer_lambert():
+    from mitsuforest.twin.foliage import G, crown_gap_fraction, effective_lai
+    for lai, angle in ((1.0, 0.0), (4.0, 30.0), (2.5, 60.0)):
+        gap = np.exp(-G * lai / np.cos(np.deg2rad(angle)))
+        assert effective_lai(gap, angle) == pytest.approx(lai, rel=1e-12)
+    h = np.array([0.1, 0.2, 5.0, 12.0, 0.3, 20.0])
+    assert crown_gap_fraction(h, [True, False, True, True, True, False]) == 0.5   # 2 of 4 under crowns reach ground
+    assert crown_gap_fraction(h, [False] * 6) is None
+
+
+def test_tree_list_leaf_area_column_sets_each_trees_leaves(tmp_path):
+    from mitsuforest.config import load_scene
+    from mitsuforest.plan import make_plan
+    (tmp_path / "trees.csv").write_text("x,y,height,crown_radius,leaf_area\n5,5,12,2.5,30\n14,12,18,3,\n")
+    (tmp_path / "s.yaml").write_text(
+        "area: {size: [20, 20]}\nforest: {trees_file: trees.csv}\n"
+        "understory: {bushes: 0, rocks: 0, deadwood: 0, stumps: 0}\n"
+        f"sensor: {ROOT / 'sensors' / 'ideal.yaml'}\nsurvey: {{lines: [[[10, -5], [10, 25]]]}}\n")
+    plan = make_plan(load_scene(tmp_path / "s.yaml"))
+    first, second = (plan.models[t.model].archetype for t in plan.trees)
+    assert first.leaf_area == 30.0
+    from mitsuforest.trees.archetypes import DEFAULT_ARCHETYPES
+    template = min(DEFAULT_ARCHETYPES, key=lambda a: abs(a.height - 18))    # the nearest Eucalyptus in height
+    volume = (6.0 / template.crown_diameter) ** 2 * 18 / template.height
+    assert second.leaf_area == pytest.approx(template.leaf_area * volume, abs=0.01)   # by crown volume
