@@ -213,18 +213,11 @@ def _dataset(args) -> int:
 
 
 def _twin(args) -> int:
-    from .classes import TREE_SPECIES
     from .twin import make_twin
-    for s in args.species:
-        if s not in TREE_SPECIES:
-            raise UserError(f"--species: must be one of {', '.join(TREE_SPECIES)}, got {s!r}")
-    if args.sensor is not None:
-        from .config import load_sensor
-        load_sensor(args.sensor)                    # a bad sensor file is refused before any work
     report = make_twin(args.file, args.output, species=args.species, sensor=args.sensor, name=args.name)
-    name = args.name or args.file.stem
-    print(f"{name}: {report['trees']['count']} trees, {report['understory']['bushes']} bushes, "
-          f"plot {report['plot']['size'][0]:g} x {report['plot']['size'][1]:g} m; wrote {args.output / (name + '.yaml')}")
+    print(f"{report['name']}: {report['trees']['count']} trees, {report['understory']['bushes']} bushes, "
+          f"plot {report['plot']['size'][0]:g} x {report['plot']['size'][1]:g} m; "
+          f"wrote {args.output / (report['name'] + '.yaml')}")
     return 0
 
 

@@ -1,8 +1,7 @@
 """mitsuforest twin: a scene from a scan recovers the trees, ground and survey of one of our own scans."""
 
 import json
-import subprocess
-import sys
+from types import SimpleNamespace
 
 import laspy
 import numpy as np
@@ -97,24 +96,37 @@ def test_tree_list_places_each_tree_grown_to_its_size(tmp_path):
                                                                           (18.0, 6.0, "eucalyptus")]
 
 
-def _run(*args, cwd=ROOT):
-    return subprocess.run([sys.executable, "-m", "mitsuforest", *map(str, args)], cwd=cwd, capture_output=True,
-                          text=True)
+def _run(capsys, *args):
+    """``mitsuforest ARGS`` in this process: (exit code, stderr)."""
+    from mitsuforest.cli import main
+    capsys.readouterr()
+    code = main([str(a) for a in args])
+    return SimpleNamespace(returncode=code, stderr=capsys.readouterr().err)
 
 
-def test_twin_refuses_an_empty_or_damaged_file_in_one_line(tmp_path):
+def test_twin_refuses_an_empty_or_damaged_file_in_one_line(tmp_path, capsys):
     empty = tmp_path / "empty.las"
     las = laspy.create(point_format=6, file_version="1.4")
     las.write(str(empty))
     damaged = tmp_path / "damaged.laz"
     damaged.write_bytes(b"LASF" + b"\0" * 50)
     for f, words in ((empty, "holds no points"), (damaged, "cannot read"), (tmp_path / "none.laz", "file not found")):
-        r = _run("twin", f, "-o", tmp_path / "out")
+        r = _run(capsys, "twin", f, "-o", tmp_path / "out")
+        assert r.returncode == 2 and r.stderr.count("\n") == 1 and words in r.stderr, r.stderr
+        assert not (tmp_path / "out").exists()
+    good = tmp_path / "good.las"
+    las = laspy.create(point_format=1, file_version="1.2")
+    las.x, las.y, las.z = np.arange(10.0), np.arange(10.0), np.zeros(10)
+    las.write(str(good))
+    for args, words in ((["--species", "oak"], "--species: must be one of eucalyptus, acacia, pinus_radiata, got 'oak'"),
+                        (["--name", ".hidden"], "--name: must not start with a dot"),
+                        (["--sensor", tmp_path / "none.yaml"], "none.yaml: file not found")):
+        r = _run(capsys, "twin", good, "-o", tmp_path / "out", *args)
         assert r.returncode == 2 and r.stderr.count("\n") == 1 and words in r.stderr, r.stderr
         assert not (tmp_path / "out").exists()
 
 
-def test_twin_without_ground_points_or_gps_time_says_so_and_uses_named_fallbacks(tmp_path):
+def test_twin_without_ground_points_or_gps_time_says_so_and_uses_named_fallbacks(tmp_path, capsys):
     rng = np.random.default_rng(1)
     n = 20_000
     x, y = rng.uniform(0, 30, n), rng.uniform(0, 30, n)
@@ -124,7 +136,7 @@ def test_twin_without_ground_points_or_gps_time_says_so_and_uses_named_fallbacks
     las.x, las.y, las.z = x + 500_000, y + 6_000_000, z
     f = tmp_path / "plain.las"
     las.write(str(f))
-    r = _run("twin", f, "-o", tmp_path / "out")
+    r = _run(capsys, "twin", f, "-o", tmp_path / "out")
     assert r.returncode == 0, r.stderr
     assert "lowest-point filter" in r.stderr and "no GPS time" in r.stderr
     report = json.loads((tmp_path / "out" / "twin.json").read_text())

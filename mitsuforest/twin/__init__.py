@@ -88,7 +88,23 @@ def make_twin(path, out_dir, species=(), sensor=None, name: str | None = None, l
 
     :param species: procedural families drawn for the trees in turn (default ``pinus_radiata``).
     :param sensor: a sensor file to use instead of the estimated sensor.
+    :param name: the scene's name (default: the file's stem, or ``twin`` where that cannot name files).
+    :raises UserError: one line, before anything is written: an unreadable or empty file, an unknown
+        species, a bad name or sensor file, an output folder that cannot be written.
     """
+    from ..classes import TREE_SPECIES
+    from ..config.schema import name_problem
+    from ..errors import UserError
     from .scene import write_twin
+    for s in species:
+        if s not in TREE_SPECIES:
+            raise UserError(f"--species: must be one of {', '.join(TREE_SPECIES)}, got {s!r}")
+    if name is not None and (problem := name_problem(name)):
+        raise UserError(f"--name: {problem}")
+    if sensor is not None:
+        from ..config import load_sensor
+        load_sensor(sensor)                     # a bad sensor file is refused before any work
     scan = read_scan(path)
-    return write_twin(analyse(scan), scan, Path(out_dir), name or Path(path).stem, tuple(species), sensor, log)
+    stem = Path(path).stem
+    name = name or (stem if name_problem(stem) is None else "twin")
+    return write_twin(analyse(scan), scan, Path(out_dir), name, tuple(species), sensor, log)

@@ -66,7 +66,7 @@ def _varying(column) -> np.ndarray | None:
     if column is None:
         return None
     column = np.asarray(column)
-    return column if len(np.unique(column[: 100_000])) > 1 or len(np.unique(column)) > 1 else None
+    return column if len(column) and np.any(column != column[0]) else None
 
 
 def _scan_angle(cols: dict, names: list[str]) -> np.ndarray | None:

@@ -18,8 +18,6 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from ..classes import TREE_SPECIES
-from ..errors import UserError
 from . import DEM_CELL, survey as survey_estimation
 
 DEFAULT_SPECIES = "pinus_radiata"   # both real plots we twin are conifers
@@ -133,15 +131,9 @@ def _write_trees(path: Path, trees, species: tuple[str, ...], lai: float | None)
 def write_twin(analysis: dict, scan, out: Path, name: str, species: tuple[str, ...], sensor, log) -> dict:
     """Write the scene folder (see the module docstring) and return the report."""
     from ..config import load_scene
-    from ..config.schema import name_problem
     from ..write import check_output_folder
     log = log or (lambda msg: print(msg, file=sys.stderr))
     species = species or (DEFAULT_SPECIES,)
-    for s in species:
-        if s not in TREE_SPECIES:
-            raise UserError(f"--species: must be one of {', '.join(TREE_SPECIES)}, got {s!r}")
-    if name_problem(name):
-        name = "twin"
     check_output_folder(out)
     frame, trees = analysis["frame"], analysis["trees"]
     survey, sensor_value, survey_report = survey_plan(analysis, sensor)
@@ -156,7 +148,7 @@ def write_twin(analysis: dict, scan, out: Path, name: str, species: tuple[str, .
         "output": {"formats": ["laz"]},
     }
     report = {
-        "source": str(Path(scan.path).resolve()), "points": len(scan), "crs": crs,
+        "name": name, "source": str(Path(scan.path).resolve()), "points": len(scan), "crs": crs,
         "plot": {"offset": list(frame.offset), "size": list(frame.size)},
         "ground": analysis["ground_source"],
         "trees": {"count": len(trees.x), "method": "variable-window local maxima (Popescu & Wynne 2004) on a CHM, "
