@@ -61,6 +61,17 @@ def compare(real: Path, twin: Path, out: Path) -> dict | None:
     return compare_files(real, twin, out_dir=out)
 
 
+def print_comparison(result: dict) -> None:
+    """compare's own table where the checkout has ``format_table``, else the distances."""
+    try:
+        from mitsuforest.compare import format_table
+        print(format_table(result))
+    except (ImportError, TypeError):
+        print(f"  {'metric':16s} {'distance (twin vs real)':>24s}")
+        for key, value in result["distance"].items():
+            print(f"  {key:16s} {value:>24.4g}" if isinstance(value, (int, float)) else f"  {key:16s} {value!s:>24}")
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "out" / "twin")
@@ -93,11 +104,9 @@ def main() -> None:
         start = time.perf_counter()
         laz = render_twin(folder / f"{path.stem}.yaml", folder / "render", args.variant)
         print(f"  rendered the twin in {time.perf_counter() - start:.1f} s -> {laz}")
-        table = compare(path, laz, folder / "compare")
-        if table:
-            print(f"  {'metric':16s} {'distance':>10s}")
-            for key, value in table["distance"].items():
-                print(f"  {key:16s} {value:>10.4g}")
+        result = compare(path, laz, folder / "compare")
+        if result:
+            print_comparison(result)
 
 
 if __name__ == "__main__":

@@ -40,13 +40,13 @@ def survey_plan(analysis: dict, sensor=None) -> tuple[dict, dict | str, dict]:
     frame = analysis["frame"]
     report = {}
 
-    def pick(key, value, why_missing=None):
+    def pick(key, value):
+        """The estimate, or the default with the reason there is none (both into the report)."""
         if value is not None:
             report[key] = {"value": value, "source": "estimated"}
             return value
-        reason = est.missing.get(key, why_missing or "not estimated")
-        report[key] = {"value": DEFAULTS.get(key), "source": f"default ({reason})"}
-        return DEFAULTS.get(key)
+        report[key] = {"value": DEFAULTS[key], "source": f"default ({est.missing.get(key, 'not estimated')})"}
+        return DEFAULTS[key]
 
     altitude = pick("altitude", est.altitude)
     speed = pick("speed", est.speed)
