@@ -24,7 +24,7 @@ def demo_twin(tmp_path_factory):
     from mitsuforest.pipeline import render
     from mitsuforest.twin import make_twin
     scene = _demo_scene(tmp_path_factory, "llvm_ad_mono", rocks=0, deadwood=0, stumps=0).with_(
-        {"survey.lines": LEGS, "output.formats": ["laz"], "forest.tilt": 0, "forest.archetypes": PINES})
+        {"survey.lines": LEGS, "output.formats": ["laz", "pcd"], "forest.tilt": 0, "forest.archetypes": PINES})
     result = render(scene, progress=False, log=lambda *_: None)
     laz = next(f for f in map(str, result.files) if f.endswith(".laz"))
     out = tmp_path_factory.mktemp("twin")
@@ -44,6 +44,14 @@ def test_twin_finds_the_trees_where_and_as_tall_as_they_are(demo_twin):
     i, j = match(found, truth, 1.5)
     rmse = float(np.sqrt(np.mean((np.atleast_1d(rows["height"])[i] - heights[j]) ** 2)))
     assert rmse < 1.0, rmse
+
+
+def test_our_pcd_and_laz_give_the_same_ground_points(demo_twin):
+    from mitsuforest.twin.points import read_scan
+    result, laz, _, _ = demo_twin
+    pcd = next(f for f in map(str, result.files) if f.endswith(".pcd"))
+    a, b = read_scan(laz), read_scan(pcd)
+    assert a.ground.sum() == b.ground.sum() > 0     # our ground class in the PCD (where 2 is wood), ASPRS 2 in the LAZ
 
 
 def test_twin_dem_is_the_ground_within_5_cm(demo_twin):

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..classes import GROUND
+from ..classes import CLASS_NAMES, GROUND
 from ..errors import UserError
 
 
@@ -36,7 +36,7 @@ def read_scan(path) -> RealScan:
     """The columns of a LAS/LAZ (or our PCD) file; an empty, damaged or unreadable file is a one-line
     :class:`~mitsuforest.errors.UserError`."""
     from ..write.info import load_points
-    cols, names, _ = load_points(path)
+    cols, names, class_names = load_points(path)
     n = len(cols["x"])
     if n == 0:
         raise UserError(f"{path}: holds no points")
@@ -46,7 +46,7 @@ def read_scan(path) -> RealScan:
     classes = np.asarray(cols["classification"]) if "classification" in cols else None
     ground = None
     if classes is not None and classes.any():
-        ground = classes == (GROUND if "label" in names else 2)
+        ground = classes == (GROUND if class_names is CLASS_NAMES else 2)    # ours (PCD, LAS label) or ASPRS
     returns = np.maximum(_column(cols, "return_number", n, 1), 1)     # 0: a writer that did not fill it
     counts = np.maximum(_column(cols, "number_of_returns", n, 1), returns)
     return RealScan(
