@@ -60,8 +60,8 @@ def analyse(scan, settings: detection.DetectionSettings | None = None) -> dict:
     dem = ground.dem(scan.x[is_ground], scan.y[is_ground], scan.z[is_ground], x0, y0, shape, DEM_CELL)
     h = scan.z - ground.ground_height(dem, x0, y0, DEM_CELL, scan.x, scan.y)
     if settings is None:
-        first = np.count_nonzero(scan.return_number == 1) / (frame.size[0] * frame.size[1])
-        settings = detection.DetectionSettings(cell=detection.chm_cell(first))
+        first_density = np.count_nonzero(scan.return_number == 1) / (frame.size[0] * frame.size[1])
+        settings = detection.DetectionSettings(cell=detection.chm_cell(first_density))
     cx, cy = frame.offset[0], frame.offset[1]
     chm_shape = (int(math.ceil(frame.size[1] / settings.cell)), int(math.ceil(frame.size[0] / settings.cell)))
     chm = detection.canopy_height_model(scan.x, scan.y, h, cx, cy, chm_shape, settings.cell)

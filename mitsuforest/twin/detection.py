@@ -17,6 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
+from .ground import grid_index
+
 WINDOW = {"conifer": (2.51503, 0.00901), "broadleaf": (3.09632, 0.00895)}   # CW = a + b h² (m)
 
 
@@ -54,7 +56,6 @@ class DetectedTrees:
 def canopy_height_model(x, y, h, x0: float, y0: float, shape, cell: float) -> np.ndarray:
     """The highest height above ground in each cell (ny, nx), row 0 south; empty cells take the lowest of
     their neighbours' (so a gap stays a gap), then 0."""
-    from .ground import grid_index
     row, col = grid_index(x, y, x0, y0, cell, shape)
     chm = np.full(shape, -np.inf)
     np.maximum.at(chm, (row, col), np.asarray(h, float))

@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .ground import grid_index
+
 LOW, HIGH = 0.5, 3.0      # m above ground
 CELL = 1.0                # m
 SHARE = 0.25
@@ -19,7 +21,6 @@ BUSH_CROWN = 1.8          # m across
 
 def shrub_cells(x, y, h, x0: float, y0: float, shape) -> np.ndarray:
     """Shrubby cells (ny, nx) bool of a ``CELL`` m grid with SW corner (x0, y0)."""
-    from .ground import grid_index
     row, col = grid_index(x, y, x0, y0, CELL, shape)
     band = (h >= LOW) & (h <= HIGH)
     low = np.zeros(shape)
