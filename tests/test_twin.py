@@ -1,6 +1,7 @@
 """mitsuforest twin: a scene from a scan recovers the trees, ground and survey of one of our own scans."""
 
 import json
+import sys
 from types import SimpleNamespace
 
 import laspy
@@ -176,13 +177,24 @@ def test_tree_list_refuses_a_tree_outside_the_plot_and_a_count_beside_it(tmp_pat
 REAL = ROOT.parent / "shared" / "data" / "real"
 
 
-@pytest.mark.skipif(not (REAL / "MixedConifer.laz").is_file(), reason=f"the real scans are not beside the project ({REAL})")
-def test_tree_detection_on_mixedconifer_against_its_labels():
+def _benchmark():
     import importlib.util
     spec = importlib.util.spec_from_file_location("twin_benchmark", ROOT / "benchmarks" / "twin.py")
     benchmark = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(benchmark)
-    scores = benchmark.detection_scores(REAL / "MixedConifer.laz")
+    return benchmark
+
+
+def test_benchmark_skips_absent_real_scans_with_the_reason(tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(sys, "argv", ["twin.py", "--real", str(tmp_path), "--out", str(tmp_path / "out")])
+    _benchmark().main()
+    out = capsys.readouterr().out
+    assert out.count("skipped:") == 2 and f"{tmp_path / 'UAS_Clip.laz'} is absent" in out
+
+
+@pytest.mark.skipif(not (REAL / "MixedConifer.laz").is_file(), reason=f"the real scans are not beside the project ({REAL})")
+def test_tree_detection_on_mixedconifer_against_its_labels():
+    scores = _benchmark().detection_scores(REAL / "MixedConifer.laz")
     assert scores["f1"] >= 0.8, scores
 
 
