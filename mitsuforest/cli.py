@@ -1,4 +1,4 @@
-"""The ``mitsuforest`` command line: render, plan, trees, export, dataset, info, compare.
+"""The ``mitsuforest`` command line: render, plan, trees, export, dataset, twin, info, compare.
 
 User errors (bad files, bad values, refused overwrites, a busy or unwritable output folder) print
 one line ``mitsuforest: ...`` and exit with code 2, without a traceback. A write that fails mid-run
@@ -71,6 +71,17 @@ def _parser() -> argparse.ArgumentParser:
     d.add_argument("--threads", type=int, help="Dr.Jit threads per worker (default: cores / workers locally, "
                                                "all cores of each machine with --scheduler)")
     d.add_argument("--quiet", action="store_true", help="no progress bars or summary")
+
+    tw = sub.add_parser("twin", help="write a scene that reproduces a real scan",
+                        description="Write DIR/<name>.yaml (renderable as it is), its DEM GeoTIFF, trees.csv and "
+                                    "twin.json from a real LAS/LAZ scan: ground, trees on a canopy height model, "
+                                    "understory and the survey estimated from the points.")
+    tw.add_argument("file", type=Path, help="a .las or .laz scan (or our .pcd)")
+    tw.add_argument("-o", "--output", type=Path, required=True, help="output folder")
+    tw.add_argument("--species", nargs="+", default=[], metavar="NAME",
+                    help="procedural species of the trees, drawn in turn (default: pinus_radiata)")
+    tw.add_argument("--sensor", type=Path, help="a sensor file to use instead of the estimated sensor")
+    tw.add_argument("--name", help="the scene's name (default: the file's stem)")
 
     i = sub.add_parser("info", help="summarise a point file", description="Summarise a PCD, LAS or LAZ file.")
     i.add_argument("file", type=Path, help="a .pcd, .las or .laz file")
@@ -223,6 +234,15 @@ def _dataset(args) -> int:
     return 0
 
 
+def _twin(args) -> int:
+    from .twin import make_twin
+    report = make_twin(args.file, args.output, species=args.species, sensor=args.sensor, name=args.name)
+    print(f"{report['name']}: {report['trees']['count']} trees, {report['understory']['bushes']} bushes, "
+          f"plot {report['plot']['size'][0]:g} x {report['plot']['size'][1]:g} m; "
+          f"wrote {args.output / (report['name'] + '.yaml')}")
+    return 0
+
+
 def _info(args) -> int:
     from .write.info import summary
     print(summary(args.file))
@@ -241,7 +261,7 @@ def _compare(args) -> int:
 
 
 _COMMANDS = {"render": _render, "plan": _plan, "trees": _trees, "export": _export, "dataset": _dataset,
-             "info": _info, "compare": _compare}
+             "twin": _twin, "info": _info, "compare": _compare}
 
 if __name__ == "__main__":
     raise SystemExit(main())

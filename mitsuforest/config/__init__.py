@@ -205,6 +205,7 @@ SCENE_SPEC = {
         "tilt": Number(5.0, ge=0, le=45),
         "archetypes": Custom(_archetypes, "default"),
         "models": Custom(_models, None),
+        "trees_file": FilePath(None, nullable=True),
     },
     "understory": {**{k: Number(d, integer=True, ge=0) for k, d in
                       (("bushes", 200), ("rocks", 40), ("deadwood", 25), ("stumps", 15))},
@@ -384,7 +385,11 @@ def _check_scene(scene: dict, ctx: Context):
     lo, hi = FOREST_BANDS[forest["type"]]
     if cover is not None and not lo <= cover <= hi:
         ctx.fail("forest.canopy_cover", f"{cover:g} is outside the {forest['type']} band {lo:g}-{hi:g}")
-    if not sum(a.weight for a in [*forest["archetypes"], *forest["models"]]) > 0:
+    if forest["trees_file"] is not None and (forest["trees"] is not None or forest["canopy_cover"] is not None):
+        ctx.fail("forest.trees_file", "places the trees it lists: give it without forest.trees or forest.canopy_cover")
+    if forest["trees_file"] is not None and forest["models"]:
+        ctx.fail("forest.trees_file", "grows procedural trees of the listed sizes: give it without forest.models")
+    if forest["trees_file"] is None and not sum(a.weight for a in [*forest["archetypes"], *forest["models"]]) > 0:
         ctx.fail("forest.archetypes", "at least one archetype or model needs weight > 0")
     if len(forest["archetypes"]) + len(forest["models"]) > MAX_TREE_MODELS:
         ctx.fail("forest.models", f"at most {MAX_TREE_MODELS:,} archetypes and models together (treeid is 16 bits)")

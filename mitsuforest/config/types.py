@@ -126,12 +126,13 @@ class Forest:
     tilt: float
     archetypes: tuple[Archetype, ...]
     models: tuple[MeshTree | QsmTree, ...] = ()   # imported trees (trees/sources.py), treeids after the archetypes
+    trees_file: str | None = None             # a tree list (plan/tree_list.py): one procedural model per row
 
     @property
     def target_cover(self) -> float | None:
         """The canopy cover to reach: the given one, the middle of the type's band when neither a
-        cover nor a tree count is given, ``None`` with a tree count."""
-        if self.canopy_cover is not None or self.trees is not None:
+        cover nor a tree count is given, ``None`` with a tree count or a tree list."""
+        if self.canopy_cover is not None or self.trees is not None or self.trees_file is not None:
             return self.canopy_cover
         return sum(FOREST_BANDS[self.type]) / 2
 

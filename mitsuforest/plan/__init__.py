@@ -17,6 +17,7 @@ import numpy as np
 from ..classes import DEADWOOD_TREEID, GROUND_OBJECT_ID
 from ..config import RSA_JAMMING, scene_error
 from ..errors import UserError
+from ..trees.archetypes import grown_to, nearest_template
 from ..trees.imported import summary as imported_summary
 from ..trees.models import tree_components
 from ..trees.skeleton import grow
@@ -26,12 +27,14 @@ from .flight import flight_legs
 from .ground_layer import place_ground_layer
 from .terrain import Terrain, make_terrain
 from .transforms import apply
+from .tree_list import read_tree_list
 from .types import Leg, ModelSpec, PlacedObject, Plan
 
 __all__ = ["make_plan", "plan_json", "Plan", "PlacedObject", "ModelSpec", "Leg", "Terrain", "UNDERSTORY_MODELS"]
 
 BUSH_MODELS = 8          # bushes are instances of this many distinct shrubs
 MAX_TREES = 5000
+MAX_TREE_MODELS = 65_534   # treeid is 16 bits, and deadwood takes the number after the last tree model
 UNDERSTORY_KEYS = {"bush": "bushes", "rock": "rocks", "deadwood": "deadwood", "stump": "stumps"}  # understory.KEY
 UNDERSTORY_MODELS = tuple(UNDERSTORY_KEYS)
 
@@ -65,10 +68,14 @@ def _plan(scene) -> Plan:
         raise _Refusal("terrain.path", str(e)) from None
     legs = _checked_legs(scene, flight_legs(size, scene.survey, terrain.mean_height), terrain)   # before the slow part
     _check_understory_fits(scene)
-    tree_models = _tree_models(scene.forest)
+    listed = _tree_list(scene) if scene.forest.trees_file else None
+    tree_models = _tree_models(scene.forest) if listed is None else _listed_tree_models(scene, listed)
     crowns = [crown for crown, _ in tree_models.values()]
     models = {name: spec for name, (_, spec) in tree_models.items()}
-    trees, cover = _place_trees(scene.forest, size, crowns, terrain, rng)
+    if listed is None:
+        trees, cover = _place_trees(scene.forest, size, crowns, terrain, rng)
+    else:
+        trees, cover = _place_listed_trees(listed, size, crowns, terrain, scene.forest.tilt, rng)
     understory, understory_models = _place_understory(scene, size, trees, terrain, rng,
                                                       deadwood_treeid=_deadwood_treeid(len(models)))
     models.update(understory_models)
@@ -150,6 +157,47 @@ def _tree_models(forest) -> dict[str, tuple[np.ndarray, ModelSpec]]:
         crown, components = imported_summary(entry)   # builds (or loads) the model: files are read here
         out[f"tree{len(out) + 1:02d}"] = crown, ModelSpec("tree", components, source=entry)
     return out
+
+
+def _tree_list(scene) -> list:
+    """The rows of ``forest.trees_file`` in the local frame; none may stand outside the plot."""
+    try:
+        listed = read_tree_list(scene.forest.trees_file, scene.origin.offset)
+    except UserError as e:
+        raise _Refusal("forest.trees_file", str(e)) from None
+    if len(listed) > MAX_TREE_MODELS:
+        raise _Refusal("forest.trees_file", f"{len(listed):,} trees, at most {MAX_TREE_MODELS:,} (treeid is 16 bits)")
+    w, h = scene.area.size
+    for i, t in enumerate(listed):
+        if not (0 <= t.x <= w and 0 <= t.y <= h):
+            raise _Refusal("forest.trees_file", f"tree {i + 1} stands at local x {t.x:.2f}, y {t.y:.2f}, outside the "
+                           f"plot 0..{w:g} x 0..{h:g} m (origin.offset subtracted)")
+    return listed
+
+
+def _listed_tree_models(scene, listed) -> dict[str, tuple[np.ndarray, ModelSpec]]:
+    """One procedural model per listed tree: the scene's (or its family's) archetype of the tree's species
+    nearest in height, grown to the tree's height and crown (:func:`~mitsuforest.trees.archetypes.grown_to`)."""
+    archetypes = scene.forest.archetypes
+    default_species = archetypes[0].species if archetypes else "eucalyptus"
+    out = {}
+    for i, t in enumerate(listed):
+        template = nearest_template(t.species or default_species, t.height, archetypes)
+        a = grown_to(template, t.height, 2 * t.crown_radius, seed=int(scene.seed) * 100_003 + i + 1,
+                     leaf_area=t.leaf_area)
+        crown, components = _summarise(a)
+        out[f"tree{i + 1:02d}"] = crown, ModelSpec("tree", components, archetype=a)
+    return out
+
+
+def _place_listed_trees(listed, size, crowns, terrain, tilt_max, rng) -> tuple[list[PlacedObject], float]:
+    """Each listed tree where the list puts it, model N for row N; the canopy cover they make."""
+    grid, trees = CoverGrid(size), []
+    for k, t in enumerate(listed):
+        tree = _tree(k, (t.x, t.y), terrain, tilt_max, rng)
+        grid.add(crown_outline(apply(tree.matrix, crowns[k])))
+        trees.append(tree)
+    return trees, grid.fraction
 
 
 @lru_cache(maxsize=64)

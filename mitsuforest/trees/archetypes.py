@@ -101,3 +101,37 @@ def describe() -> str:
     """A table of every parameter, its default and meaning (for ``--help`` and the docs)."""
     rows = [f"{name:20s} {f.default!s:>8}  {f.metadata['meaning']}" for name, f in FIELDS.items()]
     return "\n".join(rows)
+
+
+# Jucker et al. (2017) exponent of DBH ~ (height x crown diameter)^b; 0.85 sits between their angiosperm
+# (0.81, 0.89) and gymnosperm (0.89) fits (README, "Allometry check").
+ALLOMETRY_EXPONENT = 0.85
+
+
+def grown_to(template: Archetype, height: float, crown_diameter: float, seed: int,
+             leaf_area: float | None = None) -> Archetype:
+    """``template`` grown to ``height`` (m) and ``crown_diameter`` (m): one tree of a listed forest.
+
+    The stem diameter follows Jucker et al.'s allometry from the template's, and the leaf area (unless
+    given, m²) keeps the template's leaf area per unit of crown volume (crown width² × crown length), so a
+    small tree is not as dense as a tall one; the other parameters (form, branching, leaves) are the
+    template's.
+    """
+    height = float(min(max(height, FIELDS["height"].metadata["lo"]), FIELDS["height"].metadata["hi"]))
+    crown_diameter = float(min(max(crown_diameter, FIELDS["crown_diameter"].metadata["lo"]),
+                               FIELDS["crown_diameter"].metadata["hi"]))
+    size = (height * crown_diameter) / (template.height * template.crown_diameter)
+    dbh = min(max(template.dbh * size ** ALLOMETRY_EXPONENT, FIELDS["dbh"].metadata["lo"]), FIELDS["dbh"].metadata["hi"])
+    crown_volume = (crown_diameter / template.crown_diameter) ** 2 * height / template.height
+    if leaf_area is None:
+        leaf_area = template.leaf_area * crown_volume
+    leaf_area = min(leaf_area, FIELDS["leaf_area"].metadata["hi"])
+    return dataclasses.replace(template, height=round(height, 3), crown_diameter=round(crown_diameter, 3),
+                               dbh=round(dbh, 4), leaf_area=round(leaf_area, 2), seed=int(seed), weight=1.0)
+
+
+def nearest_template(species: str, height: float, archetypes=()) -> Archetype:
+    """The archetype of ``species`` nearest in height: among ``archetypes`` (a scene's list) where it has
+    one of that species, else among the family's built-in ones."""
+    pool = [a for a in archetypes if a.species == species] or list(FAMILY_ARCHETYPES[species])
+    return min(pool, key=lambda a: abs(a.height - height))

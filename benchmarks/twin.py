@@ -1,0 +1,113 @@
+"""Twins of the real scans in ../shared/data/real: tree detection against MixedConifer's treeID, and each
+twin rendered and compared with its real scan.
+
+    python benchmarks/twin.py                     # twin, render and compare both scans (a GPU helps)
+    python benchmarks/twin.py --no-render         # twins and tree detection only (seconds)
+    python benchmarks/twin.py --out DIR           # where twins and renders go (default benchmarks/out/twin)
+    python benchmarks/twin.py --real DIR          # the real scans' folder (default ../shared/data/real)
+
+The real scans are GPL-3 data kept beside the project (``../shared/data/real``, see its README); a scan
+that is absent is skipped with the reason. The comparison uses ``mitsuforest.compare.compare_files``
+where this checkout has it, and says so where it does not.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+REAL = ROOT.parent / "shared" / "data" / "real"
+SCANS = ("UAS_Clip.laz", "MixedConifer.laz")
+MATCH_RADIUS = 2.0   # m: a detected top matches a labelled tree's highest point this close, one to one
+
+
+def labelled_tops(scan) -> np.ndarray:
+    """The highest point (x, y) of each labelled tree (treeID > 0), shape (k, 2)."""
+    ids = scan.tree_id
+    order = np.lexsort((scan.z, ids))                  # by tree, highest last
+    last = np.r_[ids[order][1:] != ids[order][:-1], True]
+    top = order[last & (ids[order] > 0)]
+    return np.column_stack([scan.x[top], scan.y[top]])
+
+
+def detection_scores(path: Path) -> dict:
+    from mitsuforest.twin import analyse
+    from mitsuforest.twin.detection import scores
+    from mitsuforest.twin.points import read_scan
+    scan = read_scan(path)
+    found = analyse(scan)
+    trees = found["trees"]
+    result = scores(np.column_stack([trees.x, trees.y]), labelled_tops(scan), MATCH_RADIUS)
+    result["cell"] = found["settings"].cell
+    return result
+
+
+def render_twin(scene_file: Path, out: Path, variant: str | None) -> Path:
+    from mitsuforest.pipeline import render
+    result = render(scene_file, output_dir=out, variant=variant, overwrite=True, progress=False, log=lambda *_: None)
+    return next(Path(f) for f in result.files if str(f).endswith(".laz"))
+
+
+def compare(real: Path, twin: Path, out: Path) -> dict | None:
+    try:
+        from mitsuforest.compare import compare_files
+    except ImportError:
+        print("  (mitsuforest.compare is not in this checkout: no comparison table)")
+        return None
+    return compare_files(real, twin, out_dir=out)
+
+
+def print_comparison(result: dict) -> None:
+    """compare's own table where the checkout has ``format_table``, else the distances."""
+    try:
+        from mitsuforest.compare import format_table
+        print(format_table(result))
+    except (ImportError, TypeError):
+        print(f"  {'metric':16s} {'distance (twin vs real)':>24s}")
+        for key, value in result["distance"].items():
+            print(f"  {key:16s} {value:>24.4g}" if isinstance(value, (int, float)) else f"  {key:16s} {value!s:>24}")
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "out" / "twin")
+    p.add_argument("--no-render", action="store_true", help="twins and detection only")
+    p.add_argument("--real", type=Path, default=REAL, help="folder of the real scans (default ../shared/data/real)")
+    p.add_argument("--variant", help="Mitsuba variant for the renders (default: auto)")
+    args = p.parse_args()
+    from mitsuforest.twin import make_twin
+    for name in SCANS:
+        path = args.real / name
+        if not path.is_file():
+            print(f"{name}: skipped: {path} is absent (the real scans live in ../shared/data/real)")
+            continue
+        folder = args.out / path.stem
+        start = time.perf_counter()
+        report = make_twin(path, folder, log=lambda msg: print("  " + msg))
+        print(f"{name}: twin with {report['trees']['count']} trees, {report['understory']['bushes']} bushes in "
+              f"{time.perf_counter() - start:.1f} s -> {folder}")
+        for key, item in report["survey"].items():
+            value = item["value"]
+            print(f"  survey.{key:16s} {value:>12.6g}  {item['source']}" if isinstance(value, float)
+                  else f"  survey.{key:16s} {value!s:>12}  {item['source']}")
+        if name == "MixedConifer.laz":
+            s = detection_scores(path)
+            print(f"  tree detection vs treeID (CHM cell {s['cell']:g} m, match within {MATCH_RADIUS:g} m): "
+                  f"{s['found']} found, {s['true']} labelled, {s['matched']} matched: precision {s['precision']:.3f}, "
+                  f"recall {s['recall']:.3f}, F1 {s['f1']:.3f}")
+        if args.no_render:
+            continue
+        start = time.perf_counter()
+        laz = render_twin(folder / f"{path.stem}.yaml", folder / "render", args.variant)
+        print(f"  rendered the twin in {time.perf_counter() - start:.1f} s -> {laz}")
+        result = compare(path, laz, folder / "compare")
+        if result:
+            print_comparison(result)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,77 @@
+"""Reading ``forest.trees_file``: a table of trees to place one by one (I/O only).
+
+A CSV file with a header; columns ``x``, ``y`` (in the frame of ``origin``: the local frame plus
+``origin.offset``, as a DEM's), ``height`` and ``crown_radius`` (m), and optionally ``species`` (one of
+the procedural families; by default the scene's) and ``leaf_area`` (m², one-sided; by default the
+template's, in proportion to the crown volume). Each refusal is a
+:class:`~mitsuforest.errors.UserError` whose text the plan reports as ``FILE: forest.trees_file: reason``.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from dataclasses import dataclass
+
+from ..classes import TREE_SPECIES
+from ..errors import UserError
+
+COLUMNS = ("x", "y", "height", "crown_radius")
+
+
+@dataclass(frozen=True)
+class ListedTree:
+    """One row of a tree list, in the local frame."""
+
+    x: float
+    y: float
+    height: float
+    crown_radius: float
+    species: str | None
+    leaf_area: float | None = None
+
+
+def read_tree_list(path, offset=(0.0, 0.0, 0.0)) -> list[ListedTree]:
+    """The trees of a tree-list CSV, moved into the local frame (``origin.offset`` subtracted)."""
+    try:
+        with open(path, newline="") as f:
+            rows = list(csv.reader(f))
+    except (OSError, UnicodeDecodeError) as e:
+        raise UserError(f"cannot read the tree list {path}: {e}") from None
+    if not rows:
+        raise UserError(f"{path}: the tree list is empty (it needs a header {','.join(COLUMNS)})")
+    header = [h.strip().lower() for h in rows[0]]
+    missing = [c for c in COLUMNS if c not in header]
+    if missing:
+        raise UserError(f"{path}: the tree list lacks the column(s) {', '.join(missing)} (header: {','.join(header)})")
+    at = {c: header.index(c) for c in (*COLUMNS, "species", "leaf_area") if c in header}
+    out = []
+    for line, row in enumerate(rows[1:], start=2):
+        if not row or not "".join(row).strip():
+            continue
+        if len(row) < len(header):
+            raise UserError(f"{path}: line {line}: {len(row)} cells, the header has {len(header)}")
+        values = {c: _number(row[at[c]], path, line, c) for c in COLUMNS}
+        if values["height"] <= 0 or values["crown_radius"] <= 0:
+            raise UserError(f"{path}: line {line}: height and crown_radius must be > 0")
+        species = row[at["species"]].strip() if "species" in at else ""
+        if species and species not in TREE_SPECIES:
+            raise UserError(f"{path}: line {line}: species must be one of {', '.join(TREE_SPECIES)}, got {species!r}")
+        leaf_area = None
+        if "leaf_area" in at and row[at["leaf_area"]].strip():
+            leaf_area = _number(row[at["leaf_area"]], path, line, "leaf_area")
+            if leaf_area < 0:
+                raise UserError(f"{path}: line {line}: leaf_area must be >= 0")
+        out.append(ListedTree(values["x"] - offset[0], values["y"] - offset[1], values["height"],
+                              values["crown_radius"], species or None, leaf_area))
+    return out
+
+
+def _number(cell: str, path, line: int, column: str) -> float:
+    try:
+        value = float(cell)
+    except ValueError:
+        raise UserError(f"{path}: line {line}: {column} must be a number, got {cell!r}") from None
+    if not math.isfinite(value):
+        raise UserError(f"{path}: line {line}: {column} must be finite, got {cell!r}")
+    return value

@@ -1,0 +1,110 @@
+"""Twins of real plots: a scene that reproduces a real scan (see README, "Twins of real plots").
+
+>>> report = make_twin("plot.laz", "twin/")   # doctest: +SKIP   writes twin/plot.yaml and its files
+
+The steps are pure functions (:mod:`.ground`, :mod:`.detection`, :mod:`.understory`, :mod:`.survey`);
+:mod:`.scene` writes the folder.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from . import detection, foliage, ground, survey, understory
+from .points import read_scan
+
+__all__ = ["make_twin", "TwinFrame", "DEM_CELL"]
+
+DEM_CELL = 1.0     # m
+
+
+@dataclass(frozen=True)
+class TwinFrame:
+    """The twin's plot in the file's coordinates: SW corner ``offset`` (x, y, z) and ``size`` (m)."""
+
+    offset: tuple[float, float, float]
+    size: tuple[float, float]
+
+    @property
+    def bounds(self) -> tuple[float, float, float, float]:
+        return (self.offset[0], self.offset[1], self.offset[0] + self.size[0], self.offset[1] + self.size[1])
+
+
+def plot_frame(x, y, z_ground) -> TwinFrame:
+    """The plot: whole metres around the points, at least 1 m a side; heights offset to a whole metre
+    below the lowest ground."""
+    x0, y0, z0 = math.floor(float(np.min(x))), math.floor(float(np.min(y))), math.floor(float(np.min(z_ground)))
+    w = max(math.ceil(float(np.max(x)) - x0), 1)
+    h = max(math.ceil(float(np.max(y)) - y0), 1)
+    return TwinFrame((float(x0), float(y0), float(z0)), (float(w), float(h)))
+
+
+def analyse(scan, settings: detection.DetectionSettings | None = None) -> dict:
+    """Everything the twin scene needs from a :class:`~.points.RealScan` (pure): frame, DEM, trees,
+    bushes, survey estimate and the notes on what was assumed. Without ``settings``, the detection's
+    defaults with a CHM cell for the scan's density (:func:`~.detection.chm_cell`)."""
+    notes = []
+    if scan.ground is not None and scan.ground.any():
+        is_ground, ground_source = scan.ground, "the file's ground class"
+    else:
+        is_ground = ground.lowest_point_filter(scan.x, scan.y, scan.z)
+        ground_source = "lowest-point filter (the file has no ground points)"
+        notes.append(f"ground: {ground_source}")
+    frame = plot_frame(scan.x, scan.y, scan.z[is_ground])
+    x0, y0 = frame.offset[0] - DEM_CELL, frame.offset[1] - DEM_CELL
+    shape = (int(frame.size[1] / DEM_CELL) + 2, int(frame.size[0] / DEM_CELL) + 2)
+    dem = ground.dem(scan.x[is_ground], scan.y[is_ground], scan.z[is_ground], x0, y0, shape, DEM_CELL)
+    h = scan.z - ground.ground_height(dem, x0, y0, DEM_CELL, scan.x, scan.y)
+    if settings is None:
+        first_density = np.count_nonzero(scan.return_number == 1) / (frame.size[0] * frame.size[1])
+        settings = detection.DetectionSettings(cell=detection.chm_cell(first_density))
+    cx, cy = frame.offset[0], frame.offset[1]
+    chm_shape = (int(math.ceil(frame.size[1] / settings.cell)), int(math.ceil(frame.size[0] / settings.cell)))
+    chm = detection.canopy_height_model(scan.x, scan.y, h, cx, cy, chm_shape, settings.cell)
+    trees = detection.detect_trees(chm, cx, cy, settings)
+    first = scan.return_number == 1
+    row, col = ground.grid_index(scan.x[first], scan.y[first], cx, cy, settings.cell, chm_shape)
+    gap = foliage.crown_gap_fraction(h[first], chm[row, col] >= settings.min_height)
+    angle = float(np.median(np.abs(scan.scan_angle[first]))) if scan.scan_angle is not None else 0.0
+    lai = foliage.effective_lai(gap, angle) if gap is not None else None
+    cells = understory.shrub_cells(scan.x, scan.y, h, cx, cy,
+                                   (int(frame.size[1] / understory.CELL), int(frame.size[0] / understory.CELL)))
+    estimate = survey.estimate(scan, float(np.mean(dem)))
+    pulses = float(np.sum(1.0 / scan.number_of_returns))
+    return {"frame": frame, "dem": dem, "dem_origin": (x0, y0), "ground_source": ground_source, "trees": trees,
+            "crown_gap_fraction": gap, "scan_angle": angle, "crown_lai": lai,
+            "bushes": understory.bush_count(cells), "shrub_area_m2": float(cells.sum() * understory.CELL ** 2),
+            "survey": estimate, "pulse_density": pulses / (frame.size[0] * frame.size[1]), "notes": notes,
+            "settings": settings}
+
+
+def make_twin(path, out_dir, species=(), sensor=None, name: str | None = None, log=None) -> dict:
+    """Write the twin of the scan ``path`` into ``out_dir``: ``<name>.yaml``, ``<name>_dem.tif``,
+    ``trees.csv`` and ``twin.json``; returns the report (``twin.json``'s content).
+
+    :param species: procedural families drawn for the trees in turn (default ``pinus_radiata``).
+    :param sensor: a sensor file to use instead of the estimated sensor.
+    :param name: the scene's name (default: the file's stem, or ``twin`` where that cannot name files).
+    :raises UserError: one line, before anything is written: an unreadable or empty file, an unknown
+        species, a bad name or sensor file, an output folder that cannot be written.
+    """
+    from ..classes import TREE_SPECIES
+    from ..config.schema import name_problem
+    from ..errors import UserError
+    from .scene import write_twin
+    for s in species:
+        if s not in TREE_SPECIES:
+            raise UserError(f"--species: must be one of {', '.join(TREE_SPECIES)}, got {s!r}")
+    if name is not None and (problem := name_problem(name)):
+        raise UserError(f"--name: {problem}")
+    if sensor is not None:
+        from ..config import load_sensor
+        load_sensor(sensor)                     # a bad sensor file is refused before any work
+    scan = read_scan(path)
+    stem = Path(path).stem
+    name = name or (stem if name_problem(stem) is None else "twin")
+    return write_twin(analyse(scan), scan, Path(out_dir), name, tuple(species), sensor, log)

@@ -1,0 +1,92 @@
+"""Reading a real scan for a twin: the columns the twin needs, in float64 file coordinates (I/O only)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..classes import CLASS_NAMES, GROUND
+from ..errors import UserError
+
+
+@dataclass(frozen=True)
+class RealScan:
+    """A point file's columns, shapes (n,); optional columns are ``None`` when the file lacks them."""
+
+    path: str
+    x: np.ndarray                       # float64, the file's coordinates (m)
+    y: np.ndarray
+    z: np.ndarray
+    ground: np.ndarray | None           # bool: ASPRS class 2 (our ground class in our files); None: unclassified
+    return_number: np.ndarray
+    number_of_returns: np.ndarray
+    gps_time: np.ndarray | None         # s
+    scan_angle: np.ndarray | None       # deg from nadir
+    point_source_id: np.ndarray | None
+    intensity: np.ndarray | None
+    crs: str | None                     # WKT of the file's CRS
+    tree_id: np.ndarray | None = None   # a reference segmentation (``treeID``, ``treeid``), for benchmarks
+
+    def __len__(self) -> int:
+        return len(self.x)
+
+
+def read_scan(path) -> RealScan:
+    """The columns of a LAS/LAZ (or our PCD) file; an empty, damaged or unreadable file is a one-line
+    :class:`~mitsuforest.errors.UserError`."""
+    from ..write.info import load_points
+    cols, names, class_names = load_points(path)
+    n = len(cols["x"])
+    if n == 0:
+        raise UserError(f"{path}: holds no points")
+    x, y, z = (np.asarray(cols[k], np.float64) for k in ("x", "y", "z"))
+    if not (np.isfinite(x).all() and np.isfinite(y).all() and np.isfinite(z).all()):
+        raise UserError(f"{path}: holds non-finite coordinates")
+    classes = np.asarray(cols["classification"]) if "classification" in cols else None
+    ground = None
+    if classes is not None and classes.any():
+        ground = classes == (GROUND if class_names is CLASS_NAMES else 2)    # ours (PCD, LAS label) or ASPRS
+    returns = np.maximum(_column(cols, "return_number", n, 1), 1)     # 0: a writer that did not fill it
+    counts = np.maximum(_column(cols, "number_of_returns", n, 1), returns)
+    return RealScan(
+        path=str(path), x=x, y=y, z=z, ground=ground, return_number=returns, number_of_returns=counts,
+        gps_time=_varying(cols.get("gps_time")), scan_angle=_scan_angle(cols, names),
+        point_source_id=_varying(cols.get("point_source_id")), intensity=cols.get("intensity"),
+        crs=_crs(path),
+        tree_id=next((np.asarray(cols[k]) for k in ("treeID", "treeid") if k in cols), None))
+
+
+def _column(cols: dict, name: str, n: int, default: int) -> np.ndarray:
+    return np.asarray(cols[name], np.int64) if name in cols else np.full(n, default, np.int64)
+
+
+def _varying(column) -> np.ndarray | None:
+    """A column that carries information: present and not one value for every point."""
+    if column is None:
+        return None
+    column = np.asarray(column)
+    return column if len(column) and np.any(column != column[0]) else None
+
+
+def _scan_angle(cols: dict, names: list[str]) -> np.ndarray | None:
+    if "scan_angle" in names:                  # LAS 1.4 formats 6-10: 0.006 degree units
+        return _varying(np.asarray(cols["scan_angle"], np.float64) * 0.006)
+    if "scan_angle_rank" in names:             # formats 0-5: whole degrees
+        return _varying(np.asarray(cols["scan_angle_rank"], np.float64))
+    if "scan_angle" in cols:                   # our PCD: degrees
+        return _varying(np.asarray(cols["scan_angle"], np.float64))
+    return None
+
+
+def _crs(path) -> str | None:
+    """The file's CRS as WKT (LAS/LAZ), or None."""
+    if str(path).lower().endswith(".pcd"):
+        return None
+    import laspy
+    try:
+        with laspy.open(str(path)) as reader:
+            crs = reader.header.parse_crs()
+    except Exception:       # a CRS record laspy cannot parse is as good as none for a twin
+        return None
+    return crs.to_wkt() if crs is not None else None

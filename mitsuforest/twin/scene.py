@@ -1,0 +1,196 @@
+"""Writing a twin's scene folder: ``<name>.yaml``, ``<name>_dem.tif``, ``trees.csv``, ``twin.json`` (I/O).
+
+The folder is written in a staging folder beside it and moved into place, so a failure leaves nothing
+half-written.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+import math
+import shutil
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from . import DEM_CELL, survey as survey_estimation
+
+DEFAULT_SPECIES = "pinus_radiata"   # both real plots we twin are conifers
+# The sensor a twin gets when the file does not say and --sensor is not given: the RIEGL VUX-1UAV22's
+# optics (sensors/riegl_vux-1uav22.yaml), with the pulse and scan rates and field of view the survey needs.
+DEFAULT_SENSOR = {"name": "twin sensor (RIEGL VUX-1UAV22 optics)", "deflector": "rotating",
+                  "source": "mitsuforest twin: rates and field of view estimated from the scan, the rest the "
+                            "RIEGL VUX-1UAV22 data sheet (2023)",
+                  "beam_divergence": 0.5e-3, "pulse_length": 4.0e-9, "wavelength": 1550e-9, "range_min": 3.0,
+                  "range_max": 1000.0, "range_precision": 0.005, "range_accuracy": 0.010, "max_returns": 15,
+                  "detection_threshold": 2.0e-7}
+DEFAULTS = {"altitude": 30.0, "speed": 2.0, "scan_frequency": 50.0, "field_of_view": 360.0, "line_spacing": 12.0,
+            "heading": 0.0}
+MARGIN = 10.0   # m: legs run this far beyond the plot
+
+
+def survey_plan(analysis: dict, sensor=None) -> tuple[dict, dict | str, dict]:
+    """The scene's ``survey`` and ``sensor`` values, and per quantity its value and where it came from."""
+    est: survey_estimation.SurveyEstimate = analysis["survey"]
+    frame = analysis["frame"]
+    report = {}
+
+    def pick(key, value):
+        """The estimate, or the default with the reason there is none (both into the report)."""
+        if value is not None:
+            report[key] = {"value": value, "source": "estimated"}
+            return value
+        report[key] = {"value": DEFAULTS[key], "source": f"default ({est.missing.get(key, 'not estimated')})"}
+        return DEFAULTS[key]
+
+    altitude = pick("altitude", est.altitude)
+    speed = pick("speed", est.speed)
+    fov_seen = None if est.field_of_view is None else min(360.0, 5 * math.ceil(est.field_of_view / 5))
+    if est.speed is None and est.pulse_frequency is not None:   # fly as fast as the file's pulse density asks
+        speed = est.pulse_frequency * (fov_seen or DEFAULTS["field_of_view"]) / 360.0 / (
+            analysis["pulse_density"] * DEFAULTS["line_spacing"])
+        report["speed"] = {"value": speed, "source": f"matched to the file's {analysis['pulse_density']:.2f} pulses/m² "
+                           f"at the estimated pulse rate, {DEFAULTS['line_spacing']:g} m line spacing "
+                           f"({est.missing.get('speed', 'not estimated')})"}
+    scan_frequency = round(pick("scan_frequency", est.scan_frequency), 3)
+    fov = pick("field_of_view", fov_seen)
+    out = {"altitude": round(altitude, 2), "speed": round(speed, 3), "margin": MARGIN}
+    if est.line_positions and est.heading is not None:
+        local = [survey_estimation.leg_ends(p, est.heading, frame.bounds, MARGIN) for p in est.line_positions]
+        out["lines"] = [[[round(a - frame.offset[0], 2), round(b - frame.offset[1], 2)] for a, b in leg] for leg in local]
+        placed = {k: est.line_sources.count(k) for k in ("track", "scan angle", "not placed")}
+        report["lines"] = {"value": len(local), "source": f"estimated: of the file's {est.lines} lines, "
+                           f"{placed['track']} on their tracks, {placed['scan angle']} by scan angle and beam side, "
+                           f"{placed['not placed']} not placed (too few pulses with two returns)"}
+        spacing = None
+    else:
+        spacing = DEFAULTS["line_spacing"]
+        out.update(line_spacing=spacing, heading=DEFAULTS["heading"])
+        report["lines"] = {"value": "lawnmower", "source": f"default ({est.missing.get('lines', 'not estimated')}): "
+                                                           f"{spacing:g} m apart, heading {DEFAULTS['heading']:g}"}
+    if est.pulse_frequency is not None:
+        prf = est.pulse_frequency
+        report["pulse_frequency"] = {"value": prf, "source": "estimated"}
+    else:   # pulses per m² of parallel lines: PRF · (FOV / 360) / (speed · spacing)
+        prf = analysis["pulse_density"] * speed * (spacing or DEFAULTS["line_spacing"]) * 360.0 / fov
+        report["pulse_frequency"] = {"value": prf, "source": f"matched to the file's {analysis['pulse_density']:.2f} "
+                                     f"pulses/m² ({est.missing.get('pulse_frequency', 'not estimated')})"}
+    prf = float(round(prf, -2)) if prf >= 1000 else float(round(prf))
+    if sensor is not None:
+        from ..config import load_sensor
+        loaded = load_sensor(sensor)
+        prf_listed = min(loaded.pulse_frequencies, key=lambda f: abs(f - prf))
+        lo, hi = loaded.scan_frequency_range
+        out["pulse_frequency"], out["scan_frequency"] = prf_listed, min(max(scan_frequency, lo), hi)
+        report["sensor"] = {"value": str(Path(sensor).resolve()), "source": "--sensor (its nearest pulse rate "
+                            f"{prf_listed:g} Hz and scan rate within {lo:g}-{hi:g} Hz)"}
+        return out, str(Path(sensor).resolve()), report
+    sensor_map = {**DEFAULT_SENSOR, "field_of_view": fov, "pulse_frequencies": [prf],
+                  "scan_frequency_range": [min(10.0, scan_frequency), max(200.0, scan_frequency)]}
+    out["pulse_frequency"], out["scan_frequency"] = prf, scan_frequency
+    report["sensor"] = {"value": sensor_map["name"], "source": "estimated rates and field of view, the VUX-1UAV22's optics"}
+    return out, sensor_map, report
+
+
+def _crs_text(wkt: str | None) -> str | None:
+    """The file's CRS as short as pyproj can say it (an EPSG code where it has one)."""
+    if not wkt:
+        return None
+    from pyproj import CRS
+    crs = CRS.from_wkt(wkt)
+    code = crs.to_authority()
+    return f"{code[0]}:{code[1]}" if code and CRS.from_user_input(f"{code[0]}:{code[1]}").equals(crs) else wkt
+
+
+def _write_dem(path: Path, dem: np.ndarray, x0: float, y0: float, crs: str | None) -> None:
+    import rasterio
+    from rasterio.transform import from_origin
+    north_up = dem[::-1].astype(np.float32)
+    with rasterio.open(path, "w", driver="GTiff", width=dem.shape[1], height=dem.shape[0], count=1, dtype="float32",
+                       transform=from_origin(x0, y0 + dem.shape[0] * DEM_CELL, DEM_CELL, DEM_CELL),
+                       crs=crs, compress="deflate") as dataset:
+        dataset.write(north_up, 1)
+
+
+def _write_trees(path: Path, trees, species: tuple[str, ...], lai: float | None) -> None:
+    """``trees.csv``; with a crown LAI, each tree's leaf area is it times the tree's crown area."""
+    with open(path, "w", newline="") as f:
+        out = csv.writer(f)
+        out.writerow(["x", "y", "height", "crown_radius", "species"] + (["leaf_area"] if lai is not None else []))
+        for i in range(len(trees.x)):
+            leaf = [f"{lai * np.pi * trees.crown_radius[i] ** 2:.2f}"] if lai is not None else []
+            out.writerow([f"{trees.x[i]:.3f}", f"{trees.y[i]:.3f}", f"{trees.height[i]:.3f}",
+                          f"{trees.crown_radius[i]:.3f}", species[i % len(species)]] + leaf)
+
+
+def write_twin(analysis: dict, scan, out: Path, name: str, species: tuple[str, ...], sensor, log) -> dict:
+    """Write the scene folder (see the module docstring) and return the report."""
+    from ..config import load_scene
+    from ..write import check_output_folder
+    log = log or (lambda msg: print(msg, file=sys.stderr))
+    species = species or (DEFAULT_SPECIES,)
+    check_output_folder(out)
+    frame, trees = analysis["frame"], analysis["trees"]
+    survey, sensor_value, survey_report = survey_plan(analysis, sensor)
+    crs = _crs_text(scan.crs)
+    scene = {
+        "name": name, "seed": 0, "area": {"size": list(frame.size)},
+        "origin": {"offset": list(frame.offset), **({"crs": crs} if crs else {})},
+        "terrain": {"type": "dem", "path": f"{name}_dem.tif"},
+        "forest": {"trees_file": "trees.csv", "tilt": 3.0},
+        "understory": {"bushes": analysis["bushes"], "rocks": 0, "deadwood": 0, "stumps": 0},
+        "sensor": sensor_value, "survey": survey,
+        "output": {"formats": ["laz"]},
+    }
+    report = {
+        "name": name, "source": str(Path(scan.path).resolve()), "points": len(scan), "crs": crs,
+        "plot": {"offset": list(frame.offset), "size": list(frame.size)},
+        "ground": analysis["ground_source"],
+        "trees": {"count": len(trees.x), "method": "variable-window local maxima (Popescu & Wynne 2004) on a CHM, "
+                  "crowns by marker watershed", "settings": dataclasses.asdict(analysis["settings"]),
+                  "species": list(species), "crown_gap_fraction": analysis["crown_gap_fraction"],
+                  "median_scan_angle": analysis["scan_angle"], "crown_lai": analysis["crown_lai"],
+                  "leaf_area": "crown LAI (Beer-Lambert, G = 0.5) x crown area" if analysis["crown_lai"] is not None
+                  else "the species template's, in proportion to crown volume"},
+        "understory": {"bushes": analysis["bushes"], "shrub_area_m2": analysis["shrub_area_m2"],
+                       "note": "bush count from the area of 1 m cells rich in returns 0.5-3 m above ground; "
+                               "placed at random (the scene format has no bush positions)"},
+        "survey": survey_report, "notes": analysis["notes"],
+    }
+    out.parent.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=f".{name}.twin.", dir=out.parent))
+    try:
+        x0, y0 = analysis["dem_origin"]
+        _write_dem(staging / f"{name}_dem.tif", analysis["dem"], x0, y0, crs)
+        _write_trees(staging / "trees.csv", trees, species, analysis["crown_lai"])
+        (staging / f"{name}.yaml").write_text(f"# A twin of {Path(scan.path).name} written by mitsuforest twin; "
+                                              "see twin.json for what was estimated.\n"
+                                              + yaml.safe_dump(scene, sort_keys=False, width=120))
+        (staging / "twin.json").write_text(json.dumps(report, indent=1, default=_plain) + "\n")
+        load_scene(staging / f"{name}.yaml")          # the scene must load as it is
+        out.mkdir(parents=True, exist_ok=True)
+        for f in staging.iterdir():
+            f.replace(out / f.name)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    for key, item in survey_report.items():
+        if not str(item["source"]).startswith("estimated"):
+            log(f"twin: survey.{key}: {item['source']}; using {_shown(item['value'])}")
+    for note in analysis["notes"]:
+        log(f"twin: {note}")
+    return report
+
+
+def _shown(value) -> str:
+    return f"{value:g}" if isinstance(value, float) else str(value)
+
+
+def _plain(x):
+    if isinstance(x, np.generic):
+        return x.item()
+    raise TypeError(type(x))

@@ -1,0 +1,225 @@
+"""mitsuforest twin: a scene from a scan recovers the trees, ground and survey of one of our own scans."""
+
+import json
+import sys
+from types import SimpleNamespace
+
+import laspy
+import numpy as np
+import pytest
+import yaml
+
+from conftest import ROOT, _demo_scene
+
+LEGS = [[[4.0, -5.0], [4.0, 25.0]], [[16.0, 25.0], [16.0, -5.0]]]   # 12 m apart, 30 m above the flat ground
+
+
+PINES = [{"species": "pinus_radiata", "base": k} for k in (1, 2, 3)]
+
+
+@pytest.fixture(scope="module")
+def demo_twin(tmp_path_factory):
+    """The demo plot with upright pines (single leaders: a tree's top stands over its stem) and bushes,
+    scanned along two legs 12 m apart with 7 sub-rays (a thin beam gives one return a pulse, and the
+    trajectory needs pulses with two), and its twin."""
+    from mitsuforest.pipeline import render
+    from mitsuforest.twin import make_twin
+    scene = _demo_scene(tmp_path_factory, "llvm_ad_mono", rocks=0, deadwood=0, stumps=0).with_(
+        {"survey.lines": LEGS, "output.formats": ["laz", "pcd"], "forest.tilt": 0, "forest.archetypes": PINES})
+    result = render(scene, progress=False, log=lambda *_: None)
+    laz = next(f for f in map(str, result.files) if f.endswith(".laz"))
+    out = tmp_path_factory.mktemp("twin")
+    report = make_twin(laz, out, species=["pinus_radiata"], log=lambda *_: None)
+    return result, laz, out, report
+
+
+def test_twin_finds_the_trees_where_and_as_tall_as_they_are(demo_twin):
+    from mitsuforest.twin.detection import match, scores
+    result, _, out, _ = demo_twin
+    plan = result.plan
+    truth = np.array([t.position[:2] for t in plan.trees])
+    heights = np.array([plan.models[t.model].archetype.height for t in plan.trees])
+    rows = np.genfromtxt(out / "trees.csv", delimiter=",", names=True, dtype=None, encoding=None)
+    found = np.column_stack([rows["x"], rows["y"]]).reshape(-1, 2)
+    assert scores(found, truth, 1.5)["f1"] >= 0.9
+    i, j = match(found, truth, 1.5)
+    rmse = float(np.sqrt(np.mean((np.atleast_1d(rows["height"])[i] - heights[j]) ** 2)))
+    assert rmse < 1.0, rmse
+
+
+def test_our_pcd_and_laz_give_the_same_ground_points(demo_twin):
+    from mitsuforest.twin.points import read_scan
+    result, laz, _, _ = demo_twin
+    pcd = next(f for f in map(str, result.files) if f.endswith(".pcd"))
+    a, b = read_scan(laz), read_scan(pcd)
+    assert a.ground.sum() == b.ground.sum() > 0     # our ground class in the PCD (where 2 is wood), ASPRS 2 in the LAZ
+
+
+def test_twin_dem_is_the_ground_within_5_cm(demo_twin):
+    import rasterio
+    _, _, out, report = demo_twin
+    with rasterio.open(out / f"{report_name(out)}_dem.tif") as d:
+        z = d.read(1)
+    assert np.abs(z).max() < 0.05          # the demo's ground is flat at z = 0
+
+
+def report_name(out):
+    return next(out.glob("*.yaml")).stem
+
+
+def test_twin_estimates_altitude_and_line_spacing_of_the_survey(demo_twin):
+    _, _, out, report = demo_twin
+    survey = report["survey"]
+    assert survey["altitude"]["source"] == "estimated"
+    assert abs(survey["altitude"]["value"] - 30.0) < 1.0          # flown at 30 m over flat ground
+    assert abs(survey["speed"]["value"] - 2.0) < 0.1
+    scene = yaml.safe_load((out / f"{report_name(out)}.yaml").read_text())
+    xs = sorted(np.mean([p[0] for p in leg]) for leg in scene["survey"]["lines"])
+    assert len(xs) == 2 and abs((xs[1] - xs[0]) - 12.0) < 0.5   # the legs 12 m apart, within 0.5 m
+    assert abs(scene["survey"]["scan_frequency"] - 50.0) < 1.0
+    assert abs(scene["survey"]["pulse_frequency"] - 100_000) < 5_000
+
+
+def test_twin_scene_loads_and_plans_one_model_per_tree(demo_twin):
+    from mitsuforest.config import load_scene
+    from mitsuforest.plan import make_plan
+    _, _, out, report = demo_twin
+    scene = load_scene(out / f"{report_name(out)}.yaml")
+    plan = make_plan(scene)
+    assert len(plan.trees) == report["trees"]["count"] == len({t.model for t in plan.trees})
+
+
+def test_tree_list_places_each_tree_grown_to_its_size(tmp_path):
+    from mitsuforest.config import load_scene
+    from mitsuforest.plan import make_plan
+    (tmp_path / "trees.csv").write_text("x,y,height,crown_radius,species\n1005,2005,12,2.5,pinus_radiata\n"
+                                        "1014,2012,18,3.0,\n")
+    (tmp_path / "s.yaml").write_text(
+        "area: {size: [20, 20]}\norigin: {offset: [1000, 2000, 0]}\nforest: {trees_file: trees.csv}\n"
+        "understory: {bushes: 0, rocks: 0, deadwood: 0, stumps: 0}\n"
+        f"sensor: {ROOT / 'sensors' / 'ideal.yaml'}\nsurvey: {{lines: [[[10, -5], [10, 25]]]}}\n")
+    plan = make_plan(load_scene(tmp_path / "s.yaml"))
+    got = [(t.position[:2], plan.models[t.model].archetype) for t in plan.trees]
+    assert [p for p, _ in got] == [(5.0, 5.0), (14.0, 12.0)]
+    assert [(a.height, a.crown_diameter, a.species) for _, a in got] == [(12.0, 5.0, "pinus_radiata"),
+                                                                          (18.0, 6.0, "eucalyptus")]
+
+
+def _run(capsys, *args):
+    """``mitsuforest ARGS`` in this process: (exit code, stderr)."""
+    from mitsuforest.cli import main
+    capsys.readouterr()
+    code = main([str(a) for a in args])
+    return SimpleNamespace(returncode=code, stderr=capsys.readouterr().err)
+
+
+def test_twin_refuses_an_empty_or_damaged_file_in_one_line(tmp_path, capsys):
+    empty = tmp_path / "empty.las"
+    las = laspy.create(point_format=6, file_version="1.4")
+    las.write(str(empty))
+    damaged = tmp_path / "damaged.laz"
+    damaged.write_bytes(b"LASF" + b"\0" * 50)
+    for f, words in ((empty, "holds no points"), (damaged, "cannot read"), (tmp_path / "none.laz", "file not found")):
+        r = _run(capsys, "twin", f, "-o", tmp_path / "out")
+        assert r.returncode == 2 and r.stderr.count("\n") == 1 and words in r.stderr, r.stderr
+        assert not (tmp_path / "out").exists()
+    good = tmp_path / "good.las"
+    las = laspy.create(point_format=1, file_version="1.2")
+    las.x, las.y, las.z = np.arange(10.0), np.arange(10.0), np.zeros(10)
+    las.write(str(good))
+    for args, words in ((["--species", "oak"], "--species: must be one of eucalyptus, acacia, pinus_radiata, got 'oak'"),
+                        (["--name", ".hidden"], "--name: must not start with a dot"),
+                        (["--sensor", tmp_path / "none.yaml"], "none.yaml: file not found")):
+        r = _run(capsys, "twin", good, "-o", tmp_path / "out", *args)
+        assert r.returncode == 2 and r.stderr.count("\n") == 1 and words in r.stderr, r.stderr
+        assert not (tmp_path / "out").exists()
+
+
+def test_twin_without_ground_points_or_gps_time_says_so_and_uses_named_fallbacks(tmp_path, capsys):
+    rng = np.random.default_rng(1)
+    n = 20_000
+    x, y = rng.uniform(0, 30, n), rng.uniform(0, 30, n)
+    z = 100.0 + 0.1 * x + np.where(rng.uniform(size=n) < 0.3, rng.uniform(0, 8, n), 0.0)
+    las = laspy.create(point_format=1, file_version="1.2")
+    las.header.offsets, las.header.scales = [500_000, 6_000_000, 0], [0.001] * 3
+    las.x, las.y, las.z = x + 500_000, y + 6_000_000, z
+    f = tmp_path / "plain.las"
+    las.write(str(f))
+    r = _run(capsys, "twin", f, "-o", tmp_path / "out")
+    assert r.returncode == 0, r.stderr
+    assert "lowest-point filter" in r.stderr and "no GPS time" in r.stderr
+    report = json.loads((tmp_path / "out" / "twin.json").read_text())
+    assert report["survey"]["altitude"] == {"value": 30.0, "source": "default (the file has no GPS time)"}
+    import rasterio
+    with rasterio.open(tmp_path / "out" / "plain_dem.tif") as d:
+        dem, t = d.read(1), d.transform
+    cols = np.arange(dem.shape[1])
+    inner = dem[2:-2, 2:-2]
+    expected = 100.0 + 0.1 * (t.c + (cols[2:-2] + 0.5) * t.a - 500_000)
+    assert np.abs(inner - expected[None, :]).max() < 0.1      # the sloping ground, vegetation filtered out
+
+
+def test_tree_list_refuses_a_tree_outside_the_plot_and_a_count_beside_it(tmp_path):
+    from mitsuforest.config import load_scene
+    from mitsuforest.errors import ConfigError
+    from mitsuforest.plan import make_plan
+    (tmp_path / "trees.csv").write_text("x,y,height,crown_radius\n5,5,12,2\n25,5,12,2\n")
+    base = (f"area: {{size: [20, 20]}}\nsensor: {ROOT / 'sensors' / 'ideal.yaml'}\n"
+            "understory: {bushes: 0, rocks: 0, deadwood: 0, stumps: 0}\n")
+    (tmp_path / "s.yaml").write_text(base + "forest: {trees_file: trees.csv}\n")
+    with pytest.raises(ConfigError, match=r"forest.trees_file: tree 2 stands at local x 25.00, y 5.00, outside the plot"):
+        make_plan(load_scene(tmp_path / "s.yaml"))
+    (tmp_path / "s.yaml").write_text(base + "forest: {trees_file: trees.csv, trees: 3}\n")
+    with pytest.raises(ConfigError, match="forest.trees_file: places the trees it lists"):
+        load_scene(tmp_path / "s.yaml")
+
+
+REAL = ROOT.parent / "shared" / "data" / "real"
+
+
+def _benchmark():
+    import importlib.util
+    spec = importlib.util.spec_from_file_location("twin_benchmark", ROOT / "benchmarks" / "twin.py")
+    benchmark = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(benchmark)
+    return benchmark
+
+
+def test_benchmark_skips_absent_real_scans_with_the_reason(tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(sys, "argv", ["twin.py", "--real", str(tmp_path), "--out", str(tmp_path / "out")])
+    _benchmark().main()
+    out = capsys.readouterr().out
+    assert out.count("skipped:") == 2 and f"{tmp_path / 'UAS_Clip.laz'} is absent" in out
+
+
+@pytest.mark.skipif(not (REAL / "MixedConifer.laz").is_file(), reason=f"the real scans are not beside the project ({REAL})")
+def test_tree_detection_on_mixedconifer_against_its_labels():
+    scores = _benchmark().detection_scores(REAL / "MixedConifer.laz")
+    assert scores["f1"] >= 0.8, scores
+
+
+def test_crown_lai_inverts_beer_lambert():
+    from mitsuforest.twin.foliage import G, crown_gap_fraction, effective_lai
+    for lai, angle in ((1.0, 0.0), (4.0, 30.0), (2.5, 60.0)):
+        gap = np.exp(-G * lai / np.cos(np.deg2rad(angle)))
+        assert effective_lai(gap, angle) == pytest.approx(lai, rel=1e-12)
+    h = np.array([0.1, 0.2, 5.0, 12.0, 0.3, 20.0])
+    assert crown_gap_fraction(h, [True, False, True, True, True, False]) == 0.5   # 2 of 4 under crowns reach ground
+    assert crown_gap_fraction(h, [False] * 6) is None
+
+
+def test_tree_list_leaf_area_column_sets_each_trees_leaves(tmp_path):
+    from mitsuforest.config import load_scene
+    from mitsuforest.plan import make_plan
+    (tmp_path / "trees.csv").write_text("x,y,height,crown_radius,leaf_area\n5,5,12,2.5,30\n14,12,18,3,\n")
+    (tmp_path / "s.yaml").write_text(
+        "area: {size: [20, 20]}\nforest: {trees_file: trees.csv}\n"
+        "understory: {bushes: 0, rocks: 0, deadwood: 0, stumps: 0}\n"
+        f"sensor: {ROOT / 'sensors' / 'ideal.yaml'}\nsurvey: {{lines: [[[10, -5], [10, 25]]]}}\n")
+    plan = make_plan(load_scene(tmp_path / "s.yaml"))
+    first, second = (plan.models[t.model].archetype for t in plan.trees)
+    assert first.leaf_area == 30.0
+    from mitsuforest.trees.archetypes import DEFAULT_ARCHETYPES
+    template = min(DEFAULT_ARCHETYPES, key=lambda a: abs(a.height - 18))    # the nearest Eucalyptus in height
+    volume = (6.0 / template.crown_diameter) ** 2 * 18 / template.height
+    assert second.leaf_area == pytest.approx(template.leaf_area * volume, abs=0.01)   # by crown volume
