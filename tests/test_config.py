@@ -56,6 +56,8 @@ CASES = {
                        "survey.scan_frequency: 500 Hz is outside the sensor's range 10-200 Hz"),
     "fractional seed": ("seed: 1.5\n" + GOOD, "seed: must be an integer, got 1.5"),
     "plot under a metre": (GOOD.replace("size: [10, 10]", "size: [0.1, 10]"), "area.size[0]: must be >= 1, got 0.1"),
+    "point position": (GOOD + "simulation: {point_position: axis}\n",
+                       "simulation.point_position: must be one of beam_axis, surface, got 'axis'"),
 }
 
 
@@ -100,6 +102,7 @@ def test_defaults_and_relative_paths(tmp_path):
     (tmp_path / "scene.yaml").write_text(GOOD)
     scene = load_scene(tmp_path / "scene.yaml")
     assert scene.simulation.beam_samples == 19 and scene.simulation.beam_pattern == "stratified"
+    assert scene.simulation.point_position == "beam_axis"
     assert scene.output.formats == ("pcd", "laz")
     assert scene.survey.scan_frequency is None and scene.scan_frequency == 50
     assert scene.sensor.beam_divergence == (0.5e-3, 0.5e-3)

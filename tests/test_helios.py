@@ -103,8 +103,17 @@ def _demo_like_survey(tmp_path, scene_extra="", scanner_optics="rotating") -> No
 
 
 def test_a_demo_style_survey_lands_on_its_parts(tmp_path, monkeypatch, variant):
+    """With points on the surface (point_position: surface), every point lies on its part. (On the
+    beam axis, the default, an echo mixing the box's wall and the ground lies between them.)"""
+    from mitsuforest.helios import render as helios_render
     _demo_like_survey(tmp_path)
     monkeypatch.chdir(tmp_path)   # HELIOS++ demos are run from HELIOS++'s folder
+    survey_scene = helios_render.survey_scene
+
+    def on_surface(*args, **kwargs):
+        scene, *rest = survey_scene(*args, **kwargs)
+        return (scene.with_({"simulation.point_position": "surface"}), *rest)
+    monkeypatch.setattr(helios_render, "survey_scene", on_surface)
     result = render_survey("data/survey.xml", assets=["assets"], variant=variant, **QUIET)
     pts = result.points
     assert [leg.start for leg in result.plan.legs] == [(11.0, 2.0, 30.0)]

@@ -21,10 +21,10 @@ def flat(tmp_path_factory, variant):
     return analytic_scene(scene_file(tmp_path_factory.mktemp("flat"), variant=variant))
 
 
-def _trace(setup, p, samples=1, **sensor_changes):
+def _trace(setup, p, samples=1, point_position="beam_axis", **sensor_changes):
     scene, _, _, scan_scene = setup
     sensor = dataclasses.replace(scene.sensor, **sensor_changes)
-    return PulseTracer(scan_scene, sensor, samples).trace_pulses(p)
+    return PulseTracer(scan_scene, sensor, samples, point_position=point_position).trace_pulses(p)
 
 
 def test_range_to_plane_is_exact(flat):
@@ -109,14 +109,65 @@ def test_echo_separation_is_a_sensor_property(tmp_path, variant, separation):
         assert len(pts) == echoes, (d, pts["range"])
 
 
-def test_points_lie_on_the_surface_not_on_the_central_ray(tmp_path, variant):
-    """A wide beam on a 45° slope: each point is on the plane, off the beam axis."""
+def test_surface_points_lie_on_the_surface_not_on_the_central_ray(tmp_path, variant):
+    """point_position: surface. A wide beam on a 45° slope: each point is on the plane, off the beam
+    axis; beam_axis puts it on the axis (x = y = 20) at the echo's range instead."""
     model = plane_model("slope", 30.0, ROCK)
     setup = analytic_scene(scene_file(tmp_path, variant=variant), [(model, (20.0, 20.0, 10.0), 0.0, (0, 45), 0)])
-    pts = _trace(setup, pulses([[20.0, 20.0, 30.0]], [0, 0, -1]), samples=19, beam_divergence=(0.05, 0.05))
+    p = pulses([[20.0, 20.0, 30.0]], [0, 0, -1])
+    pts = _trace(setup, p, samples=19, beam_divergence=(0.05, 0.05), point_position="surface")
     normal = np.array([np.sin(np.pi / 4), 0, np.cos(np.pi / 4)])
     xyz = np.column_stack([pts["x"], pts["y"], pts["z"]])
     assert np.abs((xyz - [20, 20, 10]) @ normal).max() < 1e-3
+    assert np.hypot(pts["x"] - 20, pts["y"] - 20).max() > 0.1            # the outer echoes: off the axis
+    axis = _trace(setup, p, samples=19, beam_divergence=(0.05, 0.05))
+    assert np.array_equal(axis["range"], pts["range"])
+    assert np.abs(axis["x"] - 20).max() < 1e-5 and np.abs(axis["y"] - 20).max() < 1e-5
+    assert np.abs(axis["z"] - (30 - axis["range"])).max() < 1e-5
+
+
+@pytest.mark.parametrize("samples", [7, 19])
+def test_beam_axis_points_of_a_plate_lie_on_it_within_the_noise(flat, samples):
+    """beam_axis: wide beams at up to 40° incidence on flat ground (z = 0). Without noise each point
+    lies on the ground to within the range spread the footprint's curvature leaves (second order: the
+    mean range of a tilted footprint is not the axis' range by ~ w²·tan²θ/R); with σ = 2 cm the
+    height residuals are N(0, (σ cos θ)²) about that."""
+    n = 2000
+    theta = np.deg2rad(RNG.uniform(0, 40, n))
+    xy = np.column_stack([RNG.uniform(5, 15, n), RNG.uniform(5, 35, n)])
+    d = np.column_stack([np.sin(theta), np.zeros(n), -np.cos(theta)])
+    origin = np.column_stack([xy, np.full(n, 20.0)])
+    p = pulses(origin, d)
+    clean = _trace(flat, p, samples=samples, beam_divergence=(2e-3, 2e-3))
+    assert len(clean) == n
+    on_axis = origin[clean["pulse_id"]] + d[clean["pulse_id"]] * clean["range"][:, None].astype(float)
+    assert np.abs(np.column_stack([clean["x"], clean["y"], clean["z"]]) - on_axis).max() < 1e-4
+    assert np.abs(clean["z"]).max() < 2e-4
+    sigma = 0.02
+    noisy = _trace(flat, p, samples=samples, beam_divergence=(2e-3, 2e-3), range_precision=sigma)
+    residual = noisy["z"] / np.cos(theta[noisy["pulse_id"]])               # the range error, along the axis
+    assert residual.std() == pytest.approx(sigma, rel=0.05)
+    assert abs(residual.mean()) < 4 * sigma / np.sqrt(n)
+
+
+def test_a_pulse_straddling_a_step_lies_between_its_levels_on_the_axis(tmp_path, variant):
+    """A plate covering x < 20 at height d = 0.3 ΔR over the ground; a vertical beam at x = 20 puts
+    half its footprint on each level: one echo, on the axis, between the levels (rock 0.35 and ground
+    0.33 are nearly equally bright, so near their mean); point_position: surface puts the same echo's
+    point at the energy-weighted mean of the hit points: the same height but for the sub-rays' slant
+    (30 m·(1 - cos 0.01) = 1.5 mm at most), in the air between the two plates too."""
+    pulse_length = 4e-9
+    d = 0.3 * 299_792_458.0 * pulse_length / 2
+    setup = analytic_scene(scene_file(tmp_path, variant=variant),
+                           [(plane_model("half", 20.0, ROCK), (10.0, 20.0, d), 0.0, (0, 0), 0)])
+    p = pulses([[20.0, 20.0, 30.0]], [0, 0, -1])
+    pts = _trace(setup, p, samples=19, beam_divergence=(0.02, 0.02), pulse_length=pulse_length)
+    assert len(pts) == 1
+    assert 0.2 * d < pts["z"][0] < 0.8 * d
+    assert abs(pts["x"][0] - 20) < 1e-5 and abs(pts["y"][0] - 20) < 1e-5
+    surface = _trace(setup, p, samples=19, beam_divergence=(0.02, 0.02), pulse_length=pulse_length,
+                     point_position="surface")
+    assert surface["z"][0] == pytest.approx(pts["z"][0], abs=2e-3)
 
 
 def test_return_numbers_have_no_gaps(demo_result):
@@ -216,15 +267,16 @@ def test_rays_at_known_leaves_are_leaves(demo_setup):
     assert set(first["instance"]) == {tree.instance}
 
 
-@pytest.mark.parametrize(("samples", "pattern"), [(1, "fixed"), (7, "fixed"), (7, "stratified")])
-def test_echo_kernel_matches_the_numpy_reference_in_a_forest(demo_setup, samples, pattern):
+@pytest.mark.parametrize(("samples", "pattern", "position"), [(1, "fixed", "beam_axis"), (7, "fixed", "surface"),
+                                                            (7, "stratified", "beam_axis"), (7, "stratified", "surface")])
+def test_echo_kernel_matches_the_numpy_reference_in_a_forest(demo_setup, samples, pattern, position):
     """The device path (pulses, rays, labels, radiometry, waveform in Dr.Jit) against the numpy
     reference (pulses in numpy, sub-ray hits copied back, then label_hits, received_power,
     pulse_echoes) over the demo trees."""
     scene, plan, _, scan_scene = demo_setup
     sensor = dataclasses.replace(scene.sensor, range_precision=0.0)
     leg, first, count = plan.legs[0], 700_000, 100_000          # over the plot centre
-    tracer = PulseTracer(scan_scene, sensor, samples, pattern=pattern)
+    tracer = PulseTracer(scan_scene, sensor, samples, pattern=pattern, point_position=position)
     got, fired, cast = tracer.trace_slots(leg, scene.pulse_frequency, scene.scan_frequency, first, count)
     p, ref_fired = reaching_pulses(leg, sensor, scene.pulse_frequency, scene.scan_frequency, first, count, tracer.box)
     ref = trace_reference(tracer, p)

@@ -21,7 +21,7 @@ from ..errors import ConfigError, UserError
 from ..trees.archetypes import DEFAULT_ARCHETYPES, FAMILY_ARCHETYPES, FIELDS as ARCHETYPE_FIELDS, Archetype
 from ..trees.sources import DEFAULT_LEAF_PATTERNS, REPAIR_MODES, UNITS, UP_AXES, MeshTree, QsmTree
 from .schema import REQUIRED, Context, Custom, FilePath, ListOf, Number, Text, Vector, name_problem, parse_mapping
-from .types import BEAM_PATTERNS, FOREST_BANDS, Scene, Sensor, display_path, from_mapping, to_mapping
+from .types import BEAM_PATTERNS, FOREST_BANDS, POINT_POSITIONS, Scene, Sensor, display_path, from_mapping, to_mapping
 
 __all__ = ["load_scene", "load_sensor", "scene_from_mapping", "read_yaml", "validate_scene", "scene_error", "Scene", "Sensor",
            "ConfigError", "FOREST_BANDS"]
@@ -226,6 +226,7 @@ SCENE_SPEC = {
         "beam_pattern": Text("stratified", choices=BEAM_PATTERNS),
         "variant": Text("auto"),
         "pulses_per_batch": Number(None, integer=True, ge=MIN_BATCH, nullable=True),
+        "point_position": Text("beam_axis", choices=POINT_POSITIONS),
     },
     "output": {
         "dir": FilePath(None, nullable=True, must_exist=False),

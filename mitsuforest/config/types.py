@@ -31,6 +31,7 @@ from ..trees.sources import MeshTree, QsmTree
 # Australia's National Forest Inventory crown cover classes.
 FOREST_BANDS = {"woodland": (0.20, 0.50), "open": (0.50, 0.80), "closed": (0.80, 1.00)}
 BEAM_PATTERNS = ("stratified", "fixed")   # see scan/beam.py
+POINT_POSITIONS = ("beam_axis", "surface")  # see scan/tracer.py
 SPEED_OF_LIGHT = 299_792_458.0
 
 
@@ -175,6 +176,7 @@ class Simulation:
     beam_pattern: str                         # fixed | stratified
     variant: str
     pulses_per_batch: int | None
+    point_position: str = "beam_axis"         # beam_axis | surface
 
 
 @dataclass(frozen=True)

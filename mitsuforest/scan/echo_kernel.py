@@ -32,10 +32,15 @@ class EchoKernel(RayCaster):
     :param sensor: the :class:`~mitsuforest.config.types.Sensor` (range limits, detection threshold,
         max returns, resolving distance, ranging noise).
     :param seed: the scene's seed (keys the ranging noise; see noise.py).
+    :param point_position: ``beam_axis`` (an echo's point on its pulse's beam axis at the echo's range)
+        or ``surface`` (the energy-weighted mean of its sub-rays' hit points); see
+        :class:`~mitsuforest.scan.tracer.PulseTracer`.
     """
 
-    def __init__(self, mi_scene, *, weights, table, reflectance, sensor, seed: int, **beam):
+    def __init__(self, mi_scene, *, weights, table, reflectance, sensor, seed: int, point_position: str = "beam_axis",
+                 **beam):
         super().__init__(mi_scene, **beam)
+        self.on_surface = point_position == "surface"
         mi = self.mi
         self.table = DeviceHitTable(table)
         self.weights = mi.Float(np.asarray(weights, np.float32))
@@ -52,8 +57,9 @@ class EchoKernel(RayCaster):
 
         :returns: numpy arrays (E,) of :data:`ECHO_FIELDS`: the pulse's id, GPS time and scan angle
             (rad); ``return_number``, ``number_of_returns``; ``range`` and ``x``, ``y``, ``z`` (local
-            frame) with the echo's ranging noise along the beam axis; ``amplitude``; and the labels
-            of its strongest sub-ray.
+            frame: on the beam axis at that range, or on the surface moved along the axis by the
+            ranging noise) with the echo's ranging noise; ``amplitude``; and the labels of its
+            strongest sub-ray.
         """
         n = pulses.count
         if n == 0:
@@ -79,8 +85,9 @@ class EchoKernel(RayCaster):
         power = (dr.gather(mi.Float, self.weights, sample) * dr.gather(mi.Float, self.reflectance, cls)
                  * dr.abs(dr.dot(d, normal)) / dr.square(dr.maximum(pi.t, 1e-6)))
         lane = {"t": dr.select(valid, pi.t, dr.inf), "power": dr.select(valid, power, 0.0)}
-        for a, axis in enumerate("xyz"):
-            lane[axis] = dr.select(valid, d[a] * pi.t, 0.0)
+        if self.on_surface:     # on the beam axis an echo needs its range only
+            for a, axis in enumerate("xyz"):
+                lane[axis] = dr.select(valid, d[a] * pi.t, 0.0)
         hit_id = {"row": row, "tri": tri}
         # Evaluate the mask with the lanes, then count: a count taken in the same eval is a second kernel
         # that traces every ray again (measured: the sub-ray stage 1.9x slower).
@@ -95,7 +102,7 @@ class EchoKernel(RayCaster):
         Pulses whose returns are one chain take :func:`~mitsuforest.scan.echoes.single_chain`; only the
         others (a few in ten in a forest) are gathered again and sorted."""
         dr, mi, S = self.dr, self.mi, self.samples
-        flat = {k: dr.zeros(mi.Float, n * S) for k in ("range", "amplitude", "x", "y", "z")}
+        flat = {k: dr.zeros(mi.Float, n * S) for k in ("range", "amplitude", *("xyz" if self.on_surface else ""))}
         flat["dominant"] = dr.zeros(mi.UInt32, n * S)
         flat["kept"] = dr.zeros(mi.UInt32, n * S)
         pulse = dr.arange(mi.UInt32, n)
@@ -117,14 +124,15 @@ class EchoKernel(RayCaster):
         dr, mi, S = self.dr, self.mi, self.samples
         base = pulse * S
         per_sample = {k: [dr.gather(mi.Float, v, base + s) for s in range(S)] for k, v in lane.items()}
-        return per_sample["t"], per_sample["power"], [[per_sample[a][s] for a in "xyz"] for s in range(S)]
+        offset = [[per_sample[a][s] for a in "xyz"] for s in range(S)] if "x" in lane else None
+        return per_sample["t"], per_sample["power"], offset
 
     def _scatter(self, flat: dict, slots: list, base, active):
         mi, dr = self.mi, self.dr
         for slot in slots:
             at, kept = base + slot["rank"], slot["kept"] & active
-            for key, value in (("range", slot["range"]), ("amplitude", slot["amplitude"]),
-                               ("x", slot["offset"][0]), ("y", slot["offset"][1]), ("z", slot["offset"][2]),
+            offset = zip("xyz", slot["offset"]) if slot["offset"] is not None else ()
+            for key, value in (("range", slot["range"]), ("amplitude", slot["amplitude"]), *offset,
                                ("dominant", slot["dominant"]), ("kept", mi.UInt32(1))):
                 dr.scatter(flat[key], value, at, kept)
 
@@ -146,14 +154,18 @@ class EchoKernel(RayCaster):
             noise = self.sigma * standard_normal(dr, mi, self.noise_key, pulse_id, return_number)
         start = dr.gather(mi.Point3f, pulses.origin, echo_pulse)
         axis = dr.gather(mi.Vector3f, pulses.direction, echo_pulse)
+        measured = dr.gather(mi.Float, flat["range"], idx) + noise
+        if self.on_surface:
+            point = [start[a] + dr.gather(mi.Float, flat[name], idx) + axis[a] * noise for a, name in enumerate("xyz")]
+        else:
+            point = [start[a] + axis[a] * measured for a in range(3)]
         out = {
             "pulse_id": pulse_id, "gps_time": dr.gather(mi.Float64, pulses.time, echo_pulse),
             "scan_angle": dr.gather(mi.Float, pulses.scan_angle, echo_pulse),
             "return_number": return_number, "number_of_returns": dr.gather(mi.UInt32, returns, echo_pulse),
-            "range": dr.gather(mi.Float, flat["range"], idx) + noise,
+            "range": measured,
             "amplitude": dr.gather(mi.Float, flat["amplitude"], idx),
-            **{axis_name: start[a] + dr.gather(mi.Float, flat[axis_name], idx) + axis[a] * noise
-               for a, axis_name in enumerate("xyz")},
+            **dict(zip("xyz", point)),
             **ids,
         }
         dr.eval(out)
