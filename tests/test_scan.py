@@ -4,6 +4,7 @@ import dataclasses
 
 import numpy as np
 import pytest
+from scipy import stats
 from helpers import analytic_scene, plane_model, pulses, scene_file
 
 from mitsuforest.classes import GROUND, ROCK
@@ -47,6 +48,27 @@ def test_intensity_follows_cosine_and_inverse_square(flat):
     assert np.allclose(expected_cos, np.cos(theta), rtol=0.01)
     near, far = (_trace(flat, pulses([[20, 20, h]], [0, 0, -1]))["intensity"][0] for h in (15.0, 30.0))
     assert near / far == pytest.approx(4.0, rel=1e-3)
+
+
+@pytest.mark.parametrize("samples", [1, 19])
+def test_reflectance_in_db_is_the_targets_at_any_range(flat, samples):
+    """A Lambertian plate of reflectance ρ reads 10·log10(ρ) dB face-on at any range, and
+    10·log10(ρ·cos θ) at incidence θ: the cos-law and 1/R² in dB (a thin beam exactly; a wide one's
+    echo on a slope is stretched in range, so its peak reads a little lower)."""
+    rho = reflectance_table(flat[0].sensor.wavelength)[GROUND]
+    heights = np.array([5.0, 10.0, 30.0, 100.0, 300.0])
+    face_on = _trace(flat, pulses(np.column_stack([np.full(5, 20.0), np.full(5, 20.0), heights]), [0, 0, -1]),
+                     samples=samples, beam_divergence=(0.5e-3, 0.5e-3))
+    assert len(face_on) == 5
+    assert np.abs(face_on["reflectance"] - 10 * np.log10(rho)).max() < 0.01
+    theta = np.deg2rad([20, 40, 60, 70])
+    d = np.column_stack([np.sin(theta), np.zeros(4), -np.cos(theta)])
+    tilted = _trace(flat, pulses(np.tile([10.0, 20, 10], (4, 1)), d), samples=samples, beam_divergence=(0.5e-3, 0.5e-3))
+    error = tilted["reflectance"] - 10 * np.log10(rho * np.cos(theta))
+    if samples == 1:
+        assert np.abs(error).max() < 0.01
+    else:   # a wide beam on a slope: the echo is stretched in range, its peak a little lower (0.05 dB at 70°)
+        assert (error < 0.01).all() and (error > -0.1).all()
 
 
 def test_grazing_incidence_gives_finite_values(flat):
@@ -274,7 +296,8 @@ def test_echo_kernel_matches_the_numpy_reference_in_a_forest(demo_setup, samples
     reference (pulses in numpy, sub-ray hits copied back, then label_hits, received_power,
     pulse_echoes) over the demo trees."""
     scene, plan, _, scan_scene = demo_setup
-    sensor = dataclasses.replace(scene.sensor, range_precision=0.0)
+    sensor = dataclasses.replace(scene.sensor, range_precision=0.0, footprint_range_noise=0.0,
+                                 range_precision_per_metre=0.0, speckle_looks=0)
     leg, first, count = plan.legs[0], 700_000, 100_000          # over the plot centre
     tracer = PulseTracer(scan_scene, sensor, samples, pattern=pattern, point_position=position)
     got, fired, cast = tracer.trace_slots(leg, scene.pulse_frequency, scene.scan_frequency, first, count)
@@ -308,6 +331,43 @@ def test_ranging_noise_is_gaussian_with_the_sensor_sigma(flat):
     assert np.abs(pts["z"] + residual).max() < 1e-4             # along the (vertical) beam axis
     again = _trace(flat, pulses(np.column_stack([xy, np.full(n, 30.0)]), [0, 0, -1]), range_precision=sigma)
     assert np.array_equal(again["range"], pts["range"])         # keyed on the pulse, not drawn
+
+
+@pytest.mark.parametrize(("range_m", "theta_deg"), [(20.0, 0.0), (20.0, 60.0), (50.0, 0.0), (50.0, 60.0)])
+def test_ranging_noise_grows_with_range_and_incidence_as_documented(flat, range_m, theta_deg):
+    """σ(R, θ)² = σ₀² + (k_R·R)² + (f·(R·γ/4)·tan θ)² (scan/noise.py) on flat ground, an elliptical
+    beam (γ = 1 mrad across, 4 mrad along the beam frame's second axis, the one the tilt lies in):
+    the std of n thin-beam ranges matches σ within 4 % (its sampling error is 1/sqrt(2n) = 1.1 %)."""
+    sigma0, k, f, gamma, n = 0.005, 2e-4, 1.0, (1e-3, 4e-3), 4000
+    theta = np.deg2rad(theta_deg)
+    d = np.array([np.sin(theta), 0.0, -np.cos(theta)])        # pulses(): across = -y, along = d x across
+    hit = np.column_stack([RNG.uniform(10, 30, n), RNG.uniform(10, 30, n), np.zeros(n)])
+    pts = _trace(flat, pulses(hit - range_m * d, d), range_precision=sigma0, range_precision_per_metre=k,
+                 footprint_range_noise=f, beam_divergence=gamma)
+    assert len(pts) == n
+    expected = np.sqrt(sigma0 ** 2 + (k * range_m) ** 2 + (f * range_m * gamma[1] / 4 * np.tan(theta)) ** 2)
+    residual = pts["range"].astype(float) - range_m
+    assert residual.std() == pytest.approx(expected, rel=0.04)
+    assert abs(residual.mean()) < 4 * expected / np.sqrt(n)
+    assert np.array_equal(_trace(flat, pulses(hit - range_m * d, d), range_precision=sigma0, range_precision_per_metre=k,
+                                 footprint_range_noise=f, beam_divergence=gamma)["range"], pts["range"])
+
+
+def test_speckle_multiplies_the_amplitude_by_a_gamma_of_the_looks(flat):
+    """speckle_looks L: the amplitude of a plate is its noiseless value times G ~ Gamma(L, 1/L): mean
+    1 and variance 1/L, and the same for the same pulse."""
+    n = 20_000
+    xy = RNG.uniform(5, 35, (n, 2))
+    p = pulses(np.column_stack([xy, np.full(n, 30.0)]), [0, 0, -1])
+    clean = _trace(flat, p)["intensity"].astype(float)
+    for looks in (1, 5):
+        speckled = _trace(flat, p, speckle_looks=looks)
+        gain = speckled["intensity"] / clean
+        assert gain.mean() == pytest.approx(1.0, abs=4 / np.sqrt(looks * n))
+        assert gain.var() == pytest.approx(1 / looks, rel=0.06)
+        assert np.mean(gain < 1) == pytest.approx(stats.gamma.cdf(1, looks, scale=1 / looks), abs=0.015)
+        assert np.array_equal(_trace(flat, p, speckle_looks=looks)["intensity"], speckled["intensity"])
+        assert np.array_equal(speckled["range"], _trace(flat, p)["range"])      # the amplitude only
 
 
 @pytest.mark.parametrize("pattern", ["fixed", "stratified"])

@@ -15,7 +15,7 @@ import numpy as np
 from ..labels.device import DeviceHitTable
 from .echoes import pulse_echoes, single_chain
 from .kernel import RayCaster
-from .noise import noise_key, standard_normal
+from .noise import noise_key, range_sigma, speckle_gain, speckle_key, standard_normal, varies
 
 ECHO_FIELDS = {"pulse_id": np.uint64, "gps_time": np.float64, "scan_angle": np.float32, "return_number": np.uint32,
                "number_of_returns": np.uint32, "range": np.float32, "amplitude": np.float32, "x": np.float32,
@@ -49,8 +49,12 @@ class EchoKernel(RayCaster):
         self.threshold = float(sensor.detection_threshold)
         self.max_returns = int(sensor.max_returns)
         self.resolving = float(sensor.resolving_distance)
+        self.sensor = sensor
         self.sigma = float(sensor.range_precision)
+        self.sigma_varies = varies(sensor)
         self.noise_key = noise_key(seed)
+        self.looks = int(sensor.speckle_looks)
+        self.speckle_key = speckle_key(seed)
 
     def echoes(self, pulses) -> dict:
         """Echoes of a batch of :class:`~mitsuforest.scan.pulses.DevicePulses`, in pulse then range order.
@@ -149,12 +153,19 @@ class EchoKernel(RayCaster):
         ids = self.table.identities(*(dr.gather(mi.UInt32, hit_id[k], strongest) for k in ("row", "tri")),
                                     dr.full(mi.Bool, True, dr.width(idx)))
         pulse_id = dr.gather(mi.UInt64, pulses.pulse_id, echo_pulse)
-        noise = mi.Float(0.0)
-        if self.sigma > 0:
-            noise = self.sigma * standard_normal(dr, mi, self.noise_key, pulse_id, return_number)
         start = dr.gather(mi.Point3f, pulses.origin, echo_pulse)
         axis = dr.gather(mi.Vector3f, pulses.direction, echo_pulse)
-        measured = dr.gather(mi.Float, flat["range"], idx) + noise
+        echo_range = dr.gather(mi.Float, flat["range"], idx)
+        noise = mi.Float(0.0)
+        if self.sigma_varies:
+            sigma = self._range_sigma(echo_range, axis, strongest, hit_id, pulses, echo_pulse)
+            noise = sigma * standard_normal(dr, mi, self.noise_key, pulse_id, return_number)
+        elif self.sigma > 0:
+            noise = self.sigma * standard_normal(dr, mi, self.noise_key, pulse_id, return_number)
+        amplitude = dr.gather(mi.Float, flat["amplitude"], idx)
+        if self.looks:
+            amplitude = amplitude * speckle_gain(dr, mi, self.speckle_key, pulse_id, return_number, self.looks)
+        measured = echo_range + noise
         if self.on_surface:
             point = [start[a] + dr.gather(mi.Float, flat[name], idx) + axis[a] * noise for a, name in enumerate("xyz")]
         else:
@@ -164,12 +175,22 @@ class EchoKernel(RayCaster):
             "scan_angle": dr.gather(mi.Float, pulses.scan_angle, echo_pulse),
             "return_number": return_number, "number_of_returns": dr.gather(mi.UInt32, returns, echo_pulse),
             "range": measured,
-            "amplitude": dr.gather(mi.Float, flat["amplitude"], idx),
+            "amplitude": amplitude,
             **dict(zip("xyz", point)),
             **ids,
         }
         dr.eval(out)
         return {k: np.array(v) for k, v in out.items()}
+
+    def _range_sigma(self, echo_range, axis, strongest, hit_id: dict, pulses, echo_pulse):
+        """σ(R, θ) of each echo (noise.py), θ from the normal of its strongest sub-ray's triangle."""
+        dr, mi = self.dr, self.mi
+        row, tri = (dr.gather(mi.UInt32, hit_id[k], strongest) for k in ("row", "tri"))
+        _, normal = self.table.class_and_normal(row, tri, dr.full(mi.Bool, True, dr.width(row)))
+        across = dr.gather(mi.Vector3f, pulses.across, echo_pulse)
+        along = dr.cross(axis, across)
+        return range_sigma(dr, echo_range, dr.dot(normal, axis), dr.dot(normal, across), dr.dot(normal, along),
+                           self.sensor)
 
 
 def _no_echoes() -> dict:

@@ -8,7 +8,7 @@ from ..scene.variant import variant_scope
 from .beam import beam_cells, beam_pattern
 from .echo_kernel import EchoKernel
 from .pulses import reaching_pulses, upload_pulses
-from .radiometry import reflectance_table
+from .radiometry import reflectance_db, reflectance_table
 from .sampling import key_word
 
 POINT_DTYPE = np.dtype([
@@ -16,6 +16,7 @@ POINT_DTYPE = np.dtype([
     ("instance", "<u4"), ("object_id", "<u4"), ("number_of_returns", "u1"), ("return_number", "u1"),
     ("intensity", "<f4"), ("gps_time", "<f8"), ("scan_angle", "<f4"), ("pulse_id", "<u8"), ("range", "<f4"),
     ("species", "u1"),   # after the paper's fields: the tree's family code (classes.SPECIES_CODES), 0 elsewhere
+    ("reflectance", "<f4"),   # dB: the amplitude over a white Lambertian target's at the same range (radiometry.py)
 ])
 
 
@@ -107,4 +108,5 @@ class PulseTracer:
         out["intensity"] = echoes["amplitude"]
         out["scan_angle"] = np.rad2deg(echoes["scan_angle"])
         out["species"] = table.species(out["instance"])
+        out["reflectance"] = reflectance_db(out["intensity"], out["range"])
         return out

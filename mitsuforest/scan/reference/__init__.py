@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from ...labels import label_hits
-from ..radiometry import received_power
+from ..radiometry import received_power, reflectance_db
 from ..tracer import POINT_DTYPE
 from .echoes import pulse_echoes
 from .pulses import Pulses, reaching_pulses
@@ -63,4 +63,5 @@ def trace_reference(tracer, pulses: Pulses, first_id: int = 0) -> np.ndarray:
     out["pulse_id"] = first_id + pulses.index[echoes.pulse]
     out["range"] = echoes.range
     out["species"] = tracer.table.species(out["instance"])
+    out["reflectance"] = reflectance_db(out["intensity"], out["range"])
     return out
