@@ -80,6 +80,38 @@ def test_grazing_incidence_gives_finite_values(flat):
     assert (pts["intensity"] >= 0).all()
 
 
+@pytest.mark.parametrize("pattern", ["fixed", "stratified"])
+def test_an_elliptical_beam_has_its_footprint_axes_across_and_along_the_flight_line(flat, pattern):
+    """beam_divergence [γ₁, γ₂] = [4, 1] mrad on a leg along +y over flat ground: near nadir, the
+    footprint's energy-weighted second moments (beam.py: Σ w o oᵀ = w²/4 per axis, w = R·γ/2) are
+    (R·γ₁/4)² across the track (x) and (R·γ₂/4)² along it (y), with no cross term; exact for the
+    fixed pattern, in the mean over pulses for the stratified one."""
+    scene, plan, _, scan_scene = flat
+    gamma = (4e-3, 1e-3)
+    sensor = dataclasses.replace(scene.sensor, beam_divergence=gamma)
+    leg = next(leg for leg in plan.legs if 15 < leg.start[0] < 25)
+    tracer = PulseTracer(scan_scene, sensor, 19, pattern=pattern)
+    middle = leg.pulse_count(scene.pulse_frequency) // 2                 # over the plot's centre
+    p, _ = reaching_pulses(leg, sensor, scene.pulse_frequency, scene.scan_frequency, middle, 20_000, tracer.box)
+    p = p.select(np.abs(np.rad2deg(p.scan_angle)) < 1.0)
+    assert np.abs(leg.frame()[1] - [0, 1, 0]).max() < 1e-12 and len(p.time) > 50
+    hits = tracer.cast(p)
+    assert len(hits["ray"]) == 19 * len(p.time)
+    pulse = hits["ray"] // 19
+    w = tracer.weights[hits["ray"] % 19]
+    axis_hit = p.origin + p.direction * (p.origin[:, 2] / -p.direction[:, 2])[:, None]
+    offset = hits["point"] - axis_hit[pulse]
+    height = p.origin[pulse, 2]
+    moments = {name: np.bincount(pulse, w * a * b / height ** 2) for name, a, b in
+               (("xx", offset[:, 0], offset[:, 0]), ("yy", offset[:, 1], offset[:, 1]),
+                ("xy", offset[:, 0], offset[:, 1]))}
+    tolerance = 2e-3 if pattern == "fixed" else 0.02
+    reduce = (lambda m: m) if pattern == "fixed" else np.mean
+    assert reduce(moments["xx"]) == pytest.approx((gamma[0] / 4) ** 2, rel=tolerance)
+    assert reduce(moments["yy"]) == pytest.approx((gamma[1] / 4) ** 2, rel=tolerance)
+    assert np.abs(reduce(moments["xy"])).max() < tolerance * (gamma[0] / 4) ** 2
+
+
 def test_hits_closer_than_range_min_give_no_points(flat):
     pts = _trace(flat, pulses(np.tile([20.0, 20, 2.0], (5, 1)), [0, 0, -1]), samples=7, range_min=3.0,
                  beam_divergence=(1e-3, 1e-3))
