@@ -129,9 +129,13 @@ def main(argv=None) -> None:
                         help="fly this one line instead (default for the demo: 10 -5 10 25)")
     parser.add_argument("--pulse-frequency", type=float, default=None)
     parser.add_argument("--points", type=int, default=100_000, help="points measured per setting")
+    parser.add_argument("--quick", action="store_true", help="a 6 m line at 100 kHz, 7 sub-rays, 5,000 points")
     args = parser.parse_args(argv)
     scene = load_scene(args.scene)
     changes = {}
+    if args.quick:
+        args.line, args.pulse_frequency, args.points = [10.0, 7.0, 10.0, 13.0], 100_000, 5_000
+        changes["simulation.beam_samples"] = 7
     if args.pulse_frequency:
         changes["survey.pulse_frequency"] = args.pulse_frequency
     if args.line:
