@@ -128,11 +128,20 @@ def main(argv=None) -> None:
     parser.add_argument("--line", type=float, nargs=4, default=None, metavar=("X0", "Y0", "X1", "Y1"),
                         help="fly this one line instead (default for the demo: 10 -5 10 25)")
     parser.add_argument("--pulse-frequency", type=float, default=None)
+    parser.add_argument("--sensor", default=None, help="another sensor file (its own pulse rate nearest 200 kHz)")
     parser.add_argument("--points", type=int, default=100_000, help="points measured per setting")
+    parser.add_argument("--no-noise", action="store_true", help="without ranging noise (placement alone)")
     parser.add_argument("--quick", action="store_true", help="a 6 m line at 100 kHz, 7 sub-rays, 5,000 points")
     args = parser.parse_args(argv)
     scene = load_scene(args.scene)
     changes = {}
+    if args.sensor:
+        from mitsuforest.config import load_sensor
+        scene = scene.with_({"sensor": load_sensor(args.sensor), "survey.pulse_frequency": None,
+                             "survey.scan_frequency": None})
+    if args.no_noise:
+        changes.update({"sensor.range_precision": 0.0, "sensor.range_precision_per_metre": 0.0,
+                        "sensor.footprint_range_noise": 0.0})
     if args.quick:
         args.line, args.pulse_frequency, args.points = [10.0, 7.0, 10.0, 13.0], 100_000, 5_000
         changes["simulation.beam_samples"] = 7
@@ -146,7 +155,8 @@ def main(argv=None) -> None:
     elif Path(args.scene).name == "demo.yaml":
         changes["survey.lines"] = [[[10.0, -5.0], [10.0, 25.0]]]
     scene = scene.with_(changes)
-    print(f"{scene.name}: {scene.sensor.name}, {scene.simulation.beam_samples} sub-rays "
+    print(f"{scene.name}: {scene.sensor.name} (ranging noise {'off' if args.no_noise else 'on'}), "
+          f"{scene.simulation.beam_samples} sub-rays "
           f"({scene.simulation.beam_pattern}), {scene.pulse_frequency:g} Hz, lines {scene.survey.lines}")
     for position, r in measure(scene, args.points, np.random.default_rng(0)).items():
         print(f"{position:>9}: {r['measured']:,} of {r['points']:,} points; farther than 2 cm from their "

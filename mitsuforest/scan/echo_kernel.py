@@ -1,7 +1,7 @@
 """The echo kernel: rays, labels, radiometry and waveform of a batch of pulses in Dr.Jit.
 
 Only echoes come back to numpy, each complete (position with its ranging noise, GPS time, scan
-angle, pulse id, return numbers, intensity, labels), so the per-sub-ray and per-echo work (hundreds of
+angle, pulse id, return numbers, intensity with its speckle, labels), so the per-sub-ray and per-echo work (hundreds of
 millions of returns in a 1 ha scan) runs vectorised on every core, or on the GPU. The stages are
 those of the numpy reference (:func:`mitsuforest.scan.reference.trace_reference`):
 :func:`~mitsuforest.labels.label_hits`, :func:`~mitsuforest.scan.radiometry.received_power` and
@@ -157,11 +157,10 @@ class EchoKernel(RayCaster):
         axis = dr.gather(mi.Vector3f, pulses.direction, echo_pulse)
         echo_range = dr.gather(mi.Float, flat["range"], idx)
         noise = mi.Float(0.0)
-        if self.sigma_varies:
-            sigma = self._range_sigma(echo_range, axis, strongest, hit_id, pulses, echo_pulse)
+        if self.sigma_varies or self.sigma > 0:
+            sigma = (self._range_sigma(echo_range, axis, strongest, hit_id, pulses, echo_pulse) if self.sigma_varies
+                     else self.sigma)
             noise = sigma * standard_normal(dr, mi, self.noise_key, pulse_id, return_number)
-        elif self.sigma > 0:
-            noise = self.sigma * standard_normal(dr, mi, self.noise_key, pulse_id, return_number)
         amplitude = dr.gather(mi.Float, flat["amplitude"], idx)
         if self.looks:
             amplitude = amplitude * speckle_gain(dr, mi, self.speckle_key, pulse_id, return_number, self.looks)
