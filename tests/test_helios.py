@@ -15,6 +15,7 @@ import pytest
 from mitsuforest.cli import main
 from mitsuforest.errors import ConfigError
 from mitsuforest.helios.render import render_survey
+from mitsuforest.pipeline import render
 from mitsuforest.trees import build_models
 from mitsuforest.write import read_pcd
 from mitsuforest.write.export import export_scene
@@ -23,10 +24,18 @@ QUIET = {"write": False, "progress": False, "log": lambda *_: None}
 
 
 def test_exported_survey_flown_here_gives_the_demo_points(tmp_path, demo_result, variant):
-    """``mitsuforest render EXPORT/demo_helios_survey.xml`` against the demo's own render (one leg)."""
-    scene, plan = demo_result.scene, demo_result.plan
+    """``mitsuforest render EXPORT/demo_helios_survey.xml`` against the demo's own render (one leg),
+    with the sensor's ranging noise constant (HELIOS++ takes one accuracy; the export says so)."""
+    notes = []
+    export_scene(demo_result.scene, demo_result.plan, build_models(demo_result.plan), tmp_path / "noted",
+                 log=notes.append)
+    assert [n for n in notes if n.startswith("note:")] == [
+        "note: HELIOS++ takes one ranging accuracy: accuracy_m is range_precision (0.005 m), without its growth "
+        "with range and incidence"]
+    scene = demo_result.scene.with_({"sensor.footprint_range_noise": 0.0})
+    plan = demo_result.plan
     export_scene(scene, plan, build_models(plan), tmp_path / "export", log=lambda *_: None)
-    native = demo_result.points
+    native = render(scene, plan=plan, **QUIET).points
     assert main(["render", str(tmp_path / "export" / "demo_helios_survey.xml"), "-o", str(tmp_path / "flown"),
                  "--variant", variant, "--quiet"]) == 0                  # the survey carries the seed
     flown = read_pcd(tmp_path / "flown" / "demo.pcd")
