@@ -26,7 +26,6 @@ from __future__ import annotations
 from .sampling import TWO_PI, key_word, uniform_pair
 
 MIN_COS = 0.1          # |cos θ| floor in the footprint term: tan θ <= 9.95
-MAX_LOOKS = 64
 
 
 def noise_key(seed: int) -> int:
