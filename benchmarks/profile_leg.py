@@ -51,7 +51,7 @@ def profile(scene, leg_index: int, batch: int, folder: Path) -> tuple[dict, int,
     plan = make_plan(scene)
     scan_scene = build_scene(plan, build_models(plan), scene.sensor, scene.simulation.variant)
     sim = scene.simulation
-    tracer = PulseTracer(scan_scene, scene.sensor, sim.beam_samples, scene.seed, sim.beam_pattern)
+    tracer = PulseTracer(scan_scene, scene.sensor, sim.beam_samples, scene.seed, sim.beam_pattern, sim.point_position)
     leg = plan.legs[leg_index]
     total = leg.pulse_count(scene.pulse_frequency)
     watch = Stopwatch(dr)

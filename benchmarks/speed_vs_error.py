@@ -69,7 +69,9 @@ def setup(scene_file: Path, seconds: float, variant: str):
 def trace(scene, scan_scene, leg, samples, batch, pattern="fixed", reference_path=False):
     """Points and scan seconds of the leg on the path a render runs (:meth:`PulseTracer.trace_slots`);
     ``reference_path`` runs the numpy twin of the echo stage instead."""
-    tracer = PulseTracer(scan_scene, scene.sensor, samples, scene.seed, pattern)
+    # Points on the surface: this measures how well the sub-rays place an echo on what it hit (on the
+    # beam axis, an echo mixing two surfaces lies between them by design).
+    tracer = PulseTracer(scan_scene, scene.sensor, samples, scene.seed, pattern, point_position="surface")
     f_p, f_s, total = scene.pulse_frequency, scene.scan_frequency, leg.pulse_count(scene.pulse_frequency)
 
     def run(first, count):

@@ -68,6 +68,8 @@ CASES = {
                           "scene.yaml: line 8, column 106: nested deeper than 100 levels"),
     "nested 1,000 deep in blocks": (GOOD + "".join(f"{'  ' * i}k:\n" for i in range(1000)),
                                     "scene.yaml: line 107, column 199: nested deeper than 100 levels"),
+    "point position": (GOOD + "simulation: {point_position: axis}\n",
+                       "simulation.point_position: must be one of beam_axis, surface, got 'axis'"),
 }
 
 
@@ -108,10 +110,40 @@ def test_errors_inside_a_sensor_file_name_that_file(tmp_path, monkeypatch, capsy
     assert capsys.readouterr().err.strip() == "mitsuforest: s.yaml: beam_divergence: must be >= 0, got -1"
 
 
+@pytest.mark.parametrize(("line", "message"), [
+    ("speckle_looks: 65", "speckle_looks: must be <= 64, got 65"),
+    ("speckle_looks: 1.5", "speckle_looks: must be an integer, got 1.5"),
+    ("footprint_range_noise: -1", "footprint_range_noise: must be >= 0, got -1"),
+    ("range_precision_per_metre: x", "range_precision_per_metre: must be a number, got 'x'"),
+    ("intensity: {saturation: 70000}", "intensity.saturation: must be <= 65535, got 70000"),
+    ("intensity: {gain: 0}", "intensity.gain: must be > 0, got 0"),
+    ("intensity: {source: counts}", "intensity.source: must be one of amplitude, reflectance, got 'counts'"),
+    ("intensity: {scale: 2}", "intensity.scale: unknown key"),
+])
+def test_bad_noise_and_intensity_keys_of_a_sensor_file(tmp_path, monkeypatch, capsys, line, message):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "s.yaml").write_text(f"name: x\nbeam_divergence: [1.0e-3, 0.5e-3]\npulse_frequencies: [200000]\n{line}\n")
+    (tmp_path / "scene.yaml").write_text(GOOD.replace(str(SENSORS / "riegl_vux-1uav22.yaml"), "s.yaml"))
+    assert main(["plan", "scene.yaml"]) == 2
+    assert capsys.readouterr().err.strip().startswith(f"mitsuforest: s.yaml: {message}")
+
+
+def test_sensor_noise_and_intensity_defaults_keep_the_old_behaviour(tmp_path):
+    (tmp_path / "s.yaml").write_text("name: x\nbeam_divergence: 1.0e-3\npulse_frequencies: [200000]\n")
+    sensor = load_sensor(tmp_path / "s.yaml")
+    assert (sensor.range_precision_per_metre, sensor.footprint_range_noise, sensor.speckle_looks) == (0, 0, 0)
+    assert (sensor.intensity.source, sensor.intensity.gain, sensor.intensity.offset, sensor.intensity.saturation) == \
+        ("amplitude", 1e6, 0, 65535)
+    livox = load_sensor(SENSORS / "livox_mid-70.yaml")
+    assert livox.beam_divergence == pytest.approx((np.deg2rad(0.03), np.deg2rad(0.28)), rel=0.01)
+    assert livox.intensity.source == "reflectance" and livox.intensity.saturation == 255 * 256
+
+
 def test_defaults_and_relative_paths(tmp_path):
     (tmp_path / "scene.yaml").write_text(GOOD)
     scene = load_scene(tmp_path / "scene.yaml")
     assert scene.simulation.beam_samples == 19 and scene.simulation.beam_pattern == "stratified"
+    assert scene.simulation.point_position == "beam_axis"
     assert scene.output.formats == ("pcd", "laz")
     assert scene.survey.scan_frequency is None and scene.scan_frequency == 50
     assert scene.sensor.beam_divergence == (0.5e-3, 0.5e-3)

@@ -66,6 +66,25 @@ def test_stability_benchmark_quick():
 
 
 @pytest.mark.slow
+def test_label_purity_benchmark_quick():
+    stdout = _run([str(ROOT / "benchmarks" / "label_purity.py"), "--quick"], ROOT)
+    assert "beam_axis: 5,000 of" in stdout and "surface: 5,000 of" in stdout
+
+
+def test_point_to_triangle_distance_of_the_label_purity_benchmark():
+    """The exact distance against points placed in each Voronoi region of one triangle."""
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    from label_purity import point_triangle_distance, within
+    import numpy as np
+    a, b, c = np.array([0.0, 0, 0]), np.array([1.0, 0, 0]), np.array([0.0, 1, 0])
+    p = np.array([[0.2, 0.2, 0.5], [-1, -1, 0], [2, 0, 0], [0, 3, 0], [0.5, -2, 0], [-2, 0.5, 0], [1, 1, 0]])
+    expected = [0.5, np.sqrt(2), 1, 2, 2, 2, np.sqrt(0.5)]
+    got = point_triangle_distance(p, *(np.tile(v, (len(p), 1)) for v in (a, b, c)))
+    assert np.allclose(got, expected, atol=1e-12)
+    assert within(p, np.array([[a, b, c]]), 1.0).tolist() == [True, False, True, False, False, False, True]
+
+
+@pytest.mark.slow
 def test_speed_vs_error_benchmark_quick(tmp_path):
     stdout = _run([str(ROOT / "benchmarks" / "speed_vs_error.py"), "--quick", "--out", str(tmp_path)], ROOT)
     assert "7 fixed" in stdout and "7 stratified" in stdout and "chains_not_maxima" in stdout and (tmp_path / "speed_vs_error.json").exists()

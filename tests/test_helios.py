@@ -15,6 +15,7 @@ import pytest
 from mitsuforest.cli import main
 from mitsuforest.errors import ConfigError
 from mitsuforest.helios.render import render_survey
+from mitsuforest.pipeline import render
 from mitsuforest.trees import build_models
 from mitsuforest.write import read_pcd
 from mitsuforest.write.export import export_scene
@@ -23,10 +24,18 @@ QUIET = {"write": False, "progress": False, "log": lambda *_: None}
 
 
 def test_exported_survey_flown_here_gives_the_demo_points(tmp_path, demo_result, variant):
-    """``mitsuforest render EXPORT/demo_helios_survey.xml`` against the demo's own render (one leg)."""
-    scene, plan = demo_result.scene, demo_result.plan
+    """``mitsuforest render EXPORT/demo_helios_survey.xml`` against the demo's own render (one leg),
+    with the sensor's ranging noise constant (HELIOS++ takes one accuracy; the export says so)."""
+    notes = []
+    export_scene(demo_result.scene, demo_result.plan, build_models(demo_result.plan), tmp_path / "noted",
+                 log=notes.append)
+    assert [n for n in notes if n.startswith("note:")] == [
+        "note: HELIOS++ takes one ranging accuracy: accuracy_m is range_precision (0.005 m), without its growth "
+        "with range and incidence"]
+    scene = demo_result.scene.with_({"sensor.footprint_range_noise": 0.0})
+    plan = demo_result.plan
     export_scene(scene, plan, build_models(plan), tmp_path / "export", log=lambda *_: None)
-    native = demo_result.points
+    native = render(scene, plan=plan, **QUIET).points
     assert main(["render", str(tmp_path / "export" / "demo_helios_survey.xml"), "-o", str(tmp_path / "flown"),
                  "--variant", variant, "--quiet"]) == 0                  # the survey carries the seed
     flown = read_pcd(tmp_path / "flown" / "demo.pcd")
@@ -103,8 +112,17 @@ def _demo_like_survey(tmp_path, scene_extra="", scanner_optics="rotating") -> No
 
 
 def test_a_demo_style_survey_lands_on_its_parts(tmp_path, monkeypatch, variant):
+    """With points on the surface (point_position: surface), every point lies on its part. (On the
+    beam axis, the default, an echo mixing the box's wall and the ground lies between them.)"""
+    from mitsuforest.helios import render as helios_render
     _demo_like_survey(tmp_path)
     monkeypatch.chdir(tmp_path)   # HELIOS++ demos are run from HELIOS++'s folder
+    survey_scene = helios_render.survey_scene
+
+    def on_surface(*args, **kwargs):
+        scene, *rest = survey_scene(*args, **kwargs)
+        return (scene.with_({"simulation.point_position": "surface"}), *rest)
+    monkeypatch.setattr(helios_render, "survey_scene", on_surface)
     result = render_survey("data/survey.xml", assets=["assets"], variant=variant, **QUIET)
     pts = result.points
     assert [leg.start for leg in result.plan.legs] == [(11.0, 2.0, 30.0)]

@@ -65,7 +65,7 @@ def test_species_round_trip_through_pcd_las_and_tables(rendered):
     from mitsuforest.classes import SPECIES_CODES
     folder = rendered / "a"
     pcd, las = read_pcd(folder / "test.pcd"), laspy.read(folder / "test.las")
-    assert pcd.dtype.names[:10] == tuple(FIELDS) and pcd.dtype.names[-1] == "species"
+    assert pcd.dtype.names[:10] == tuple(FIELDS) and pcd.dtype.names[-2:] == ("species", "reflectance")
     assert np.array_equal(np.asarray(las.species), pcd["species"])
     ids = list(csv.DictReader((folder / "test_ids.csv").open()))
     by_instance = {int(r["instance"]): SPECIES_CODES[r["species"]] for r in ids}
@@ -290,4 +290,40 @@ def test_every_class_has_its_asprs_code_and_extra_dimensions_carry_no_partial_st
     las = las_points(header, points)
     assert np.asarray(las.classification).tolist() == [2, 5, 5, 64, 65, 66, 4, 3]
     structs = header.vlrs.get("ExtraBytesVlr")[0].extra_bytes_structs
-    assert len(structs) == 6 and all(s.options == 0 for s in structs)
+    assert len(structs) == 7 and all(s.options == 0 for s in structs)
+
+
+def test_intensity_mapping_is_monotone_clips_at_saturation_and_reaches_the_las(tmp_path):
+    """LAS intensity = clip(round(gain·q + offset), 0, saturation), q the amplitude or the linear
+    reflectance: non-decreasing in q, strong returns at the saturation level, weak ones at 0; the LAS
+    carries the counts, the exact amplitude and the reflectance (dB)."""
+    import dataclasses as dc
+    from mitsuforest.config.types import IntensityMapping
+    from mitsuforest.scan import POINT_DTYPE
+    from mitsuforest.scan.radiometry import intensity_counts, reflectance_db
+    from mitsuforest.write.las import write_las
+    amplitude = np.geomspace(1e-9, 1.0, 2001)
+    rng = np.random.default_rng(3)
+    range_m = rng.uniform(5, 100, amplitude.size)
+    reflectance = reflectance_db(amplitude, range_m)
+    default = IntensityMapping()
+    counts = intensity_counts(amplitude, reflectance, default)
+    assert counts.dtype == np.uint16 and (np.diff(counts.astype(int)) >= 0).all()
+    assert np.array_equal(counts, np.clip(np.round(amplitude * 1e6), 0, 65535))   # as before the mapping
+    sensor = IntensityMapping(gain=2e5, offset=-10.0, saturation=40000)
+    counts = intensity_counts(amplitude, reflectance, sensor).astype(int)
+    assert (np.diff(counts) >= 0).all() and counts.min() == 0 and counts.max() == 40000
+    assert (counts[amplitude * 2e5 - 10 >= 40000] == 40000).all()
+    assert np.array_equal(counts[amplitude < 0.1], np.clip(np.round(2e5 * amplitude - 10), 0, None)[amplitude < 0.1])
+    by_reflectance = dc.replace(sensor, source="reflectance", gain=150 * 256)
+    q = amplitude * range_m ** 2
+    expected = np.clip(np.round(150 * 256 * q - 10), 0, 40000)
+    assert np.abs(intensity_counts(amplitude, reflectance, by_reflectance) - expected).max() <= 1
+    points = np.zeros(amplitude.size, POINT_DTYPE)
+    points["intensity"], points["range"], points["reflectance"] = amplitude, range_m, reflectance
+    write_las(tmp_path / "t.las", points, [0.0, 0.0, 0.0], intensity=sensor)
+    las = laspy.read(tmp_path / "t.las")
+    assert np.array_equal(np.asarray(las.intensity), intensity_counts(points["intensity"], points["reflectance"], sensor))
+    assert np.array_equal(np.asarray(las.amplitude), points["intensity"])
+    assert np.array_equal(np.asarray(las.reflectance), points["reflectance"])
+    assert json.loads(las.header.vlrs.get_by_id("mitsuforest")[0].record_data)["intensity"] == dc.asdict(sensor)

@@ -4,6 +4,7 @@ import dataclasses
 
 import numpy as np
 import pytest
+from scipy import stats
 from helpers import ROOT, analytic_scene, plane_model, pulses, scene_file
 
 from mitsuforest.classes import GROUND, ROCK
@@ -21,10 +22,10 @@ def flat(tmp_path_factory, variant):
     return analytic_scene(scene_file(tmp_path_factory.mktemp("flat"), variant=variant))
 
 
-def _trace(setup, p, samples=1, **sensor_changes):
+def _trace(setup, p, samples=1, point_position="beam_axis", **sensor_changes):
     scene, _, _, scan_scene = setup
     sensor = dataclasses.replace(scene.sensor, **sensor_changes)
-    return PulseTracer(scan_scene, sensor, samples).trace_pulses(p)
+    return PulseTracer(scan_scene, sensor, samples, point_position=point_position).trace_pulses(p)
 
 
 def test_range_to_plane_is_exact(flat):
@@ -49,6 +50,27 @@ def test_intensity_follows_cosine_and_inverse_square(flat):
     assert near / far == pytest.approx(4.0, rel=1e-3)
 
 
+@pytest.mark.parametrize("samples", [1, 19])
+def test_reflectance_in_db_is_the_targets_at_any_range(flat, samples):
+    """A Lambertian plate of reflectance ρ reads 10·log10(ρ) dB face-on at any range, and
+    10·log10(ρ·cos θ) at incidence θ: the cos-law and 1/R² in dB (a thin beam exactly; a wide one's
+    echo on a slope is stretched in range, so its peak reads a little lower)."""
+    rho = reflectance_table(flat[0].sensor.wavelength)[GROUND]
+    heights = np.array([5.0, 10.0, 30.0, 100.0, 300.0])
+    face_on = _trace(flat, pulses(np.column_stack([np.full(5, 20.0), np.full(5, 20.0), heights]), [0, 0, -1]),
+                     samples=samples, beam_divergence=(0.5e-3, 0.5e-3))
+    assert len(face_on) == 5
+    assert np.abs(face_on["reflectance"] - 10 * np.log10(rho)).max() < 0.01
+    theta = np.deg2rad([20, 40, 60, 70])
+    d = np.column_stack([np.sin(theta), np.zeros(4), -np.cos(theta)])
+    tilted = _trace(flat, pulses(np.tile([10.0, 20, 10], (4, 1)), d), samples=samples, beam_divergence=(0.5e-3, 0.5e-3))
+    error = tilted["reflectance"] - 10 * np.log10(rho * np.cos(theta))
+    if samples == 1:
+        assert np.abs(error).max() < 0.01
+    else:   # a wide beam on a slope: the echo is stretched in range, its peak a little lower (0.05 dB at 70°)
+        assert (error < 0.01).all() and (error > -0.1).all()
+
+
 def test_grazing_incidence_gives_finite_values(flat):
     theta = np.deg2rad([85, 87, 89, 89.5, 89.9])
     d = np.column_stack([np.sin(theta), np.zeros(5), -np.cos(theta)])
@@ -56,6 +78,38 @@ def test_grazing_incidence_gives_finite_values(flat):
     for name in ("x", "y", "z", "intensity", "range"):
         assert np.isfinite(pts[name]).all()
     assert (pts["intensity"] >= 0).all()
+
+
+@pytest.mark.parametrize("pattern", ["fixed", "stratified"])
+def test_an_elliptical_beam_has_its_footprint_axes_across_and_along_the_flight_line(flat, pattern):
+    """beam_divergence [γ₁, γ₂] = [4, 1] mrad on a leg along +y over flat ground: near nadir, the
+    footprint's energy-weighted second moments (beam.py: Σ w o oᵀ = w²/4 per axis, w = R·γ/2) are
+    (R·γ₁/4)² across the track (x) and (R·γ₂/4)² along it (y), with no cross term; exact for the
+    fixed pattern, in the mean over pulses for the stratified one."""
+    scene, plan, _, scan_scene = flat
+    gamma = (4e-3, 1e-3)
+    sensor = dataclasses.replace(scene.sensor, beam_divergence=gamma)
+    leg = next(leg for leg in plan.legs if 15 < leg.start[0] < 25)
+    tracer = PulseTracer(scan_scene, sensor, 19, pattern=pattern)
+    middle = leg.pulse_count(scene.pulse_frequency) // 2                 # over the plot's centre
+    p, _ = reaching_pulses(leg, sensor, scene.pulse_frequency, scene.scan_frequency, middle, 20_000, tracer.box)
+    p = p.select(np.abs(np.rad2deg(p.scan_angle)) < 1.0)
+    assert np.abs(leg.frame()[1] - [0, 1, 0]).max() < 1e-12 and len(p.time) > 50
+    hits = tracer.cast(p)
+    assert len(hits["ray"]) == 19 * len(p.time)
+    pulse = hits["ray"] // 19
+    w = tracer.weights[hits["ray"] % 19]
+    axis_hit = p.origin + p.direction * (p.origin[:, 2] / -p.direction[:, 2])[:, None]
+    offset = hits["point"] - axis_hit[pulse]
+    height = p.origin[pulse, 2]
+    moments = {name: np.bincount(pulse, w * a * b / height ** 2) for name, a, b in
+               (("xx", offset[:, 0], offset[:, 0]), ("yy", offset[:, 1], offset[:, 1]),
+                ("xy", offset[:, 0], offset[:, 1]))}
+    tolerance = 2e-3 if pattern == "fixed" else 0.02
+    reduce = (lambda m: m) if pattern == "fixed" else np.mean
+    assert reduce(moments["xx"]) == pytest.approx((gamma[0] / 4) ** 2, rel=tolerance)
+    assert reduce(moments["yy"]) == pytest.approx((gamma[1] / 4) ** 2, rel=tolerance)
+    assert np.abs(reduce(moments["xy"])).max() < tolerance * (gamma[0] / 4) ** 2
 
 
 def test_hits_closer_than_range_min_give_no_points(flat):
@@ -109,14 +163,65 @@ def test_echo_separation_is_a_sensor_property(tmp_path, variant, separation):
         assert len(pts) == echoes, (d, pts["range"])
 
 
-def test_points_lie_on_the_surface_not_on_the_central_ray(tmp_path, variant):
-    """A wide beam on a 45° slope: each point is on the plane, off the beam axis."""
+def test_surface_points_lie_on_the_surface_not_on_the_central_ray(tmp_path, variant):
+    """point_position: surface. A wide beam on a 45° slope: each point is on the plane, off the beam
+    axis; beam_axis puts it on the axis (x = y = 20) at the echo's range instead."""
     model = plane_model("slope", 30.0, ROCK)
     setup = analytic_scene(scene_file(tmp_path, variant=variant), [(model, (20.0, 20.0, 10.0), 0.0, (0, 45), 0)])
-    pts = _trace(setup, pulses([[20.0, 20.0, 30.0]], [0, 0, -1]), samples=19, beam_divergence=(0.05, 0.05))
+    p = pulses([[20.0, 20.0, 30.0]], [0, 0, -1])
+    pts = _trace(setup, p, samples=19, beam_divergence=(0.05, 0.05), point_position="surface")
     normal = np.array([np.sin(np.pi / 4), 0, np.cos(np.pi / 4)])
     xyz = np.column_stack([pts["x"], pts["y"], pts["z"]])
     assert np.abs((xyz - [20, 20, 10]) @ normal).max() < 1e-3
+    assert np.hypot(pts["x"] - 20, pts["y"] - 20).max() > 0.1            # the outer echoes: off the axis
+    axis = _trace(setup, p, samples=19, beam_divergence=(0.05, 0.05))
+    assert np.array_equal(axis["range"], pts["range"])
+    assert np.abs(axis["x"] - 20).max() < 1e-5 and np.abs(axis["y"] - 20).max() < 1e-5
+    assert np.abs(axis["z"] - (30 - axis["range"])).max() < 1e-5
+
+
+@pytest.mark.parametrize("samples", [7, 19])
+def test_beam_axis_points_of_a_plate_lie_on_it_within_the_noise(flat, samples):
+    """beam_axis: wide beams at up to 40° incidence on flat ground (z = 0). Without noise each point
+    lies on the ground to within the range spread the footprint's curvature leaves (second order: the
+    mean range of a tilted footprint is not the axis' range by ~ w²·tan²θ/R); with σ = 2 cm the
+    height residuals are N(0, (σ cos θ)²) about that."""
+    n = 2000
+    theta = np.deg2rad(RNG.uniform(0, 40, n))
+    xy = np.column_stack([RNG.uniform(5, 15, n), RNG.uniform(5, 35, n)])
+    d = np.column_stack([np.sin(theta), np.zeros(n), -np.cos(theta)])
+    origin = np.column_stack([xy, np.full(n, 20.0)])
+    p = pulses(origin, d)
+    clean = _trace(flat, p, samples=samples, beam_divergence=(2e-3, 2e-3))
+    assert len(clean) == n
+    on_axis = origin[clean["pulse_id"]] + d[clean["pulse_id"]] * clean["range"][:, None].astype(float)
+    assert np.abs(np.column_stack([clean["x"], clean["y"], clean["z"]]) - on_axis).max() < 1e-4
+    assert np.abs(clean["z"]).max() < 2e-4
+    sigma = 0.02
+    noisy = _trace(flat, p, samples=samples, beam_divergence=(2e-3, 2e-3), range_precision=sigma)
+    residual = noisy["z"] / np.cos(theta[noisy["pulse_id"]])               # the range error, along the axis
+    assert residual.std() == pytest.approx(sigma, rel=0.05)
+    assert abs(residual.mean()) < 4 * sigma / np.sqrt(n)
+
+
+def test_a_pulse_straddling_a_step_lies_between_its_levels_on_the_axis(tmp_path, variant):
+    """A plate covering x < 20 at height d = 0.3 ΔR over the ground; a vertical beam at x = 20 puts
+    half its footprint on each level: one echo, on the axis, between the levels (rock 0.35 and ground
+    0.33 are nearly equally bright, so near their mean); point_position: surface puts the same echo's
+    point at the energy-weighted mean of the hit points: the same height but for the sub-rays' slant
+    (30 m·(1 - cos 0.01) = 1.5 mm at most), in the air between the two plates too."""
+    pulse_length = 4e-9
+    d = 0.3 * 299_792_458.0 * pulse_length / 2
+    setup = analytic_scene(scene_file(tmp_path, variant=variant),
+                           [(plane_model("half", 20.0, ROCK), (10.0, 20.0, d), 0.0, (0, 0), 0)])
+    p = pulses([[20.0, 20.0, 30.0]], [0, 0, -1])
+    pts = _trace(setup, p, samples=19, beam_divergence=(0.02, 0.02), pulse_length=pulse_length)
+    assert len(pts) == 1
+    assert 0.2 * d < pts["z"][0] < 0.8 * d
+    assert abs(pts["x"][0] - 20) < 1e-5 and abs(pts["y"][0] - 20) < 1e-5
+    surface = _trace(setup, p, samples=19, beam_divergence=(0.02, 0.02), pulse_length=pulse_length,
+                     point_position="surface")
+    assert surface["z"][0] == pytest.approx(pts["z"][0], abs=2e-3)
 
 
 def test_return_numbers_have_no_gaps(demo_result):
@@ -216,15 +321,17 @@ def test_rays_at_known_leaves_are_leaves(demo_setup):
     assert set(first["instance"]) == {tree.instance}
 
 
-@pytest.mark.parametrize(("samples", "pattern"), [(1, "fixed"), (7, "fixed"), (7, "stratified")])
-def test_echo_kernel_matches_the_numpy_reference_in_a_forest(demo_setup, samples, pattern):
+@pytest.mark.parametrize(("samples", "pattern", "position"), [(1, "fixed", "beam_axis"), (7, "fixed", "surface"),
+                                                            (7, "stratified", "beam_axis"), (7, "stratified", "surface")])
+def test_echo_kernel_matches_the_numpy_reference_in_a_forest(demo_setup, samples, pattern, position):
     """The device path (pulses, rays, labels, radiometry, waveform in Dr.Jit) against the numpy
     reference (pulses in numpy, sub-ray hits copied back, then label_hits, received_power,
     pulse_echoes) over the demo trees."""
     scene, plan, _, scan_scene = demo_setup
-    sensor = dataclasses.replace(scene.sensor, range_precision=0.0)
+    sensor = dataclasses.replace(scene.sensor, range_precision=0.0, footprint_range_noise=0.0,
+                                 range_precision_per_metre=0.0, speckle_looks=0)
     leg, first, count = plan.legs[0], 700_000, 100_000          # over the plot centre
-    tracer = PulseTracer(scan_scene, sensor, samples, pattern=pattern)
+    tracer = PulseTracer(scan_scene, sensor, samples, pattern=pattern, point_position=position)
     got, fired, cast = tracer.trace_slots(leg, scene.pulse_frequency, scene.scan_frequency, first, count)
     p, ref_fired = reaching_pulses(leg, sensor, scene.pulse_frequency, scene.scan_frequency, first, count, tracer.box)
     ref = trace_reference(tracer, p)
@@ -256,6 +363,43 @@ def test_ranging_noise_is_gaussian_with_the_sensor_sigma(flat):
     assert np.abs(pts["z"] + residual).max() < 1e-4             # along the (vertical) beam axis
     again = _trace(flat, pulses(np.column_stack([xy, np.full(n, 30.0)]), [0, 0, -1]), range_precision=sigma)
     assert np.array_equal(again["range"], pts["range"])         # keyed on the pulse, not drawn
+
+
+@pytest.mark.parametrize(("range_m", "theta_deg"), [(20.0, 0.0), (20.0, 60.0), (50.0, 0.0), (50.0, 60.0)])
+def test_ranging_noise_grows_with_range_and_incidence_as_documented(flat, range_m, theta_deg):
+    """σ(R, θ)² = σ₀² + (k_R·R)² + (f·(R·γ/4)·tan θ)² (scan/noise.py) on flat ground, an elliptical
+    beam (γ = 1 mrad across, 4 mrad along the beam frame's second axis, the one the tilt lies in):
+    the std of n thin-beam ranges matches σ within 4 % (its sampling error is 1/sqrt(2n) = 1.1 %)."""
+    sigma0, k, f, gamma, n = 0.005, 2e-4, 1.0, (1e-3, 4e-3), 4000
+    theta = np.deg2rad(theta_deg)
+    d = np.array([np.sin(theta), 0.0, -np.cos(theta)])        # pulses(): across = -y, along = d x across
+    hit = np.column_stack([RNG.uniform(10, 30, n), RNG.uniform(10, 30, n), np.zeros(n)])
+    pts = _trace(flat, pulses(hit - range_m * d, d), range_precision=sigma0, range_precision_per_metre=k,
+                 footprint_range_noise=f, beam_divergence=gamma)
+    assert len(pts) == n
+    expected = np.sqrt(sigma0 ** 2 + (k * range_m) ** 2 + (f * range_m * gamma[1] / 4 * np.tan(theta)) ** 2)
+    residual = pts["range"].astype(float) - range_m
+    assert residual.std() == pytest.approx(expected, rel=0.04)
+    assert abs(residual.mean()) < 4 * expected / np.sqrt(n)
+    assert np.array_equal(_trace(flat, pulses(hit - range_m * d, d), range_precision=sigma0, range_precision_per_metre=k,
+                                 footprint_range_noise=f, beam_divergence=gamma)["range"], pts["range"])
+
+
+def test_speckle_multiplies_the_amplitude_by_a_gamma_of_the_looks(flat):
+    """speckle_looks L: the amplitude of a plate is its noiseless value times G ~ Gamma(L, 1/L): mean
+    1 and variance 1/L, and the same for the same pulse."""
+    n = 20_000
+    xy = RNG.uniform(5, 35, (n, 2))
+    p = pulses(np.column_stack([xy, np.full(n, 30.0)]), [0, 0, -1])
+    clean = _trace(flat, p)["intensity"].astype(float)
+    for looks in (1, 5):
+        speckled = _trace(flat, p, speckle_looks=looks)
+        gain = speckled["intensity"] / clean
+        assert gain.mean() == pytest.approx(1.0, abs=4 / np.sqrt(looks * n))
+        assert gain.var() == pytest.approx(1 / looks, rel=0.06)
+        assert np.mean(gain < 1) == pytest.approx(stats.gamma.cdf(1, looks, scale=1 / looks), abs=0.015)
+        assert np.array_equal(_trace(flat, p, speckle_looks=looks)["intensity"], speckled["intensity"])
+        assert np.array_equal(speckled["range"], _trace(flat, p)["range"])      # the amplitude only
 
 
 @pytest.mark.parametrize("pattern", ["fixed", "stratified"])

@@ -21,11 +21,12 @@ from ..errors import ConfigError, UserError
 from ..trees.archetypes import DEFAULT_ARCHETYPES, FAMILY_ARCHETYPES, FIELDS as ARCHETYPE_FIELDS, Archetype
 from ..trees.sources import DEFAULT_LEAF_PATTERNS, REPAIR_MODES, UNITS, UP_AXES, MeshTree, QsmTree
 from .schema import REQUIRED, Context, Custom, FilePath, ListOf, Number, Text, Vector, name_problem, parse_mapping
-from .types import BEAM_PATTERNS, FOREST_BANDS, Scene, Sensor, display_path, from_mapping, to_mapping
+from .types import BEAM_PATTERNS, FOREST_BANDS, INTENSITY_SOURCES, POINT_POSITIONS, Scene, Sensor, display_path, from_mapping, to_mapping
 
 __all__ = ["load_scene", "load_sensor", "scene_from_mapping", "read_yaml", "validate_scene", "scene_error", "Scene", "Sensor",
            "ConfigError", "FOREST_BANDS"]
 
+MAX_SPECKLE_LOOKS = 64  # scan/noise.py draws one uniform per look for each echo
 MAX_BEAM_SAMPLES = 61   # the speed-against-error benchmark stops here; compile time grows faster than linearly
 MAX_PLOT_SIDE = 2000.0  # m: the 0.25 m cover raster of a 2 km plot is 64 MB (a 1000 km one would be 14.6 TiB)
 MIN_BATCH = 1000        # time slots per launch: fewer spend their time launching kernels
@@ -47,6 +48,15 @@ SENSOR_SPEC = {
     "max_returns": Number(0, integer=True, ge=0),
     "detection_threshold": Number(None, ge=0, nullable=True),
     "echo_separation": Number(None, gt=0, nullable=True),
+    "range_precision_per_metre": Number(0.0, ge=0),
+    "footprint_range_noise": Number(0.0, ge=0),
+    "speckle_looks": Number(0, integer=True, ge=0, le=MAX_SPECKLE_LOOKS),
+    "intensity": {
+        "source": Text("amplitude", choices=INTENSITY_SOURCES),
+        "gain": Number(1.0e6, gt=0),
+        "offset": Number(0.0),
+        "saturation": Number(65535, integer=True, ge=1, le=65535),
+    },
     "risley": {
         "prism_rates": Vector(2, Number(), [121.6, -77.7]),
         "prism_deflection": Vector(2, Number(ge=0), [17.6, 17.6]),
@@ -227,6 +237,7 @@ SCENE_SPEC = {
         "beam_pattern": Text("stratified", choices=BEAM_PATTERNS),
         "variant": Text("auto"),
         "pulses_per_batch": Number(None, integer=True, ge=MIN_BATCH, nullable=True),
+        "point_position": Text("beam_axis", choices=POINT_POSITIONS),
     },
     "output": {
         "dir": FilePath(None, nullable=True, must_exist=False),

@@ -31,6 +31,8 @@ from ..trees.sources import MeshTree, QsmTree
 # Australia's National Forest Inventory crown cover classes.
 FOREST_BANDS = {"woodland": (0.20, 0.50), "open": (0.50, 0.80), "closed": (0.80, 1.00)}
 BEAM_PATTERNS = ("stratified", "fixed")   # see scan/beam.py
+POINT_POSITIONS = ("beam_axis", "surface")  # see scan/tracer.py
+INTENSITY_SOURCES = ("amplitude", "reflectance")   # see scan/radiometry.py
 SPEED_OF_LIGHT = 299_792_458.0
 
 
@@ -43,6 +45,17 @@ def _yaml(key: str | None):
 class Risley:
     prism_rates: tuple[float, float]          # rotations per second of the two prisms
     prism_deflection: tuple[float, float]     # deviation of each prism (deg)
+
+
+@dataclass(frozen=True)
+class IntensityMapping:
+    """How a sensor writes an echo's strength as 16-bit LAS intensity (scan/radiometry.py,
+    :func:`~mitsuforest.scan.radiometry.intensity_counts`)."""
+
+    source: str = "amplitude"                 # amplitude | reflectance (linear, 1 = white Lambertian)
+    gain: float = 1.0e6                       # counts per unit of the source
+    offset: float = 0.0                       # counts added
+    saturation: int = 65535                   # counts: stronger returns clip here
 
 
 @dataclass(frozen=True)
@@ -67,6 +80,10 @@ class Sensor:
     risley: Risley
     file: str | None = field(default=None, metadata=_yaml(None))   # the sensor file, if any
     echo_separation: float | None = None      # m: nearest two returns are told apart; None: c·τ/2
+    range_precision_per_metre: float = 0.0    # k_R: ranging σ grows as sqrt(σ₀² + (k_R·R)² + ...) (scan/noise.py)
+    footprint_range_noise: float = 0.0        # f: share of the footprint's range spread on inclined surfaces
+    speckle_looks: int = 0                    # L: amplitude × Gamma(L, 1/L); 0: no speckle
+    intensity: IntensityMapping = IntensityMapping()
 
     @property
     def detection_threshold(self) -> float:
@@ -176,6 +193,7 @@ class Simulation:
     beam_pattern: str                         # fixed | stratified
     variant: str
     pulses_per_batch: int | None
+    point_position: str = "beam_axis"         # beam_axis | surface
 
 
 @dataclass(frozen=True)
@@ -258,7 +276,7 @@ class Scene:
         return d
 
 
-SECTIONS = (Risley, Sensor, Area, Origin, TerrainSettings, Forest, Grass, Litter, Understory, Survey, Simulation, Output, Scene)
+SECTIONS = (Risley, IntensityMapping, Sensor, Area, Origin, TerrainSettings, Forest, Grass, Litter, Understory, Survey, Simulation, Output, Scene)
 
 
 def _as_value(value):

@@ -127,17 +127,24 @@ def read_plot_points(folder, name: str, formats) -> np.ndarray:
     las = laspy.read(str(folder / f"{name}.{fmt}"))
     dtype = [("treeid", "<u2"), ("x", "<f8"), ("y", "<f8"), ("z", "<f8"), ("classification", "u1"),
              ("instance", "<u4"), ("object_id", "<u4"), ("number_of_returns", "u1"), ("return_number", "u1"),
-             ("intensity", "<f4"), ("gps_time", "<f8"), ("scan_angle", "<f4"), ("species", "u1")]
+             ("intensity", "<f4"), ("gps_time", "<f8"), ("scan_angle", "<f4"), ("species", "u1"), ("reflectance", "<f4")]
     out = np.zeros(len(las.points), dtype)
     for key, value in (("treeid", las.treeid), ("x", las.x), ("y", las.y), ("z", las.z),
                        ("classification", las.label), ("instance", las.instance), ("object_id", las.object_id),
                        ("number_of_returns", las.number_of_returns), ("return_number", las.return_number),
                        ("intensity", las.amplitude), ("gps_time", las.gps_time),
-                       ("scan_angle", np.asarray(las.scan_angle) * 0.006)):
+                       ("scan_angle", np.asarray(las.scan_angle) * 0.006), ("reflectance", _las_reflectance(las))):
         out[key] = np.asarray(value)
     if "species" in las.point_format.extra_dimension_names:   # files written before it was added lack it
         out["species"] = np.asarray(las.species)
     return out
+
+
+def _las_reflectance(las) -> np.ndarray:
+    """The ``reflectance`` extra dimension (dB), NaN in a LAS written before it existed."""
+    if "reflectance" in las.point_format.extra_dimension_names:
+        return np.asarray(las.reflectance)
+    return np.full(len(las.points), np.nan, np.float32)
 
 
 def read_volumes(path) -> dict:
@@ -176,7 +183,7 @@ def write_tiles(root, scene, tiles) -> list[dict]:
             core = (ci[sel] == i) & (cj[sel] == j)
             tile_points = points[sel]
             point_file = out_dir / f"{tile_id}.{tiles.format}"
-            _write_points(point_file, tile_points, offset, scene.origin.crs)
+            _write_points(point_file, tile_points, offset, scene.origin.crs, scene.sensor.intensity)
             rows = _tree_rows(tile_points, kept[sel], instances, boxes, volumes, extent, offset, x[sel], y[sel])
             table = out_dir / f"{tile_id}_trees.csv"
             write_text(table, csv_text(["instance", "kind", "treeid", "volume_union_m3", "points", "whole_inside"],
@@ -204,13 +211,13 @@ def _tree_rows(points, kept, instances, boxes, volumes, extent, offset, x, y) ->
     return rows
 
 
-def _write_points(path, points: np.ndarray, offset, crs) -> None:
+def _write_points(path, points: np.ndarray, offset, crs, intensity) -> None:
     if path.suffix == ".pcd":
         with atomic_path(path) as tmp, open(tmp, "wb") as f:
             f.write(pcd_header(points.dtype, len(points)).encode("ascii"))
             f.write(np.ascontiguousarray(points).data)
     else:
-        write_las(path, points, offset, crs)
+        write_las(path, points, offset, crs, intensity)
 
 
 # --- the dataset's own files ------------------------------------------------------------------------

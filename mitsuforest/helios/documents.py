@@ -147,6 +147,17 @@ def scanner_xml(sensor, pulse_frequency: float) -> str:
     return _document(node)
 
 
+def scanner_notes(sensor) -> list[str]:
+    """What of ``sensor`` a HELIOS++ scanner cannot hold (the export says so; the survey flies without it)."""
+    notes = []
+    if sensor.range_precision_per_metre or sensor.footprint_range_noise:
+        notes.append(f"HELIOS++ takes one ranging accuracy: accuracy_m is range_precision "
+                     f"({sensor.range_precision:g} m), without its growth with range and incidence")
+    if sensor.speckle_looks:
+        notes.append("HELIOS++ has no speckle: speckle_looks is not exported")
+    return notes
+
+
 def materials_mtl(wavelength: float) -> str:
     """One material per class: ``Kd`` and ``helios_reflectance`` are our reflectance at ``wavelength``,
     ``helios_classification`` our class code; the ground is ``helios_isGround``."""

@@ -56,7 +56,7 @@ def scan(scene, plan, scan_scene, progress: bool = True, on_points=None, legs: r
     """
     sim = scene.simulation
     batch = sim.pulses_per_batch or default_batch(scan_scene.variant, sim.beam_samples)
-    tracer = PulseTracer(scan_scene, scene.sensor, sim.beam_samples, scene.seed, sim.beam_pattern)
+    tracer = PulseTracer(scan_scene, scene.sensor, sim.beam_samples, scene.seed, sim.beam_pattern, sim.point_position)
     result = ScanResult()
     chunks = []
     counts = [leg.pulse_count(scene.pulse_frequency) for leg in plan.legs]

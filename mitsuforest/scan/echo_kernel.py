@@ -1,7 +1,7 @@
 """The echo kernel: rays, labels, radiometry and waveform of a batch of pulses in Dr.Jit.
 
 Only echoes come back to numpy, each complete (position with its ranging noise, GPS time, scan
-angle, pulse id, return numbers, intensity, labels), so the per-sub-ray and per-echo work (hundreds of
+angle, pulse id, return numbers, intensity with its speckle, labels), so the per-sub-ray and per-echo work (hundreds of
 millions of returns in a 1 ha scan) runs vectorised on every core, or on the GPU. The stages are
 those of the numpy reference (:func:`mitsuforest.scan.reference.trace_reference`):
 :func:`~mitsuforest.labels.label_hits`, :func:`~mitsuforest.scan.radiometry.received_power` and
@@ -15,7 +15,7 @@ import numpy as np
 from ..labels.device import DeviceHitTable
 from .echoes import pulse_echoes, single_chain
 from .kernel import RayCaster
-from .noise import noise_key, standard_normal
+from .noise import noise_key, range_sigma, speckle_gain, speckle_key, standard_normal, varies
 
 ECHO_FIELDS = {"pulse_id": np.uint64, "gps_time": np.float64, "scan_angle": np.float32, "return_number": np.uint32,
                "number_of_returns": np.uint32, "range": np.float32, "amplitude": np.float32, "x": np.float32,
@@ -32,10 +32,15 @@ class EchoKernel(RayCaster):
     :param sensor: the :class:`~mitsuforest.config.types.Sensor` (range limits, detection threshold,
         max returns, resolving distance, ranging noise).
     :param seed: the scene's seed (keys the ranging noise; see noise.py).
+    :param point_position: ``beam_axis`` (an echo's point on its pulse's beam axis at the echo's range)
+        or ``surface`` (the energy-weighted mean of its sub-rays' hit points); see
+        :class:`~mitsuforest.scan.tracer.PulseTracer`.
     """
 
-    def __init__(self, mi_scene, *, weights, table, reflectance, sensor, seed: int, **beam):
+    def __init__(self, mi_scene, *, weights, table, reflectance, sensor, seed: int, point_position: str = "beam_axis",
+                 **beam):
         super().__init__(mi_scene, **beam)
+        self.on_surface = point_position == "surface"
         mi = self.mi
         self.table = DeviceHitTable(table)
         self.weights = mi.Float(np.asarray(weights, np.float32))
@@ -44,16 +49,21 @@ class EchoKernel(RayCaster):
         self.threshold = float(sensor.detection_threshold)
         self.max_returns = int(sensor.max_returns)
         self.resolving = float(sensor.resolving_distance)
+        self.sensor = sensor
         self.sigma = float(sensor.range_precision)
+        self.sigma_varies = varies(sensor)
         self.noise_key = noise_key(seed)
+        self.looks = int(sensor.speckle_looks)
+        self.speckle_key = speckle_key(seed)
 
     def echoes(self, pulses) -> dict:
         """Echoes of a batch of :class:`~mitsuforest.scan.pulses.DevicePulses`, in pulse then range order.
 
         :returns: numpy arrays (E,) of :data:`ECHO_FIELDS`: the pulse's id, GPS time and scan angle
             (rad); ``return_number``, ``number_of_returns``; ``range`` and ``x``, ``y``, ``z`` (local
-            frame) with the echo's ranging noise along the beam axis; ``amplitude``; and the labels
-            of its strongest sub-ray.
+            frame: on the beam axis at that range, or on the surface moved along the axis by the
+            ranging noise) with the echo's ranging noise; ``amplitude``; and the labels of its
+            strongest sub-ray.
         """
         n = pulses.count
         if n == 0:
@@ -79,8 +89,9 @@ class EchoKernel(RayCaster):
         power = (dr.gather(mi.Float, self.weights, sample) * dr.gather(mi.Float, self.reflectance, cls)
                  * dr.abs(dr.dot(d, normal)) / dr.square(dr.maximum(pi.t, 1e-6)))
         lane = {"t": dr.select(valid, pi.t, dr.inf), "power": dr.select(valid, power, 0.0)}
-        for a, axis in enumerate("xyz"):
-            lane[axis] = dr.select(valid, d[a] * pi.t, 0.0)
+        if self.on_surface:     # on the beam axis an echo needs its range only
+            for a, axis in enumerate("xyz"):
+                lane[axis] = dr.select(valid, d[a] * pi.t, 0.0)
         hit_id = {"row": row, "tri": tri}
         # Evaluate the mask with the lanes, then count: a count taken in the same eval is a second kernel
         # that traces every ray again (measured: the sub-ray stage 1.9x slower).
@@ -95,7 +106,7 @@ class EchoKernel(RayCaster):
         Pulses whose returns are one chain take :func:`~mitsuforest.scan.echoes.single_chain`; only the
         others (a few in ten in a forest) are gathered again and sorted."""
         dr, mi, S = self.dr, self.mi, self.samples
-        flat = {k: dr.zeros(mi.Float, n * S) for k in ("range", "amplitude", "x", "y", "z")}
+        flat = {k: dr.zeros(mi.Float, n * S) for k in ("range", "amplitude", *("xyz" if self.on_surface else ""))}
         flat["dominant"] = dr.zeros(mi.UInt32, n * S)
         flat["kept"] = dr.zeros(mi.UInt32, n * S)
         pulse = dr.arange(mi.UInt32, n)
@@ -117,14 +128,15 @@ class EchoKernel(RayCaster):
         dr, mi, S = self.dr, self.mi, self.samples
         base = pulse * S
         per_sample = {k: [dr.gather(mi.Float, v, base + s) for s in range(S)] for k, v in lane.items()}
-        return per_sample["t"], per_sample["power"], [[per_sample[a][s] for a in "xyz"] for s in range(S)]
+        offset = [[per_sample[a][s] for a in "xyz"] for s in range(S)] if "x" in lane else None
+        return per_sample["t"], per_sample["power"], offset
 
     def _scatter(self, flat: dict, slots: list, base, active):
         mi, dr = self.mi, self.dr
         for slot in slots:
             at, kept = base + slot["rank"], slot["kept"] & active
-            for key, value in (("range", slot["range"]), ("amplitude", slot["amplitude"]),
-                               ("x", slot["offset"][0]), ("y", slot["offset"][1]), ("z", slot["offset"][2]),
+            offset = zip("xyz", slot["offset"]) if slot["offset"] is not None else ()
+            for key, value in (("range", slot["range"]), ("amplitude", slot["amplitude"]), *offset,
                                ("dominant", slot["dominant"]), ("kept", mi.UInt32(1))):
                 dr.scatter(flat[key], value, at, kept)
 
@@ -141,23 +153,43 @@ class EchoKernel(RayCaster):
         ids = self.table.identities(*(dr.gather(mi.UInt32, hit_id[k], strongest) for k in ("row", "tri")),
                                     dr.full(mi.Bool, True, dr.width(idx)))
         pulse_id = dr.gather(mi.UInt64, pulses.pulse_id, echo_pulse)
-        noise = mi.Float(0.0)
-        if self.sigma > 0:
-            noise = self.sigma * standard_normal(dr, mi, self.noise_key, pulse_id, return_number)
         start = dr.gather(mi.Point3f, pulses.origin, echo_pulse)
         axis = dr.gather(mi.Vector3f, pulses.direction, echo_pulse)
+        echo_range = dr.gather(mi.Float, flat["range"], idx)
+        noise = mi.Float(0.0)
+        if self.sigma_varies or self.sigma > 0:
+            sigma = (self._range_sigma(echo_range, axis, strongest, hit_id, pulses, echo_pulse) if self.sigma_varies
+                     else self.sigma)
+            noise = sigma * standard_normal(dr, mi, self.noise_key, pulse_id, return_number)
+        amplitude = dr.gather(mi.Float, flat["amplitude"], idx)
+        if self.looks:
+            amplitude = amplitude * speckle_gain(dr, mi, self.speckle_key, pulse_id, return_number, self.looks)
+        measured = echo_range + noise
+        if self.on_surface:
+            point = [start[a] + dr.gather(mi.Float, flat[name], idx) + axis[a] * noise for a, name in enumerate("xyz")]
+        else:
+            point = [start[a] + axis[a] * measured for a in range(3)]
         out = {
             "pulse_id": pulse_id, "gps_time": dr.gather(mi.Float64, pulses.time, echo_pulse),
             "scan_angle": dr.gather(mi.Float, pulses.scan_angle, echo_pulse),
             "return_number": return_number, "number_of_returns": dr.gather(mi.UInt32, returns, echo_pulse),
-            "range": dr.gather(mi.Float, flat["range"], idx) + noise,
-            "amplitude": dr.gather(mi.Float, flat["amplitude"], idx),
-            **{axis_name: start[a] + dr.gather(mi.Float, flat[axis_name], idx) + axis[a] * noise
-               for a, axis_name in enumerate("xyz")},
+            "range": measured,
+            "amplitude": amplitude,
+            **dict(zip("xyz", point)),
             **ids,
         }
         dr.eval(out)
         return {k: np.array(v) for k, v in out.items()}
+
+    def _range_sigma(self, echo_range, axis, strongest, hit_id: dict, pulses, echo_pulse):
+        """σ(R, θ) of each echo (noise.py), θ from the normal of its strongest sub-ray's triangle."""
+        dr, mi = self.dr, self.mi
+        row, tri = (dr.gather(mi.UInt32, hit_id[k], strongest) for k in ("row", "tri"))
+        _, normal = self.table.class_and_normal(row, tri, dr.full(mi.Bool, True, dr.width(row)))
+        across = dr.gather(mi.Vector3f, pulses.across, echo_pulse)
+        along = dr.cross(axis, across)
+        return range_sigma(dr, echo_range, dr.dot(normal, axis), dr.dot(normal, across), dr.dot(normal, along),
+                           self.sensor)
 
 
 def _no_echoes() -> dict:

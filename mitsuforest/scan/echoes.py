@@ -23,7 +23,6 @@ import math
 from functools import cache
 
 FWHM_PER_SIGMA = 2.0 * math.sqrt(2.0 * math.log(2.0))
-CHAIN_SUMS = ("energy", "weighted", "count", "plain", "px", "py", "pz", "x", "y", "z")   # _chain_terms' keys
 
 
 @cache
@@ -52,9 +51,11 @@ def pulse_echoes(dr, t: list, power: list, offset: list, resolving: float, thres
 
     :param t: S arrays (P,) of sub-ray ranges, ``inf`` where a sub-ray gave no valid return.
     :param power: S arrays (P,) of received powers.
-    :param offset: S triples of arrays (P,): each sub-ray's hit point minus the pulse origin.
+    :param offset: S triples of arrays (P,): each sub-ray's hit point minus the pulse origin; ``None``
+        when the echoes' points are not wanted on the surface (``point_position: beam_axis``).
     :returns: ``slots``, S ranked echo candidates, each a dict with ``kept`` (Bool), ``range``,
-        ``amplitude``, ``offset`` (3 arrays: energy-weighted hit point minus origin) and ``dominant``
+        ``amplitude``, ``offset`` (3 arrays: energy-weighted hit point minus origin; ``None`` without
+        ``offset``) and ``dominant``
         (the sub-ray index of its strongest return); and ``returns`` (P,) UInt32, the number of
         echoes of each pulse after ``max_returns``.
     """
@@ -89,11 +90,12 @@ def single_chain(dr, t: list, power: list, offset: list, resolving: float, thres
         nearest, farthest = dr.minimum(nearest, t[k]), dr.maximum(farthest, dr.select(valid[k], t[k], -dr.inf))
     any_return = dr.isfinite(nearest)
     one = ~any_return | (farthest - nearest <= resolving)
-    total = {key: Float(0.0) for key in CHAIN_SUMS}
+    total = None
     best, dominant = Float(-1.0), UInt32(0)
     for k in range(len(t)):
-        here = _chain_terms(dr, {"t": t[k], "p": power[k], **dict(zip("xyz", offset[k]))})
-        total = {key: dr.select(valid[k], total[key] + here[key], total[key]) for key in CHAIN_SUMS}
+        here = _chain_terms(dr, {"t": t[k], "p": power[k], **(dict(zip("xyz", offset[k])) if offset else {})})
+        total = total or {key: Float(0.0) for key in here}
+        total = {key: dr.select(valid[k], total[key] + here[key], total[key]) for key in here}
         stronger = valid[k] & (power[k] > best)
         best = dr.select(stronger, power[k], best)
         dominant = dr.select(stronger, UInt32(k), dominant)
@@ -113,7 +115,7 @@ def _sorted_by_range(dr, t, power, offset) -> list[dict]:
     UInt32 = dr.uint32_array_t(type(t[0]))
     n = dr.width(t[0])
     rows = [{"t": t[k], "p": power[k], "sample": UInt32(k) + dr.zeros(UInt32, n),
-             "x": offset[k][0], "y": offset[k][1], "z": offset[k][2]} for k in range(len(t))]
+             **(dict(zip("xyz", offset[k])) if offset else {})} for k in range(len(t))]
     for i, j in sorting_network(len(rows)):
         a, b = rows[i], rows[j]
         swap = (a["t"] > b["t"]) | ((a["t"] == b["t"]) & (a["sample"] > b["sample"]))
@@ -139,9 +141,13 @@ def _chain_totals(dr, rows, start) -> list[dict]:
 
 
 def _chain_terms(dr, r: dict) -> dict:
-    """One return's terms of its chain's sums (``r``: its ``t``, ``p`` and ``x``, ``y``, ``z`` offset)."""
-    return {"energy": r["p"], "weighted": r["p"] * r["t"], "count": dr.full(type(r["t"]), 1.0, dr.width(r["t"])),
-            "plain": r["t"], **{f"p{a}": r["p"] * r[a] for a in "xyz"}, **{a: r[a] for a in "xyz"}}
+    """One return's terms of its chain's sums (``r``: its ``t``, ``p`` and, for points on the surface,
+    its ``x``, ``y``, ``z`` offset)."""
+    terms = {"energy": r["p"], "weighted": r["p"] * r["t"], "count": dr.full(type(r["t"]), 1.0, dr.width(r["t"])),
+             "plain": r["t"]}
+    if "x" in r:
+        terms.update({**{f"p{a}": r["p"] * r[a] for a in "xyz"}, **{a: r[a] for a in "xyz"}})
+    return terms
 
 
 def _uniform(dr, total):
@@ -165,7 +171,10 @@ def _chain_mean(dr, total):
 
 
 def _chain_offset(dr, total) -> list:
-    """A chain's hit point minus the origin (3 arrays) from its sums, weighted as its mean range."""
+    """A chain's hit point minus the origin (3 arrays) from its sums, weighted as its mean range (None
+    when the sums hold no offsets)."""
+    if "px" not in total:
+        return None
     uniform, scale = _uniform(dr, total)
     return [dr.select(uniform, total[a], total[f"p{a}"]) * scale for a in "xyz"]
 

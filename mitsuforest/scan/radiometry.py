@@ -5,6 +5,12 @@ at incidence ``θ`` and range ``R``. The unit of P (and of point intensity) is t
 (ρ = 1) Lambertian target filling the beam at normal incidence at 1 m; the sensor's
 ``detection_threshold`` is in the same unit. Constant factors (aperture, efficiency) are left out.
 
+Sensor units. :func:`reflectance_db` is the RIEGL-style reflectance: the amplitude relative to that
+of a white Lambertian target filling the beam at normal incidence at the same range, ``1/R²`` in our
+unit, in dB: ``10·log10(A·R²)`` (0 dB white, −5.2 dB a 30 % target face-on; a tilted or partly hit
+target reads lower). :func:`intensity_counts` is a sensor's 16-bit LAS intensity: the amplitude or
+the linear reflectance times ``gain`` plus ``offset``, rounded and clipped to ``[0, saturation]``.
+
 Reflectances per class at the sensor wavelength (dimensionless, diffuse). Values are rounded from
 published spectra: green Eucalyptus leaves ~0.45 in the NIR plateau and ~0.25 at 1550 nm (water
 absorption); dry bark ~0.4-0.45; dry wood and litter higher in the SWIR (ECOSTRESS spectral library;
@@ -43,3 +49,28 @@ def received_power(weight, reflectance, cos_incidence, range_m):
     """Lambertian echo power ``w ρ |cos θ| / R²`` (unit: white full-beam target at 1 m)."""
     r = np.maximum(np.asarray(range_m, np.float64), 1e-6)
     return np.asarray(weight) * np.asarray(reflectance) * np.abs(cos_incidence) / (r * r)
+
+
+def reflectance_db(amplitude, range_m):
+    """RIEGL-style reflectance (dB): ``10·log10(A·R²)``, the amplitude over a white Lambertian target's
+    at the same range (see the module docstring); -inf for a zero amplitude."""
+    a = np.asarray(amplitude, np.float64)
+    r = np.asarray(range_m, np.float64)
+    with np.errstate(divide="ignore"):
+        return 10.0 * np.log10(a * r * r)
+
+
+def intensity_counts(amplitude, reflectance, mapping) -> np.ndarray:
+    """16-bit intensity of echoes (uint16): ``clip(round(gain·q + offset), 0, saturation)``, with ``q``
+    the amplitude or, for ``mapping.source == "reflectance"``, the linear reflectance
+    ``10^(reflectance/10) = A·R²``.
+
+    :param amplitude: (E,) echo amplitudes; ``reflectance``: (E,) their :func:`reflectance_db`.
+    :param mapping: a :class:`~mitsuforest.config.types.IntensityMapping`.
+    """
+    if mapping.source == "reflectance":
+        q = np.power(10.0, np.asarray(reflectance, np.float64) / 10)
+    else:
+        q = np.asarray(amplitude, np.float64)
+    counts = np.round(mapping.gain * q + mapping.offset)
+    return np.clip(np.nan_to_num(counts, nan=0.0), 0, mapping.saturation).astype(np.uint16)

@@ -8,7 +8,7 @@ from ..scene.variant import variant_scope
 from .beam import beam_cells, beam_pattern
 from .echo_kernel import EchoKernel
 from .pulses import reaching_pulses, upload_pulses
-from .radiometry import reflectance_table
+from .radiometry import reflectance_db, reflectance_table
 from .sampling import key_word
 
 POINT_DTYPE = np.dtype([
@@ -16,6 +16,7 @@ POINT_DTYPE = np.dtype([
     ("instance", "<u4"), ("object_id", "<u4"), ("number_of_returns", "u1"), ("return_number", "u1"),
     ("intensity", "<f4"), ("gps_time", "<f8"), ("scan_angle", "<f4"), ("pulse_id", "<u8"), ("range", "<f4"),
     ("species", "u1"),   # after the paper's fields: the tree's family code (classes.SPECIES_CODES), 0 elsewhere
+    ("reflectance", "<f4"),   # dB: the amplitude over a white Lambertian target's at the same range (radiometry.py)
 ])
 
 
@@ -24,9 +25,12 @@ class PulseTracer:
 
     Each pulse is ``beam_samples`` sub-rays (beam.py). A sub-ray's received power follows the
     Lambertian lidar equation (radiometry.py); the waveform model (echoes.py) groups a pulse's
-    sub-ray returns into echoes. An echo's point is the energy-weighted mean of its sub-rays' hit
-    points, moved along the beam axis by Gaussian ranging noise keyed on (seed, pulse id, return
-    number) (noise.py); its labels are those of its strongest sub-ray.
+    sub-ray returns into echoes. An echo's range (the energy-weighted mean of its sub-rays' ranges)
+    gets Gaussian ranging noise keyed on (seed, pulse id, return number) (noise.py). Its point is,
+    with ``point_position="beam_axis"``, on the pulse's nominal beam axis at that range, as a scanner
+    reports it (an echo mixing two surfaces lies between them); with ``"surface"``, the
+    energy-weighted mean of its sub-rays' hit points, moved along the beam axis by the noise. Its
+    labels are those of its strongest sub-ray.
 
     :meth:`trace_slots` is what a render runs; :meth:`trace_pulses` traces hand-made pulses the same
     way. Both run on the device and return finished points. The numpy twin of the echo stage is
@@ -37,10 +41,14 @@ class PulseTracer:
     :param pattern: ``fixed`` (one sub-ray pattern for every pulse; the default here, for analytic
         checks) or ``stratified`` (each pulse draws its sub-rays inside the pattern's cells; see
         beam.py). A render uses the scene's ``simulation.beam_pattern`` (stratified by default).
+    :param point_position: ``beam_axis`` or ``surface`` (see above; a render uses the scene's
+        ``simulation.point_position``).
     """
 
-    def __init__(self, scan_scene, sensor, beam_samples: int, seed: int = 0, pattern: str = "fixed"):
+    def __init__(self, scan_scene, sensor, beam_samples: int, seed: int = 0, pattern: str = "fixed",
+                 point_position: str = "beam_axis"):
         self.sensor, self.variant, self.table = sensor, scan_scene.variant, scan_scene.table
+        self.point_position = point_position
         half = np.asarray(sensor.beam_divergence, float) / 2
         if pattern == "stratified":
             cells = beam_cells(beam_samples)
@@ -58,7 +66,8 @@ class PulseTracer:
         self.box = scan_scene.bbox + [[-margin] * 3, [margin] * 3]
         with variant_scope(self.variant):
             self.caster = EchoKernel(scan_scene.mitsuba, weights=self.weights, table=self.table,
-                                     reflectance=self.reflectance, sensor=sensor, seed=seed, **beam)
+                                     reflectance=self.reflectance, sensor=sensor, seed=seed,
+                                     point_position=point_position, **beam)
 
     @property
     def samples(self) -> int:
@@ -99,4 +108,5 @@ class PulseTracer:
         out["intensity"] = echoes["amplitude"]
         out["scan_angle"] = np.rad2deg(echoes["scan_angle"])
         out["species"] = table.species(out["instance"])
+        out["reflectance"] = reflectance_db(out["intensity"], out["range"])
         return out

@@ -28,8 +28,8 @@ import numpy as np
 import trimesh
 
 from ..classes import CLASS_NAMES, GROUND
-from ..helios.documents import (PartFile, helios_path, materials_mtl, platform_xml, scanner_xml, scene_xml,
-                                survey_xml)
+from ..helios.documents import (PartFile, helios_path, materials_mtl, platform_xml, scanner_notes, scanner_xml,
+                                scene_xml, survey_xml)
 from .atomic import atomic_path, write_text
 from .tables import component_treeid, csv_text
 
@@ -72,6 +72,8 @@ def export_scene(scene, plan, models: dict, folder, log=print) -> list[Path]:
         written.append(names[key])
     log(f"exported {len(plan.objects)} objects of {len({m for m, _ in files})} models as "
         f"{len(parts)} HELIOS++ parts to {folder}; fly them with: helios++ {names['survey']}")
+    for note in scanner_notes(scene.sensor):
+        log(f"note: {note}")
     return written
 
 

@@ -3,9 +3,11 @@
 Classification uses ASPRS codes where they fit — ground 2, ground vegetation 3 (low vegetation), bush 4
 (medium vegetation), tree wood and leaves 5 (high vegetation) — and the user range for the rest: deadwood 64, rock 65, stump 66. Our own
 classes (1-8, as in the PCD) are in the extra dimension ``label``; ``treeid``, ``instance``,
-``object_id`` and ``species`` (classes.SPECIES_CODES, also in the VLR) are extra dimensions too. Intensity is scaled to 16 bits by a fixed factor
-(INTENSITY_SCALE, also written in the header's VLR and the file description): the float amplitude
-is kept exact in the extra dimension ``amplitude``. Return numbers and counts above 15, which point format 6 cannot hold
+``object_id`` and ``species`` (classes.SPECIES_CODES, also in the VLR) are extra dimensions too. Intensity is
+the sensor's 16-bit counts (its ``intensity`` mapping: gain, offset and saturation applied to the
+amplitude or the reflectance, :func:`~mitsuforest.scan.radiometry.intensity_counts`; the mapping is
+written in the header's VLR): the float amplitude is kept exact in the extra dimension ``amplitude``,
+and the RIEGL-style reflectance (dB) in ``reflectance``. Return numbers and counts above 15, which point format 6 cannot hold
 (a pulse with more echoes than that needs over 15 sub-rays and ``max_returns`` 0 or above 15), are
 written as 15; the PCD keeps them. Coordinates are stored at 0.1 mm with the
 georeference in the header offsets. The scene's ``origin.crs`` is written as the standard OGC WKT
@@ -16,6 +18,7 @@ as LAS 1.4 requires for point format 6 (with or without a CRS).
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import datetime
 import errno
 import json
@@ -27,11 +30,12 @@ import numpy as np
 from laspy.vlrs.known import WktCoordinateSystemVlr
 
 from ..classes import BUSH, DEADWOOD, GROUND, GROUND_VEGETATION, ROCK, SPECIES_CODES, STUMP, TREE_LEAVES, TREE_WOOD
+from ..config.types import IntensityMapping
 from ..errors import UserError
+from ..scan.radiometry import intensity_counts, reflectance_db
 from .atomic import atomic_path, naming_errors
 
 ASPRS_CODE = {GROUND: 2, TREE_WOOD: 5, TREE_LEAVES: 5, BUSH: 4, GROUND_VEGETATION: 3, DEADWOOD: 64, ROCK: 65, STUMP: 66}
-INTENSITY_SCALE = 1e-6   # amplitude units per LAS intensity count (65535 ≙ a 6.5 % full-beam target at 1 m)
 COORDINATE_SCALE = 1e-4  # m
 LAS_MAX_RETURNS = 15     # point format 6 has 4 bits for each return field; the PCD keeps larger counts
 DEFAULT_CREATION_DATE = datetime.date(2000, 1, 1)   # the header's date without SOURCE_DATE_EPOCH (not today)
@@ -94,9 +98,11 @@ def creation_date() -> datetime.date:
         raise UserError(f"SOURCE_DATE_EPOCH: must be whole seconds since 1970-01-01 UTC, got {epoch!r}") from None
 
 
-def las_header(offset, crs: str | None = None) -> laspy.LasHeader:
-    """A LAS 1.4 point format 6 header with our extra dimensions, the coding VLR and, when ``crs``
-    is given, its WKT VLR (see :func:`crs_wkt`, which raises :class:`UserError` for a bad one)."""
+def las_header(offset, crs: str | None = None, intensity: IntensityMapping | None = None) -> laspy.LasHeader:
+    """A LAS 1.4 point format 6 header with our extra dimensions, the coding VLR (with the sensor's
+    ``intensity`` mapping, by default amplitude × 1e6) and, when ``crs`` is given, its WKT VLR (see
+    :func:`crs_wkt`, which raises :class:`UserError` for a bad one)."""
+    intensity = intensity or IntensityMapping()
     header = laspy.LasHeader(point_format=6, version="1.4")
     header.creation_date = creation_date()
     header.offsets = np.asarray(offset, float)
@@ -108,10 +114,11 @@ def las_header(offset, crs: str | None = None) -> laspy.LasHeader:
         laspy.ExtraBytesParams("object_id", np.uint32, "component id"),
         laspy.ExtraBytesParams("amplitude", np.float32, "echo amplitude (white at 1 m=1)"),
         laspy.ExtraBytesParams("species", np.uint8, "tree family code, 0 none"),
+        laspy.ExtraBytesParams("reflectance", np.float32, "dB: amplitude/white target's"),
     ])
     _without_extra_statistics(header)
     header.vlrs.append(laspy.VLR("mitsuforest", 1, "intensity and classes", json.dumps(
-        {"intensity_scale": INTENSITY_SCALE, "classification": {str(k): v for k, v in ASPRS_CODE.items()},
+        {"intensity": dataclasses.asdict(intensity), "classification": {str(k): v for k, v in ASPRS_CODE.items()},
          "species": {str(v): k for k, v in SPECIES_CODES.items()}, "crs": crs}).encode()))
     header.global_encoding.wkt = True  # LAS 1.4 requires it for point formats 6-10; PDAL refuses files without
     if crs:
@@ -126,14 +133,16 @@ def _without_extra_statistics(header: laspy.LasHeader) -> None:
         struct.options &= ~(struct.MIN_BIT_MASK | struct.MAX_BIT_MASK)
 
 
-def las_points(header: laspy.LasHeader, points: np.ndarray) -> laspy.LasData:
-    """Georeferenced points (x, y, z include the offset) as a LasData of ``header``'s format."""
+def las_points(header: laspy.LasHeader, points: np.ndarray, intensity: IntensityMapping | None = None) -> laspy.LasData:
+    """Georeferenced points (x, y, z include the offset) as a LasData of ``header``'s format, their
+    intensity in counts by the sensor's ``intensity`` mapping (by default amplitude × 1e6)."""
     las = laspy.LasData(header, points=laspy.ScaleAwarePointRecord.zeros(len(points), header=header))
     las.x, las.y, las.z = points["x"], points["y"], points["z"]
     las.classification = _ASPRS_LOOKUP[points["classification"]]
     las.return_number = np.minimum(points["return_number"], LAS_MAX_RETURNS)
     las.number_of_returns = np.minimum(points["number_of_returns"], LAS_MAX_RETURNS)
-    las.intensity = np.clip(np.round(points["intensity"] / INTENSITY_SCALE), 0, 65535).astype(np.uint16)
+    reflectance = _reflectance(points)
+    las.intensity = intensity_counts(points["intensity"], reflectance, intensity or IntensityMapping())
     las.gps_time = points["gps_time"]
     las.scan_angle = np.round(points["scan_angle"] / 0.006).astype(np.int16)
     las.label = points["classification"]
@@ -143,7 +152,18 @@ def las_points(header: laspy.LasHeader, points: np.ndarray) -> laspy.LasData:
     las.amplitude = points["intensity"]
     if "species" in points.dtype.names:
         las.species = points["species"]
+    las.reflectance = reflectance
     return las
+
+
+def _reflectance(points: np.ndarray) -> np.ndarray:
+    """The points' reflectance (dB): their own, or from amplitude and range, or NaN without a range."""
+    names = points.dtype.names
+    if "reflectance" in names:
+        return points["reflectance"]
+    if "range" in names:
+        return reflectance_db(points["intensity"], points["range"]).astype(np.float32)
+    return np.full(len(points), np.nan, np.float32)
 
 
 _ASPRS_LOOKUP = np.zeros(256, np.uint8)
@@ -154,17 +174,20 @@ for _code, _asprs in ASPRS_CODE.items():
 class LasStream:
     """A ``.las`` or ``.laz`` file written batch by batch (laspy updates the header on close)."""
 
-    def __init__(self, path, offset, crs: str | None = None, compress: bool | None = None):
-        """:param compress: LAZ compression; by default when ``path`` ends in ``.laz``."""
+    def __init__(self, path, offset, crs: str | None = None, compress: bool | None = None,
+                 intensity: IntensityMapping | None = None):
+        """:param compress: LAZ compression; by default when ``path`` ends in ``.laz``.
+        :param intensity: the sensor's intensity mapping (by default amplitude × 1e6)."""
         self.path = Path(path)
-        self.header = las_header(offset, crs)
+        self.intensity = intensity
+        self.header = las_header(offset, crs, intensity)
         compress = str(path).endswith(".laz") if compress is None else compress
         self._writer = laspy.open(str(path), mode="w", header=self.header, do_compress=compress)
 
     def write(self, points: np.ndarray) -> None:
         if len(points):
             with self._io_errors():
-                self._writer.write_points(las_points(self.header, points).points)
+                self._writer.write_points(las_points(self.header, points, self.intensity).points)
 
     def close(self) -> None:
         with self._io_errors():
@@ -188,9 +211,9 @@ class LasStream:
             raise OSError(errno.EIO, f"the LAZ compressor could not write ({e})", str(self.path)) from e
 
 
-def write_las(path, points: np.ndarray, offset, crs: str | None = None) -> None:
+def write_las(path, points: np.ndarray, offset, crs: str | None = None, intensity: IntensityMapping | None = None) -> None:
     """Write georeferenced points (x, y, z already include ``offset``) to ``.las`` or ``.laz`` at once."""
     with atomic_path(path) as tmp:
-        stream = LasStream(tmp, offset, crs, compress=str(path).endswith(".laz"))
+        stream = LasStream(tmp, offset, crs, compress=str(path).endswith(".laz"), intensity=intensity)
         stream.write(points)
         stream.close()

@@ -28,7 +28,7 @@ class PointWriter:
         self.area = scene.area.size
         formats = scene.output.formats if staging else []
         self._pcd_file = open(staging.file(".pcd"), "wb") if staging and "pcd" in formats else None  # noqa: SIM115
-        self._las = [LasStream(staging.file("." + f), self.offset, scene.origin.crs)
+        self._las = [LasStream(staging.file("." + f), self.offset, scene.origin.crs, intensity=scene.sensor.intensity)
                      for f in ("las", "laz") if f in formats]
         self._kept = [] if keep else None
         self.count = 0

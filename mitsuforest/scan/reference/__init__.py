@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from ...labels import label_hits
-from ..radiometry import received_power
+from ..radiometry import received_power, reflectance_db
 from ..tracer import POINT_DTYPE
 from .echoes import pulse_echoes
 from .pulses import Pulses, reaching_pulses
@@ -49,7 +49,11 @@ def trace_reference(tracer, pulses: Pulses, first_id: int = 0) -> np.ndarray:
     row_of_ray[hits["ray"].astype(np.int64)] = np.arange(len(hits["ray"]))
     dominant = row_of_ray[echoes.dominant]
     out = np.zeros(len(echoes.pulse), POINT_DTYPE)
-    out["x"], out["y"], out["z"] = echoes.weighted_mean(hits["point"], row_of_ray).T
+    if tracer.point_position == "surface":
+        out["x"], out["y"], out["z"] = echoes.weighted_mean(hits["point"], row_of_ray).T
+    else:
+        p = pulses.select(echoes.pulse)
+        out["x"], out["y"], out["z"] = (p.origin + p.direction * echoes.range[:, None]).T
     for key in ("treeid", "classification", "instance", "object_id"):
         out[key] = getattr(labels, key)[dominant]
     out["return_number"], out["number_of_returns"] = echoes.return_number, echoes.number_of_returns
@@ -59,4 +63,5 @@ def trace_reference(tracer, pulses: Pulses, first_id: int = 0) -> np.ndarray:
     out["pulse_id"] = first_id + pulses.index[echoes.pulse]
     out["range"] = echoes.range
     out["species"] = tracer.table.species(out["instance"])
+    out["reflectance"] = reflectance_db(out["intensity"], out["range"])
     return out
