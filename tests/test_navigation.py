@@ -242,3 +242,33 @@ def test_trajectory_settings_that_contradict_are_refused(tmp_path, capsys):
     rolled = scene_file(tmp_path / "b", survey={"trajectory": str(csv), "attitude": {"roll": 2}})
     assert main(["plan", str(rolled)]) == 2
     assert "survey.attitude: a trajectory file gives its own attitude" in capsys.readouterr().err
+
+
+def test_device_pulses_with_a_pose_table_match_the_numpy_reference(tmp_path, variant):
+    """scan/pulses.py on a pose table (attitude, mount) against its numpy twin: same pulses, rays within float32."""
+    from mitsuforest.scan import Platform
+    from mitsuforest.scan import pulses as device
+    from mitsuforest.scan.reference.pulses import reaching_pulses
+    from mitsuforest.scene.variant import variant_scope
+    sensor = {**NARROW, "field_of_view": 100, "mount": {"lever_arm": [0.3, -0.2, 0.1], "boresight": [1.0, -2.0, 3.0]}}
+    path = scene_file(tmp_path, sensor=sensor, variant=variant, survey={
+        "speed": 5, "lines": [[[X, -5.0], [X + 10, 45.0]]],
+        "attitude": {"roll": {"amplitude_deg": 4, "period_s": 2.0}, "pitch": 1.5, "yaw": {"amplitude_deg": 2, "period_s": 3}}})
+    scene = load_scene(path)
+    leg = make_plan(scene).legs[0]
+    platform = Platform(scene)
+    table = platform.table(leg)
+    box = np.array([[0.0, 0.0, 0.0], [40.0, 40.0, 28.0]])
+    ref, fired = reaching_pulses(leg, scene.sensor, 100_000, 50, 300_000, 50_000, box, platform, table)
+    with variant_scope(variant):
+        got, got_fired = device.reaching_pulses(leg, scene.sensor, 100_000, 50, 300_000, 50_000, box, 0,
+                                                platform.upload(table))
+        assert got_fired == fired and 1000 < len(ref.index) <= fired
+        assert np.array_equal(np.array(got.pulse_id), ref.index)
+        for key in ("origin", "direction", "across"):
+            xyz = np.column_stack([np.array(getattr(getattr(got, key), a)) for a in "xyz"])
+            assert np.abs(xyz - getattr(ref, key)).max() < 1e-5, key
+    # The table holds the waves: roll at 3.5 s is 4·sin(2π·3.5/2) = -4°.
+    position, body = table.pose(np.array([3.5]))
+    assert matrix_euler(ENU_FROM_NED.T @ body)[0, 0] == pytest.approx(-4.0, abs=1e-3)
+    assert matrix_euler(ENU_FROM_NED.T @ body)[0, 1] == pytest.approx(1.5, abs=1e-3)
