@@ -145,6 +145,11 @@ def test_terrain_benchmark_quick():
     assert "dem: 200 x 200 cells" in stdout and "mesh: 20,000 triangles" in stdout
 
 
+def test_strips_benchmark_quick(tmp_path):
+    stdout = _run([str(ROOT / "benchmarks" / "strips.py"), "--quick", "--out", str(tmp_path / "strips.png")], ROOT)
+    assert "true trajectory:" in stdout and "with navigation errors:" in stdout and (tmp_path / "strips.png").exists()
+
+
 def test_pictures_benchmark_quick():
     stdout = _run([str(ROOT / "benchmarks" / "pictures.py"), "--quick"], ROOT)
     assert "points: 2,000,000" in stdout and "pictures in all" in stdout

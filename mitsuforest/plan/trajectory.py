@@ -35,9 +35,11 @@ COLUMNS = ("time", "x", "y", "z", "roll", "pitch", "yaw")
 
 def euler_matrix(roll, pitch, yaw) -> np.ndarray:
     """(n, 3, 3) ``Rz(yaw)·Ry(pitch)·Rx(roll)`` of angles in degrees (arrays of n, or scalars: (1, 3, 3))."""
-    from scipy.spatial.transform import Rotation
-    angles = np.column_stack(np.broadcast_arrays(*(np.atleast_1d(np.asarray(a, float)) for a in (yaw, pitch, roll))))
-    return Rotation.from_euler("ZYX", angles, degrees=True).as_matrix()
+    r, p, y = (np.radians(np.atleast_1d(np.asarray(a, float))) for a in np.broadcast_arrays(roll, pitch, yaw))
+    (sr, cr), (sp, cp), (sy, cy) = ((np.sin(a), np.cos(a)) for a in (r, p, y))
+    return np.stack([np.stack([cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr], -1),
+                     np.stack([sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr], -1),
+                     np.stack([-sp, cp * sr, cp * cr], -1)], -2)
 
 
 def matrix_euler(matrix: np.ndarray) -> np.ndarray:
