@@ -71,6 +71,7 @@ def reaching_pulses(leg, sensor, pulse_frequency: float, scan_frequency: float, 
     if table is None:
         frame_np = leg.frame()
         frame = [[leg_value(x) for x in row] for row in frame_np]
+        direction = _turned(d_sensor, frame)
         a, b = [leg_value(x) for x in leg.start], [leg_value(x) for x in leg.end]
         f = (t - t0) / (t1 - t0)
         origin = [a[k] + f * (b[k] - a[k]) for k in range(3)]
@@ -78,7 +79,7 @@ def reaching_pulses(leg, sensor, pulse_frequency: float, scan_frequency: float, 
         from .platform import table_pose
         origin, rotation = table_pose(dr, mi, table, t)
         frame = [[rotation[3 * k + j] for k in range(3)] for j in range(3)]   # rows: the sensor axes, local frame
-    direction = [d_sensor[0] * frame[0][k] + d_sensor[1] * frame[1][k] + d_sensor[2] * frame[2][k] for k in range(3)]
+        direction = _turned(d_sensor, frame)
     reach = fired & reaches_box(dr, origin, direction, box, sensor.range_max)
     dr.eval(fired, reach)                      # one kernel for both masks, then the count and compaction
     n_fired = int(dr.count(fired)[0])
@@ -98,6 +99,11 @@ def reaching_pulses(leg, sensor, pulse_frequency: float, scan_frequency: float, 
     pulse_id = leg_value(first_id, mi.UInt64) + mi.UInt64(dr.gather(mi.UInt32, slot, keep))
     return DevicePulses(pulse_id, dr.gather(Float64, t, keep), mi.Float(dr.gather(Float64, angle, keep)),
                         origin, direction, across), n_fired
+
+
+def _turned(d_sensor, frame) -> list:
+    """Sensor-frame directions in the local frame: ``frame`` rows are the sensor's axes there."""
+    return [d_sensor[0] * frame[0][k] + d_sensor[1] * frame[1][k] + d_sensor[2] * frame[2][k] for k in range(3)]
 
 
 def upload_pulses(pulses, first_id: int = 0) -> DevicePulses:
