@@ -272,3 +272,35 @@ def test_device_pulses_with_a_pose_table_match_the_numpy_reference(tmp_path, var
     position, body = table.pose(np.array([3.5]))
     assert matrix_euler(ENU_FROM_NED.T @ body)[0, 0] == pytest.approx(-4.0, abs=1e-3)
     assert matrix_euler(ENU_FROM_NED.T @ body)[0, 1] == pytest.approx(1.5, abs=1e-3)
+
+
+def test_navigation_errors_do_not_depend_on_batches_or_legs_scanned_apart(tmp_path):
+    """The error series are drawn from the seed and the survey's span alone: a survey scanned whole, in
+    small batches, or leg by leg (as the dataset's workers do) gives the same points."""
+    errors = {"gnss_sigma_m": 0.05, "gnss_random_walk_m_per_sqrt_s": 0.02, "imu_sigma_deg": 0.05,
+              "boresight_error_deg": [0.1, -0.1, 0.2]}
+    path = scene_file(tmp_path, sensor=NARROW, survey={
+        "altitude": 30, "speed": 10, "pulse_frequency": 10000, "scan_frequency": 100,
+        "lines": [[[X, 5.0], [X, 35.0]], [[X + 5, 35.0], [X + 5, 5.0]]], "navigation_errors": errors,
+        "attitude": {"roll": {"amplitude_deg": 2, "period_s": 1.3}}})
+    scene = load_scene(path)
+    plan = make_plan(scene)
+    scan_scene = build_scene(plan, {}, scene.sensor, scene.simulation.variant)
+    whole = scan(scene, plan, scan_scene, progress=False).points
+    small = scan(scene.with_({"simulation.pulses_per_batch": 1000}), plan, scan_scene, progress=False).points
+    apart = np.concatenate([scan(scene, plan, scan_scene, progress=False, legs=range(k, k + 1)).points for k in (0, 1)])
+    assert len(whole) > 5000
+    assert whole.tobytes() == small.tobytes() == apart.tobytes()
+    level = scan(scene.with_({"survey.navigation_errors": {}}), plan, scan_scene, progress=False).points
+    assert np.array_equal(level["pulse_id"], whole["pulse_id"])                 # the same pulses ...
+    assert 0.01 < np.abs(level["z"] - whole["z"]).mean() < 0.5                 # ... placed elsewhere
+
+
+def test_the_helios_export_names_the_platform_settings_it_leaves_out(tmp_path):
+    from mitsuforest.write.export import _unexported_platform
+    scene = load_scene(scene_file(tmp_path))
+    assert _unexported_platform(scene) == ""
+    assert _unexported_platform(scene.with_({"survey.attitude.roll": 1})) == "survey.attitude is"
+    assert _unexported_platform(scene.with_({"survey.navigation_errors.gnss_sigma_m": 0.1,
+                                             "sensor.mount.lever_arm": [0, 0, 1]})) == \
+        "sensor.mount, survey.navigation_errors are"
