@@ -201,6 +201,19 @@ def test_a_curved_trajectory_file_is_flown_smoothly_with_lines_and_slerped_attit
     d = np.einsum("nij,nj->ni", rotation, np.column_stack([np.sin(phi), np.zeros_like(phi), -np.cos(phi)]))
     ground = origin + d * ((origin[:, 2] - (z - H)) / -d[:, 2])[:, None]
     assert np.abs(np.column_stack([second["x"], second["y"], second["z"]]) - ground).max() < 2e-3
+    # The render's trajectory file flies again: the same two lines, through the same poses.
+    from mitsuforest.plan.trajectory import read_trajectory
+    from mitsuforest.write.tables import write_trajectory
+    write_trajectory(tmp_path / "again.csv", scene, flown)
+    again = read_trajectory(tmp_path / "again.csv")
+    assert [len(tr.time) for tr in again] == [30, 30]
+    rows = np.array(rows)[4:]
+    at = np.isin(np.round(rows[:, 0], 6), np.round(again[1].time, 6))
+    assert at.sum() == 6          # the file's rows at 10.0, 10.5 ... 12.5 s
+    assert np.allclose(again[1].position[np.isin(np.round(again[1].time, 6), np.round(rows[at, 0], 6))],
+                       rows[at, 1:4], atol=1e-4)
+    assert np.allclose(again[1].attitude[np.isin(np.round(again[1].time, 6), np.round(rows[at, 0], 6))],
+                       rows[at, 4:7], atol=1e-3)
 
 
 def test_a_lever_arm_and_boresight_move_the_beam(tmp_path):
