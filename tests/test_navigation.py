@@ -235,7 +235,11 @@ def test_a_lever_arm_and_boresight_move_the_beam(tmp_path):
     ("time,x,y,z,roll,pitch,yaw\n0,1,2,30,0,0,0\n1,1,2,30,0,0,0\n1,1,3,30,0,0,0\n", "line 4", "time must increase"),
     ("time,x,y,z,roll,pitch,yaw\n0,1,2,30,0,0,0\n1,1,nan,30,0,0,0\n", "line 3", "a value is not finite"),
     ("time,x,y,z,roll,pitch,yaw\n0,1,2,30,0,0,0\n1,1,x,30,0,0,0\n", "line 3", "not a number"),
-    ("time,x,y,z,roll,pitch,yaw\n0,1,2,30,0,0,0\n", "line 2", "a flight line needs at least two rows"),
+    ("time,x,y,z,roll,pitch,yaw\n0,1,2,30,0,0,0\n", "line 1", "a flight line needs at least two rows"),
+    ("time,x,y,z,roll,pitch,yaw,line\n0,1,2,30,0,0,0,1\n1,1,2,30,0,0,0,1\n2,1,2,30,0,0,0,2\n", "line 4",
+     "a flight line needs at least two rows"),
+    ("time,x,y,z,roll,pitch,yaw\n", "line 1", "a flight line needs at least two rows"),
+    ("", "", "empty"),
 ])
 def test_a_bad_trajectory_file_is_one_line_and_exit_2(tmp_path, capsys, text, where, reason):
     csv = tmp_path / "bad.csv"
@@ -243,7 +247,7 @@ def test_a_bad_trajectory_file_is_one_line_and_exit_2(tmp_path, capsys, text, wh
     path = scene_file(tmp_path, survey={"trajectory": str(csv)})
     assert main(["plan", str(path), "-o", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err.strip()
-    assert err.count("\n") == 0 and f"bad.csv: {where}: {reason}" in err
+    assert err.count("\n") == 0 and (f"bad.csv: {where}: {reason}" if where else f"bad.csv: {reason}") in err
     assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
 
 

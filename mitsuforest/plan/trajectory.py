@@ -89,6 +89,8 @@ def read_trajectory(path) -> list[Track]:
     if missing:
         raise ConfigError(shown, f"line {header_line}", f"the header lacks {', '.join(missing)}: it must name "
                           f"{','.join(COLUMNS)}")
+    if len(rows) < 3:
+        raise ConfigError(shown, f"line {header_line}", "a flight line needs at least two rows after the header")
     wanted = [names.index(c) for c in (*COLUMNS, "line") if c in names]
     values, numbers = np.zeros((len(rows) - 1, len(wanted))), [n for n, _ in rows[1:]]
     for i, (n, line) in enumerate(rows[1:]):
