@@ -191,7 +191,7 @@ def _plan(args) -> int:
         kinds[obj.kind] = kinds.get(obj.kind, 0) + 1
     print(f"{scene.name}: {kinds.get('tree', 0)} trees, canopy cover {plan.canopy_cover:.1%} "
           f"({scene.forest.type}), objects: " + ", ".join(f"{k} {v}" for k, v in kinds.items())
-          + f"; {len(plan.legs)} flight legs, {plan.legs[-1].t1:.0f} s of flight")
+          + f"; {len(plan.legs)} flight legs, {plan.legs[-1].t1 - plan.legs[0].t0:.0f} s of flight")
     print(f"wrote {path}")
     return 0
 

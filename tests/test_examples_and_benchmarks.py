@@ -44,6 +44,15 @@ def test_custom_scene_plans(tmp_path):
     from mitsuforest.cli import main
     assert main(["plan", str(ROOT / "examples" / "custom_scene.yaml"), "-o", str(tmp_path)]) == 0
     assert main(["plan", str(ROOT / "examples" / "own_models.yaml"), "-o", str(tmp_path)]) == 0
+    assert main(["plan", str(ROOT / "examples" / "flight.yaml"), "-o", str(tmp_path)]) == 0
+
+
+def test_flight_data_is_what_the_example_writes(tmp_path):
+    import importlib.util
+    spec = importlib.util.spec_from_file_location("make_flight", ROOT / "examples" / "data" / "make_flight.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    assert module.main(tmp_path / "flight.csv").read_bytes() == (ROOT / "examples" / "data" / "flight.csv").read_bytes()
 
 
 def test_own_models_data_is_what_the_example_writes(tmp_path):
@@ -200,6 +209,12 @@ def test_own_models_benchmark_quick():
 def test_terrain_benchmark_quick():
     stdout = _run([str(ROOT / "benchmarks" / "terrain.py"), "--quick"], ROOT)
     assert "dem: 200 x 200 cells" in stdout and "mesh: 20,000 triangles" in stdout
+
+
+@pytest.mark.slow
+def test_strips_benchmark_quick(tmp_path):
+    stdout = _run([str(ROOT / "benchmarks" / "strips.py"), "--quick", "--out", str(tmp_path / "strips.png")], ROOT)
+    assert "true trajectory:" in stdout and "with navigation errors:" in stdout and (tmp_path / "strips.png").exists()
 
 
 @pytest.mark.slow

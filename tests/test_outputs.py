@@ -65,8 +65,9 @@ def test_species_round_trip_through_pcd_las_and_tables(rendered):
     from mitsuforest.classes import SPECIES_CODES
     folder = rendered / "a"
     pcd, las = read_pcd(folder / "test.pcd"), laspy.read(folder / "test.las")
-    assert pcd.dtype.names[:10] == tuple(FIELDS) and pcd.dtype.names[-2:] == ("species", "reflectance")
+    assert pcd.dtype.names[:10] == tuple(FIELDS) and pcd.dtype.names[-3:] == ("species", "reflectance", "point_source_id")
     assert np.array_equal(np.asarray(las.species), pcd["species"])
+    assert np.array_equal(np.asarray(las.point_source_id), pcd["point_source_id"]) and pcd["point_source_id"].min() == 1
     ids = list(csv.DictReader((folder / "test_ids.csv").open()))
     by_instance = {int(r["instance"]): SPECIES_CODES[r["species"]] for r in ids}
     expected = np.array([by_instance[i] for i in pcd["instance"]], np.uint8)

@@ -61,7 +61,23 @@ SENSOR_SPEC = {
         "prism_rates": Vector(2, Number(), [121.6, -77.7]),
         "prism_deflection": Vector(2, Number(ge=0), [17.6, 17.6]),
     },
+    "mount": {   # plan/trajectory.py: body frame x forward, y right, z down
+        "lever_arm": Vector(3, Number(), [0.0, 0.0, 0.0]),
+        "boresight": Vector(3, Number(ge=-180, le=180), [0.0, 0.0, 0.0]),
+    },
 }
+WAVE_SPEC = {"mean_deg": Number(0.0, ge=-90, le=90), "amplitude_deg": Number(0.0, ge=0, le=90),
+             "period_s": Number(10.0, gt=0), "phase_deg": Number(0.0)}
+
+
+def _wave(value, ctx: Context, key: str):
+    """One attitude angle: a number (a constant, deg) or a sinusoid mapping (WAVE_SPEC)."""
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        value = {"mean_deg": value}
+    return parse_mapping(WAVE_SPEC, value, ctx, key)
+
+
+ANGLES = Vector(3, Number(ge=0), [0.0, 0.0, 0.0], scalar_ok=True)
 
 
 def _field_spec(f):
@@ -231,6 +247,13 @@ SCENE_SPEC = {
         "heading": Number(0.0),
         "margin": Number(10.0, ge=0),
         "lines": Custom(_legs, None),
+        "trajectory": FilePath(None, nullable=True),
+        "attitude": {axis: Custom(_wave, {}) for axis in ("roll", "pitch", "yaw")},
+        "navigation_errors": {
+            "gnss_sigma_m": ANGLES, "gnss_random_walk_m_per_sqrt_s": ANGLES, "imu_sigma_deg": ANGLES,
+            "boresight_error_deg": Vector(3, Number(ge=-10, le=10), [0.0, 0.0, 0.0]),
+            "rate_hz": Number(10.0, gt=0, le=1000),
+        },
     },
     "simulation": {
         "beam_samples": Number(19, integer=True, ge=1, le=MAX_BEAM_SAMPLES),   # see README, "Choosing beam_samples"
@@ -414,6 +437,11 @@ def _check_scene(scene: dict, ctx: Context):
     if survey["scan_frequency"] is not None and not lo <= survey["scan_frequency"] <= hi:
         ctx.fail("survey.scan_frequency", f"{survey['scan_frequency']:g} Hz is outside the sensor's range "
                  f"{lo:g}-{hi:g} Hz")
+    if survey["trajectory"] and survey["lines"] is not None:
+        ctx.fail("survey.lines", "give either survey.lines or survey.trajectory, not both")
+    waves = survey["attitude"].values()
+    if survey["trajectory"] and any(w["mean_deg"] or w["amplitude_deg"] for w in waves):
+        ctx.fail("survey.attitude", "a trajectory file gives its own attitude; survey.attitude is for planned legs")
     variant = scene["simulation"]["variant"]
     if variant != "auto" and not (variant.startswith("llvm_") or variant.startswith("cuda_")):
         ctx.fail("simulation.variant", f"must be auto or a Mitsuba llvm_* or cuda_* variant such as llvm_ad_mono, "

@@ -24,6 +24,8 @@ import math
 import typing
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from ..errors import display_path  # noqa: F401 (re-exported: config uses it from here)
 from ..trees.archetypes import Archetype
 from ..trees.sources import MeshTree, QsmTree
@@ -59,6 +61,18 @@ class IntensityMapping:
 
 
 @dataclass(frozen=True)
+class Mount:
+    """How the sensor sits on the platform (plan/trajectory.py has the frames)."""
+
+    lever_arm: tuple[float, float, float] = (0.0, 0.0, 0.0)    # m, body frame: forward, right, down
+    boresight: tuple[float, float, float] = (0.0, 0.0, 0.0)    # deg: roll, pitch, yaw of the sensor in the body
+
+    @property
+    def zero(self) -> bool:
+        return not any(self.lever_arm) and not any(self.boresight)
+
+
+@dataclass(frozen=True)
 class Sensor:
     """A sensor file (``sensors/*.yaml``)."""
 
@@ -84,6 +98,7 @@ class Sensor:
     footprint_range_noise: float = 0.0        # f: share of the footprint's range spread on inclined surfaces
     speckle_looks: int = 0                    # L: amplitude × Gamma(L, 1/L); 0: no speckle
     intensity: IntensityMapping = IntensityMapping()
+    mount: Mount = Mount()                    # lever arm and boresight (a sensor file's or an inline sensor's)
 
     @property
     def detection_threshold(self) -> float:
@@ -176,6 +191,55 @@ class Understory:
 
 
 @dataclass(frozen=True)
+class Wave:
+    """One attitude angle of a planned leg: ``mean + amplitude·sin(2π t / period + phase)`` (deg, t in s)."""
+
+    mean_deg: float = 0.0
+    amplitude_deg: float = 0.0
+    period_s: float = 10.0
+    phase_deg: float = 0.0
+
+    def __call__(self, t: np.ndarray) -> np.ndarray:
+        return self.mean_deg + self.amplitude_deg * np.sin(2 * math.pi * np.asarray(t) / self.period_s
+                                                           + math.radians(self.phase_deg))
+
+    @property
+    def zero(self) -> bool:
+        return self.mean_deg == 0 and self.amplitude_deg == 0
+
+
+
+@dataclass(frozen=True)
+class Attitude:
+    """A planned leg's attitude disturbance: roll, pitch and yaw (added to the heading) as :class:`Wave` s."""
+
+    roll: Wave = Wave()
+    pitch: Wave = Wave()
+    yaw: Wave = Wave()
+
+    @property
+    def zero(self) -> bool:
+        return self.roll.zero and self.pitch.zero and self.yaw.zero
+
+
+@dataclass(frozen=True)
+class NavigationErrors:
+    """Errors of the navigation solution the points are computed with (scan/navigation.py); the pulses
+    fly the true trajectory."""
+
+    gnss_sigma_m: tuple[float, float, float] = (0.0, 0.0, 0.0)            # white, per epoch: east, north, up
+    gnss_random_walk_m_per_sqrt_s: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    imu_sigma_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)           # white, per epoch: roll, pitch, yaw
+    boresight_error_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)     # the calibration's error: roll, pitch, yaw
+    rate_hz: float = 10.0                                                # epochs of the solution; linear between
+
+    @property
+    def zero(self) -> bool:
+        return not any((*self.gnss_sigma_m, *self.gnss_random_walk_m_per_sqrt_s, *self.imu_sigma_deg,
+                        *self.boresight_error_deg))
+
+
+@dataclass(frozen=True)
 class Survey:
     altitude: float
     speed: float
@@ -185,6 +249,9 @@ class Survey:
     heading: float
     margin: float
     lines: tuple | None                       # ((x0, y0), (x1, y1)) per leg, or None (lawnmower)
+    trajectory: str | None = None             # a trajectory CSV flown instead of planned legs
+    attitude: Attitude = Attitude()           # planned legs' roll, pitch, yaw disturbance
+    navigation_errors: NavigationErrors = NavigationErrors()
 
 
 @dataclass(frozen=True)
@@ -276,7 +343,7 @@ class Scene:
         return d
 
 
-SECTIONS = (Risley, IntensityMapping, Sensor, Area, Origin, TerrainSettings, Forest, Grass, Litter, Understory, Survey, Simulation, Output, Scene)
+SECTIONS = (Wave, Attitude, NavigationErrors, Mount, Risley, IntensityMapping, Sensor, Area, Origin, TerrainSettings, Forest, Grass, Litter, Understory, Survey, Simulation, Output, Scene)
 
 
 def _as_value(value):

@@ -127,13 +127,15 @@ def read_plot_points(folder, name: str, formats) -> np.ndarray:
     las = laspy.read(str(folder / f"{name}.{fmt}"))
     dtype = [("treeid", "<u2"), ("x", "<f8"), ("y", "<f8"), ("z", "<f8"), ("classification", "u1"),
              ("instance", "<u4"), ("object_id", "<u4"), ("number_of_returns", "u1"), ("return_number", "u1"),
-             ("intensity", "<f4"), ("gps_time", "<f8"), ("scan_angle", "<f4"), ("species", "u1"), ("reflectance", "<f4")]
+             ("intensity", "<f4"), ("gps_time", "<f8"), ("scan_angle", "<f4"), ("species", "u1"), ("reflectance", "<f4"),
+             ("point_source_id", "<u2")]
     out = np.zeros(len(las.points), dtype)
     for key, value in (("treeid", las.treeid), ("x", las.x), ("y", las.y), ("z", las.z),
                        ("classification", las.label), ("instance", las.instance), ("object_id", las.object_id),
                        ("number_of_returns", las.number_of_returns), ("return_number", las.return_number),
                        ("intensity", las.amplitude), ("gps_time", las.gps_time),
-                       ("scan_angle", np.asarray(las.scan_angle) * 0.006), ("reflectance", _las_reflectance(las))):
+                       ("scan_angle", np.asarray(las.scan_angle) * 0.006), ("reflectance", _las_reflectance(las)),
+                       ("point_source_id", las.point_source_id)):
         out[key] = np.asarray(value)
     if "species" in las.point_format.extra_dimension_names:   # files written before it was added lack it
         out["species"] = np.asarray(las.species)

@@ -90,14 +90,18 @@ def _plan(scene) -> Plan:
 
 
 MAX_LEG_PULSES = 2 ** 32     # time slots are numbered in 32 bits within a leg
+MAX_LEGS = 65_535            # a point's point_source_id (16 bits) is its leg's number, from 1
 
 
 def _checked_legs(scene, legs: list[Leg], terrain: Terrain) -> list[Leg]:
     """Refuse legs that overflow the per-leg pulse counter, never come within reach of the plot, or fly
-    into the ground."""
+    into the ground, and more legs than a point's 16-bit ``point_source_id`` can number."""
     _check_ground_below_flight(scene, legs, terrain)
+    if len(legs) > MAX_LEGS:
+        raise _Refusal("survey.trajectory" if scene.survey.trajectory else "survey",
+                       f"{len(legs):,} flight lines, more than the {MAX_LEGS:,} that LAS point_source_id can number")
     for i, leg in enumerate(legs):
-        key = f"survey.lines[{i}]" if scene.survey.lines else "survey"
+        key = f"survey.lines[{i}]" if scene.survey.lines else "survey.trajectory" if leg.track else "survey"
         count = leg.pulse_count(scene.pulse_frequency)
         if count >= MAX_LEG_PULSES:
             raise _Refusal("survey.speed", f"leg {i + 1} lasts {leg.t1 - leg.t0:,.0f} s: {count:,} pulses, more "
@@ -124,8 +128,11 @@ def _check_ground_below_flight(scene, legs: list[Leg], terrain: Terrain) -> None
 
 def _leg_gap(leg: Leg, size) -> float:
     """Horizontal distance (m) between a leg and the plot rectangle (0 when it crosses the plot)."""
-    a, b = np.array(leg.start[:2]), np.array(leg.end[:2])
-    along = np.linspace(0.0, 1.0, 1001)[:, None] * (b - a) + a
+    if leg.track is not None:
+        along = leg.track.position[:, :2]
+    else:
+        a, b = np.array(leg.start[:2]), np.array(leg.end[:2])
+        along = np.linspace(0.0, 1.0, 1001)[:, None] * (b - a) + a
     outside = np.maximum(np.maximum(-along, along - np.asarray(size)), 0.0)
     return float(np.hypot(outside[:, 0], outside[:, 1]).min())
 
@@ -133,7 +140,7 @@ def _leg_gap(leg: Leg, size) -> float:
 def _reach(scene, leg: Leg, terrain: Terrain) -> float:
     """How far from the track (m) a pulse of ``leg`` can reach the ground, down to the terrain's lowest
     point in the plot (the terrain's own heights: a DEM's or a mesh's range, not ``terrain.amplitude``)."""
-    return scene.sensor.reach(min(leg.start[2], leg.end[2]) - float(terrain.z.min()))
+    return scene.sensor.reach(float(leg.positions()[:, 2].min()) - float(terrain.z.min()))
 
 
 def plan_json(plan: Plan) -> str:

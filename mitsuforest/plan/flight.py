@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .trajectory import read_trajectory
 from .types import Leg
 
 
@@ -35,8 +36,12 @@ def flight_legs(size, survey, ground_height: float) -> list[Leg]:
     """Timed 3D legs of a :class:`~mitsuforest.config.types.Survey`.
 
     The platform flies at ``altitude`` above the terrain's mean height at constant ``speed``; a turn
-    between legs takes the straight-line distance at the same speed.
+    between legs takes the straight-line distance at the same speed. With ``survey.trajectory`` the
+    legs are the file's flight lines, flown as they are (see plan/trajectory.py).
     """
+    if survey.trajectory:
+        return [Leg(tuple(map(float, tr.position[0])), tuple(map(float, tr.position[-1])), float(tr.time[0]),
+                    float(tr.time[-1]), tr) for tr in read_trajectory(survey.trajectory)]
     pairs = survey.lines or lawnmower(size, survey)
     z = ground_height + survey.altitude
     legs, t, last = [], 0.0, None

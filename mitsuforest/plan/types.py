@@ -12,17 +12,26 @@ from ..classes import GROUND, GROUND_OBJECT_ID
 from ..trees.archetypes import Archetype
 from ..trees.sources import MeshTree, QsmTree
 from .terrain import Terrain
+from .trajectory import Track
 from .transforms import rotation
 
 
 @dataclass(frozen=True)
 class Leg:
-    """A straight flight leg flown at constant speed from ``start`` at ``t0`` to ``end`` at ``t1``."""
+    """A straight flight leg flown at constant speed from ``start`` at ``t0`` to ``end`` at ``t1``, or a
+    flight line of a trajectory file (``track``: flown as the file says, from its first to its last row)."""
 
     start: tuple[float, float, float]   # local frame (m)
     end: tuple[float, float, float]
     t0: float                           # s
     t1: float
+    track: Track | None = None
+
+    def positions(self) -> np.ndarray:
+        """(n, 3) points along the leg: its ends, or every row of its track."""
+        if self.track is not None:
+            return self.track.position
+        return np.array([self.start, self.end], float)
 
     def frame(self) -> np.ndarray:
         """(3, 3) rows: across-track (right), along-track, up unit vectors."""
@@ -126,9 +135,16 @@ class Plan:
                        "classification": self.ground_class},
             "models": {name: _plain(spec) for name, spec in self.models.items()},
             "objects": [_plain(o) for o in self.objects],
-            "legs": [_plain(leg) for leg in self.legs],
+            "legs": [_leg_json(leg) for leg in self.legs],
         }
         return json.dumps(data, indent=1, sort_keys=True, default=_jsonable) + "\n"
+
+
+def _leg_json(leg: Leg) -> dict:
+    out = {k: v for k, v in dataclasses.asdict(dataclasses.replace(leg, track=None)).items() if v is not None}
+    if leg.track is not None:
+        out["track"] = leg.track.summary()
+    return out
 
 
 def _plain(obj) -> dict:

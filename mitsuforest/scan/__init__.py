@@ -7,7 +7,9 @@ about two million, and few sub-rays per pulse need more slots to pay each launch
 device which pulses fire and can reach the scene's box, then traces them (sub-rays, radiometry,
 waveform, labels, ranging noise); only finished echoes come back to numpy. Memory is bounded by the
 batch size. Ranging noise is keyed on (seed, pulse id, return number), so the same scene and seed
-give the same points, byte for byte, whatever the batch size.
+give the same points, byte for byte, whatever the batch size. Pulses leave from the leg's pose
+(platform.py: attitude, mount, a flown trajectory); the points are then placed with the navigation
+solution's errors (navigation.py), and carry their leg's number from 1 as ``point_source_id``.
 """
 
 from __future__ import annotations
@@ -17,9 +19,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .navigation import NavigationModel
+from .platform import Platform
 from .tracer import POINT_DTYPE, PulseTracer
 
-__all__ = ["POINT_DTYPE", "PulseTracer", "ScanResult", "default_batch", "scan"]
+__all__ = ["POINT_DTYPE", "NavigationModel", "Platform", "PulseTracer", "ScanResult", "default_batch",
+           "navigation_model", "scan"]
 
 BATCH_SUB_RAYS = {"llvm": 2_000_000, "cuda": 20_000_000}   # default sub-rays per launch, by Dr.Jit backend
 MAX_BATCH_SLOTS = {"llvm": 400_000, "cuda": 1_000_000}     # ... and at most this many time slots
@@ -56,7 +61,9 @@ def scan(scene, plan, scan_scene, progress: bool = True, on_points=None, legs: r
     """
     sim = scene.simulation
     batch = sim.pulses_per_batch or default_batch(scan_scene.variant, sim.beam_samples)
-    tracer = PulseTracer(scan_scene, scene.sensor, sim.beam_samples, scene.seed, sim.beam_pattern, sim.point_position)
+    platform = Platform(scene)
+    tracer = PulseTracer(scan_scene, scene.sensor, sim.beam_samples, scene.seed, sim.beam_pattern,
+                         sim.point_position, platform=platform, navigation=navigation_model(scene, plan, platform))
     result = ScanResult()
     chunks = []
     counts = [leg.pulse_count(scene.pulse_frequency) for leg in plan.legs]
@@ -65,11 +72,12 @@ def scan(scene, plan, scan_scene, progress: bool = True, on_points=None, legs: r
     start = time.perf_counter()
     for leg_no in legs:
         leg, total = plan.legs[leg_no], counts[leg_no]
+        pose = platform.table(leg)
         bar = _bar(progress, total, f"leg {leg_no + 1}/{len(plan.legs)}")
         for first in range(0, total, batch):
             count = min(batch, total - first)
             points, fired, cast = tracer.trace_slots(leg, scene.pulse_frequency, scene.scan_frequency, first, count,
-                                                     first_id)
+                                                     first_id, leg_no + 1, pose)
             result.pulses_fired += fired
             result.pulses_cast += cast
             result.rays += cast * tracer.samples
@@ -87,6 +95,15 @@ def scan(scene, plan, scan_scene, progress: bool = True, on_points=None, legs: r
         result.points = np.concatenate(chunks) if chunks else np.zeros(0, POINT_DTYPE)
     result.seconds = time.perf_counter() - start
     return result
+
+
+def navigation_model(scene, plan, platform: Platform) -> NavigationModel | None:
+    """The survey's navigation errors (``survey.navigation_errors``), or None when they are all zero."""
+    errors = scene.survey.navigation_errors
+    if errors.zero or not plan.legs:
+        return None
+    span = (min(leg.t0 for leg in plan.legs), max(leg.t1 for leg in plan.legs))
+    return NavigationModel(errors, scene.seed, span, platform)
 
 
 def _bar(progress: bool, total: int, label: str):

@@ -47,12 +47,14 @@ def reaches_box(dr, origin, direction, box, range_max: float):
 
 
 def reaching_pulses(leg, sensor, pulse_frequency: float, scan_frequency: float, first: int, count: int,
-                    box: np.ndarray, first_id: int = 0) -> tuple[DevicePulses, int]:
+                    box: np.ndarray, first_id: int = 0, table=None) -> tuple[DevicePulses, int]:
     """The fired pulses among time slots ``first .. first+count-1`` of a leg that can reach ``box``
     (2, 3) within the sensor's ``range_max``; call under the scene's Mitsuba variant.
 
     :param leg: a :class:`~mitsuforest.plan.types.Leg`.
     :param first_id: the survey's pulse number of the leg's first time slot.
+    :param table: the leg's :class:`~mitsuforest.scan.platform.DeviceTable` (attitude, mount, a flown
+        trajectory), or ``None``: level flight along the leg's straight line.
     :returns: the pulses, and how many were fired.
     """
     import drjit as dr
@@ -66,12 +68,18 @@ def reaching_pulses(leg, sensor, pulse_frequency: float, scan_frequency: float, 
     slot = leg_value(first, mi.UInt32) + dr.arange(mi.UInt32, count)
     t = t0 + Float64(slot) / float(pulse_frequency)
     d_sensor, angle, fired = deflect(dr, sensor, t, float(scan_frequency or 0.0))
-    frame_np = leg.frame()
-    frame = [[leg_value(x) for x in row] for row in frame_np]
-    direction = [d_sensor[0] * frame[0][k] + d_sensor[1] * frame[1][k] + d_sensor[2] * frame[2][k] for k in range(3)]
-    a, b = [leg_value(x) for x in leg.start], [leg_value(x) for x in leg.end]
-    f = (t - t0) / (t1 - t0)
-    origin = [a[k] + f * (b[k] - a[k]) for k in range(3)]
+    if table is None:
+        frame_np = leg.frame()
+        frame = [[leg_value(x) for x in row] for row in frame_np]
+        direction = _turned(d_sensor, frame)
+        a, b = [leg_value(x) for x in leg.start], [leg_value(x) for x in leg.end]
+        f = (t - t0) / (t1 - t0)
+        origin = [a[k] + f * (b[k] - a[k]) for k in range(3)]
+    else:
+        from .platform import table_pose
+        origin, rotation = table_pose(dr, mi, table, t)
+        frame = [[rotation[3 * k + j] for k in range(3)] for j in range(3)]   # rows: the sensor axes, local frame
+        direction = _turned(d_sensor, frame)
     reach = fired & reaches_box(dr, origin, direction, box, sensor.range_max)
     dr.eval(fired, reach)                      # one kernel for both masks, then the count and compaction
     n_fired = int(dr.count(fired)[0])
@@ -80,14 +88,22 @@ def reaching_pulses(leg, sensor, pulse_frequency: float, scan_frequency: float, 
         return DevicePulses(mi.UInt64(), Float64(), mi.Float(), mi.Point3f(), mi.Vector3f(), mi.Vector3f()), n_fired
     direction = mi.Vector3f(*(mi.Float(dr.gather(Float64, c, keep)) for c in direction))
     origin = mi.Point3f(*(mi.Float(dr.gather(Float64, c, keep)) for c in origin))
-    along = mi.Vector3f(*(leg_value(x, mi.Float) for x in frame_np[1]))
+    if table is None:
+        along = mi.Vector3f(*(leg_value(x, mi.Float) for x in frame_np[1]))
+        fallback = mi.Vector3f(*(leg_value(x, mi.Float) for x in frame_np[0]))   # a beam along the track
+    else:
+        along, fallback = (mi.Vector3f(*(mi.Float(dr.gather(Float64, c, keep)) for c in frame[j])) for j in (1, 0))
     across = dr.cross(along, direction)
     norm = dr.norm(across)
-    fallback = mi.Vector3f(*(leg_value(x, mi.Float) for x in frame_np[0]))   # a beam along the track
     across = dr.select(norm > 1e-9, across / dr.select(norm > 1e-9, norm, 1.0), fallback)
     pulse_id = leg_value(first_id, mi.UInt64) + mi.UInt64(dr.gather(mi.UInt32, slot, keep))
     return DevicePulses(pulse_id, dr.gather(Float64, t, keep), mi.Float(dr.gather(Float64, angle, keep)),
                         origin, direction, across), n_fired
+
+
+def _turned(d_sensor, frame) -> list:
+    """Sensor-frame directions in the local frame: ``frame`` rows are the sensor's axes there."""
+    return [d_sensor[0] * frame[0][k] + d_sensor[1] * frame[1][k] + d_sensor[2] * frame[2][k] for k in range(3)]
 
 
 def upload_pulses(pulses, first_id: int = 0) -> DevicePulses:

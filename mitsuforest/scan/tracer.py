@@ -17,6 +17,7 @@ POINT_DTYPE = np.dtype([
     ("intensity", "<f4"), ("gps_time", "<f8"), ("scan_angle", "<f4"), ("pulse_id", "<u8"), ("range", "<f4"),
     ("species", "u1"),   # after the paper's fields: the tree's family code (classes.SPECIES_CODES), 0 elsewhere
     ("reflectance", "<f4"),   # dB: the amplitude over a white Lambertian target's at the same range (radiometry.py)
+    ("point_source_id", "<u2"),   # the flight line: leg number from 1 (0: hand-made pulses)
 ])
 
 
@@ -43,12 +44,17 @@ class PulseTracer:
         beam.py). A render uses the scene's ``simulation.beam_pattern`` (stratified by default).
     :param point_position: ``beam_axis`` or ``surface`` (see above; a render uses the scene's
         ``simulation.point_position``).
+    :param platform: the scene's :class:`~mitsuforest.scan.platform.Platform` (mount, attitude): needed
+        by :meth:`trace_slots` with a pose table.
+    :param navigation: a :class:`~mitsuforest.scan.navigation.NavigationModel`: the points are placed
+        with its believed trajectory (None: with the true one).
     """
 
     def __init__(self, scan_scene, sensor, beam_samples: int, seed: int = 0, pattern: str = "fixed",
-                 point_position: str = "beam_axis"):
+                 point_position: str = "beam_axis", platform=None, navigation=None):
         self.sensor, self.variant, self.table = sensor, scan_scene.variant, scan_scene.table
         self.point_position = point_position
+        self.platform, self.navigation, self._uploaded = platform, navigation, (None, None)
         half = np.asarray(sensor.beam_divergence, float) / 2
         if pattern == "stratified":
             cells = beam_cells(beam_samples)
@@ -74,20 +80,35 @@ class PulseTracer:
         return len(self.weights)
 
     def trace_slots(self, leg, pulse_frequency: float, scan_frequency: float, first: int, count: int,
-                    first_id: int = 0) -> tuple[np.ndarray, int, int]:
+                    first_id: int = 0, source_id: int = 0, pose=None) -> tuple[np.ndarray, int, int]:
         """Points of the time slots ``first .. first+count-1`` of a leg; only pulses that fire and can
         reach the scene are cast.
 
         :param leg: a :class:`~mitsuforest.plan.types.Leg`.
         :param first_id: the survey's pulse number of the leg's first time slot (pulse ids are
             ``first_id + slot``).
+        :param source_id: the points' ``point_source_id`` (the leg's number from 1 in a survey).
+        :param pose: the leg's :class:`~mitsuforest.plan.trajectory.PoseTable` (``Platform.table``), or
+            None: level flight along its straight line.
         :returns: the points (POINT_DTYPE, local frame, in pulse then range order), the number of
             pulses fired and the number cast.
         """
         with variant_scope(self.variant):
             pulses, fired = reaching_pulses(leg, self.sensor, pulse_frequency, scan_frequency, first, count,
-                                            self.box, first_id)
-            return self._points(self.caster.echoes(pulses), self.table), fired, pulses.count
+                                            self.box, first_id, self._device_table(pose))
+            points = self._points(self.caster.echoes(pulses), self.table)
+        points["point_source_id"] = source_id
+        if self.navigation is not None:
+            self.navigation.place(points, leg, pose)
+        return points, fired, pulses.count
+
+    def _device_table(self, pose):
+        """``pose`` on the device, uploaded once per leg."""
+        if pose is None:
+            return None
+        if self._uploaded[0] is not pose:
+            self._uploaded = (pose, self.platform.upload(pose))
+        return self._uploaded[1]
 
     def trace_pulses(self, pulses, first_id: int = 0) -> np.ndarray:
         """Points of hand-made pulses (:class:`~mitsuforest.scan.reference.pulses.Pulses`, numpy)."""

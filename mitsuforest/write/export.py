@@ -74,7 +74,19 @@ def export_scene(scene, plan, models: dict, folder, log=print) -> list[Path]:
         f"{len(parts)} HELIOS++ parts to {folder}; fly them with: helios++ {names['survey']}")
     for note in scanner_notes(scene.sensor):
         log(f"note: {note}")
+    if unexported := _unexported_platform(scene):
+        log(f"note: the HELIOS++ survey flies level straight legs between each leg's ends; {unexported} "
+            "not exported")
     return written
+
+
+def _unexported_platform(scene) -> str:
+    """The platform settings a HELIOS++ survey of straight legs leaves out, as text ('' when none)."""
+    survey = scene.survey
+    names = [key for key, unused in (("survey.trajectory", not survey.trajectory), ("survey.attitude", survey.attitude.zero),
+                                     ("sensor.mount", scene.sensor.mount.zero),
+                                     ("survey.navigation_errors", survey.navigation_errors.zero)) if not unused]
+    return (", ".join(names) + (" are" if len(names) > 1 else " is")) if names else ""
 
 
 def component_meshes(model) -> dict[int, tuple[np.ndarray, np.ndarray]]:

@@ -11,7 +11,8 @@ and the RIEGL-style reflectance (dB) in ``reflectance``. Return numbers and coun
 (a pulse with more echoes than that needs over 15 sub-rays and ``max_returns`` 0 or above 15), are
 written as 15; the PCD keeps them. Coordinates are stored at 0.1 mm with the
 georeference in the header offsets. The scene's ``origin.crs`` is written as the standard OGC WKT
-coordinate system VLR, which PDAL, QGIS and lidR read; the WKT bit of the global encoding is set,
+coordinate system VLR, which PDAL, QGIS and lidR read; each point's ``point_source_id`` is its flight
+line (the leg's number from 1); the WKT bit of the global encoding is set,
 as LAS 1.4 requires for point format 6 (with or without a CRS).
 """
 
@@ -153,6 +154,8 @@ def las_points(header: laspy.LasHeader, points: np.ndarray, intensity: Intensity
     if "species" in points.dtype.names:
         las.species = points["species"]
     las.reflectance = reflectance
+    if "point_source_id" in points.dtype.names:
+        las.point_source_id = points["point_source_id"]
     return las
 
 

@@ -80,17 +80,44 @@ def write_ids(path, plan, models, offset) -> None:
                                "species", "source"], rows))
 
 
-def trajectory(legs, rate: float = 10.0) -> np.ndarray:
-    """(n, 7) rows time, x, y, z, roll, pitch, yaw (deg, yaw clockwise from north) at ``rate`` Hz."""
+TRAJECTORY_RATE = 10.0   # Hz
+
+
+def trajectory(legs, platform, navigation=None, rate: float = TRAJECTORY_RATE) -> np.ndarray:
+    """The platform's trajectory as flown, ``rate`` rows a second on each leg: (n, 8) time, x, y, z,
+    roll, pitch, yaw (deg, yaw clockwise from north; plan/trajectory.py has the frames) and the leg's
+    number from 1 (the points' ``point_source_id``); with a
+    :class:`~mitsuforest.scan.navigation.NavigationModel`, six more columns: the believed x, y, z, roll,
+    pitch, yaw the points were computed with.
+
+    :param platform: the scene's :class:`~mitsuforest.scan.platform.Platform`.
+    """
+    from ..plan.trajectory import ENU_FROM_NED, matrix_euler
     rows = []
-    for leg in legs:
+    for number, leg in enumerate(legs, start=1):
         t = np.arange(leg.t0, leg.t1, 1 / rate)
-        rows.append(np.column_stack([t, leg.position(t), np.zeros((len(t), 2)), np.full(len(t), leg.heading)]))
-    return np.vstack(rows) if rows else np.zeros((0, 7))
+        table = platform.table(leg)
+        position, body = platform.body_pose(leg, table, t)
+        columns = [t, position, matrix_euler(ENU_FROM_NED.T @ body), np.full(len(t), number)]
+        if navigation is not None:
+            columns.append(navigation.trajectory(leg, table, t))
+        rows.append(np.column_stack(columns))
+    return np.vstack(rows) if rows else np.zeros((0, 8 if navigation is None else 14))
 
 
-def write_trajectory(path, legs, offset) -> None:
-    tr = trajectory(legs)
-    tr[:, 1:4] += np.asarray(offset)
-    lines = (f"{r[0]:.6f},{r[1]:.4f},{r[2]:.4f},{r[3]:.4f},{r[4]:.3f},{r[5]:.3f},{r[6]:.3f}" for r in tr)
-    write_text(path, "time,x,y,z,roll,pitch,yaw\n" + "\n".join(lines) + "\n")
+def write_trajectory(path, scene, plan) -> None:
+    """``NAME_trajectory.csv``: :func:`trajectory` with ``origin.offset`` added to x, y, z. Its first seven
+    columns are a trajectory file that ``survey.trajectory`` flies again (the ``line`` column keeps the legs)."""
+    from ..scan import Platform, navigation_model
+    platform = Platform(scene)
+    navigation = navigation_model(scene, plan, platform)
+    tr = trajectory(plan.legs, platform, navigation)
+    offset = np.asarray(scene.origin.offset, float)
+    tr[:, 1:4] += offset
+    header = "time,x,y,z,roll,pitch,yaw,line"
+    row = "{:.6f},{:.4f},{:.4f},{:.4f},{:.4f},{:.4f},{:.4f},{:.0f}"
+    if navigation is not None:
+        tr[:, 8:11] += offset
+        header += ",believed_x,believed_y,believed_z,believed_roll,believed_pitch,believed_yaw"
+        row += ",{:.4f},{:.4f},{:.4f},{:.4f},{:.4f},{:.4f}"
+    write_text(path, header + "\n" + "".join(row.format(*r) + "\n" for r in tr))

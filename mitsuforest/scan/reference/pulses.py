@@ -24,28 +24,36 @@ class Pulses:
 
 
 def reaching_pulses(leg, sensor, pulse_frequency: float, scan_frequency: float, first: int, count: int,
-                    box: np.ndarray | None = None) -> tuple[Pulses, int]:
+                    box: np.ndarray | None = None, platform=None, table=None) -> tuple[Pulses, int]:
     """The fired pulses among time slots ``first .. first+count-1`` that can reach ``box`` (2, 3) within
-    the sensor's ``range_max`` (all fired pulses without a box), and how many pulses were fired."""
+    the sensor's ``range_max`` (all fired pulses without a box), and how many pulses were fired.
+
+    :param platform, table: a :class:`~mitsuforest.scan.platform.Platform` and the leg's pose table
+        (``Platform.table``); without a table, level flight along the leg's straight line."""
     k = np.arange(first, first + count, dtype=np.int64)
     t = leg.t0 + k / pulse_frequency
     d_sensor, angle, fired = deflect(sensor, t, scan_frequency)
-    direction = d_sensor @ leg.frame()
-    k, t, direction, angle = k[fired], t[fired], direction[fired], angle[fired]
-    origin = leg.position(t)
+    k, t, d_sensor, angle = k[fired], t[fired], d_sensor[fired], angle[fired]
+    if table is None:
+        frame = np.broadcast_to(leg.frame(), (len(t), 3, 3))    # rows: the sensor axes in the local frame
+        origin = leg.position(t)
+    else:
+        origin, rotation = platform.beam(table, t)
+        frame = np.swapaxes(rotation, 1, 2)
+    direction = np.einsum("ni,nij->nj", d_sensor, frame)
     if box is not None:
         keep = np.flatnonzero(reaches_box(origin, direction, box, sensor.range_max))
-        k, t, angle, direction, origin = k[keep], t[keep], angle[keep], direction[keep], origin[keep]
-    return Pulses(k, t, origin, direction, _across(leg.frame(), direction), angle), int(np.count_nonzero(fired))
+        k, t, angle, direction, origin, frame = k[keep], t[keep], angle[keep], direction[keep], origin[keep], frame[keep]
+    return Pulses(k, t, origin, direction, _across(frame, direction), angle), int(np.count_nonzero(fired))
 
 
 def _across(frame: np.ndarray, direction: np.ndarray) -> np.ndarray:
-    """Unit ``along × direction`` (the scan plane's normal in the beam frame); ``frame[0]`` at nadir-parallel."""
-    across = np.cross(frame[1], direction)
+    """Unit ``along × direction`` (the scan plane's normal in the beam frame); ``frame[:, 0]`` at nadir-parallel."""
+    across = np.cross(frame[:, 1], direction)
     norm = np.linalg.norm(across, axis=1)
     degenerate = norm <= 1e-9
     across /= np.where(degenerate, 1.0, norm)[:, None]
-    across[degenerate] = frame[0]
+    across[degenerate] = frame[degenerate, 0]
     return across
 
 

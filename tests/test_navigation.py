@@ -1,0 +1,323 @@
+"""The platform side of a real survey: attitude, mount, flown trajectories, navigation errors and flight
+lines, checked on flat ground against the geometry (plan/trajectory.py has the frames)."""
+
+import numpy as np
+import pytest
+from helpers import SENSORS, scene_file
+
+from mitsuforest.cli import main
+from mitsuforest.config import load_scene
+from mitsuforest.plan import make_plan
+from mitsuforest.plan.trajectory import ENU_FROM_NED, euler_matrix, matrix_euler
+from mitsuforest.scan import scan
+from mitsuforest.scene import build_scene
+
+X = 20.0   # the legs fly north along x = 20 m over a flat 40 m plot
+NARROW = {**__import__("yaml").safe_load((SENSORS / "ideal.yaml").read_text()), "field_of_view": 40}
+
+
+def flat_scan(tmp_path, **survey):
+    """Points of a bare flat plot (thin ideal beam, 40° FOV, 10 kHz) and the platform's height above it."""
+    path = scene_file(tmp_path, sensor=NARROW, survey={
+        "altitude": 30, "speed": 10, "pulse_frequency": 10000, "scan_frequency": 100,
+        "lines": [[[X, 5.0], [X, 35.0]]], **survey})
+    scene = load_scene(path)
+    plan = make_plan(scene)
+    points = scan(scene, plan, build_scene(plan, {}, scene.sensor, scene.simulation.variant), progress=False).points
+    return points, plan.legs[0].start[2] - float(plan.terrain.z.mean()), plan
+
+
+def test_the_frames_turn_a_level_northbound_body_as_documented():
+    """Body x forward, y right, z down, R = Rz(yaw)·Ry(pitch)·Rx(roll) into north-east-down, then ENU."""
+    body = ENU_FROM_NED @ euler_matrix(0, 0, 90)[0]            # heading east
+    assert np.allclose(body @ [1, 0, 0], [1, 0, 0]) and np.allclose(body @ [0, 1, 0], [0, -1, 0])
+    rolled = ENU_FROM_NED @ euler_matrix(10, 0, 0)[0]          # heading north, right wing down
+    assert np.allclose(rolled @ [0, 0, 1], [-np.sin(np.radians(10)), 0, -np.cos(np.radians(10))])
+    pitched = ENU_FROM_NED @ euler_matrix(0, 10, 0)[0]         # nose up: the nose points up
+    assert pitched @ [1, 0, 0] == pytest.approx([0, np.cos(np.radians(10)), np.sin(np.radians(10))])
+    angles = np.array([[3.0, -2.0, 350.0], [-1.0, 4.0, 10.0]])
+    assert np.allclose(matrix_euler(euler_matrix(*angles.T)), angles)
+
+
+def test_a_constant_roll_shifts_the_swath_by_h_tan_roll(tmp_path):
+    """Right wing down by θ turns the sensor's nadir left: a pulse at scan angle φ lands H·tan(φ − θ)
+    right of the track, so the swath's centre (φ = 0) moves H·tan θ to the left (west on a northbound leg)."""
+    level, H, _ = flat_scan(tmp_path / "level")
+    roll = 5.0
+    rolled, _, _ = flat_scan(tmp_path / "rolled", attitude={"roll": roll})
+    assert H == pytest.approx(30.0)
+    for points, theta in ((level, 0.0), (rolled, np.radians(roll))):
+        phi = np.radians(points["scan_angle"].astype(float))
+        assert np.abs(points["x"] - X - H * np.tan(phi - theta)).max() < 2e-3
+        assert np.abs(points["y"] - (5.0 + 10.0 * points["gps_time"])).max() < 2e-3   # pitch 0: below the platform
+    def centre(p):   # where the sensor's nadir (φ = 0) lands: a line through the points within 1° of it
+        near = np.abs(p["scan_angle"]) < 1.0
+        return np.polyval(np.polyfit(p["scan_angle"][near], p["x"][near], 1), 0.0) - X
+    assert centre(level) == pytest.approx(0.0, abs=1e-3)
+    assert centre(rolled) == pytest.approx(-H * np.tan(np.radians(roll)), abs=2e-3)   # -2.62 m
+    assert len(rolled) == pytest.approx(len(level), rel=0.01)
+
+
+def test_a_sinusoidal_pitch_moves_points_along_track_and_the_trajectory_says_so(tmp_path):
+    wave = {"amplitude_deg": 3.0, "period_s": 1.0, "phase_deg": 30.0}
+    points, H, plan = flat_scan(tmp_path, attitude={"pitch": wave})
+    t = points["gps_time"]
+    pitch = np.radians(3.0 * np.sin(2 * np.pi * t + np.radians(30)))
+    phi = np.radians(points["scan_angle"].astype(float))
+    # Nose up by ψ tilts the beam forward: the along-track offset is H·tan ψ / cos φ (to first order in ψ of
+    # the exact ray-plane intersection, which the test computes exactly here).
+    d = np.column_stack([np.sin(phi), np.zeros_like(phi), -np.cos(phi)])           # sensor frame: x right, y fwd, z up
+    body = np.column_stack([d[:, 1], d[:, 0], -d[:, 2]])                           # forward, right, down
+    local = np.einsum("nij,nj->ni", ENU_FROM_NED @ euler_matrix(0, np.degrees(pitch), 0), body)
+    ground = local * (H / -local[:, 2])[:, None]
+    assert np.abs(points["y"] - (5.0 + 10.0 * t) - ground[:, 1]).max() < 2e-3
+    assert np.abs(ground[:, 1]).max() > 1.0
+
+
+def _paired(a, b):
+    """Rows of ``b`` in the order of ``a``'s (pulse_id, return_number)."""
+    key = lambda p: p["pulse_id"].astype(np.int64) * 64 + p["return_number"]   # noqa: E731
+    order = np.argsort(key(b))
+    at = np.searchsorted(key(b)[order], key(a))
+    assert np.array_equal(key(b)[order][at], key(a))
+    return b[order][at]
+
+
+def test_a_boresight_roll_error_makes_opposite_lines_disagree_by_2h_sin_delta(tmp_path):
+    """The pulses fly the true mount; the points are placed with a boresight believed δ off in roll (about
+    the sensor's forward axis). A pulse at scan angle φ meets flat ground at range H/cos φ; placed along
+    the believed direction φ − δ (a roll right turns the beam left) it lands H·sin(φ − δ)/cos φ right of
+    the track and H·cos(φ − δ)/cos φ below it. For the nadir pulse that is H·sin δ to the left of each
+    line: two opposite lines over the same ground disagree by 2·H·sin δ across the track."""
+    delta = 0.5
+    lines = [[[X, 5.0], [X, 35.0]], [[X, 35.0], [X, 5.0]]]
+    true, H, _ = flat_scan(tmp_path / "true", lines=lines)
+    placed, _, _ = flat_scan(tmp_path / "err", lines=lines, navigation_errors={"boresight_error_deg": [delta, 0, 0]})
+    placed = _paired(true, placed)
+    assert np.array_equal(placed["point_source_id"], true["point_source_id"])
+    assert set(np.unique(true["point_source_id"])) == {1, 2}
+    phi = np.radians(true["scan_angle"].astype(float))
+    d = np.radians(delta)
+    right = np.where(true["point_source_id"] == 1, 1.0, -1.0)                   # east on leg 1, west on leg 2
+    assert np.abs(placed["x"] - X - right * H * np.sin(phi - d) / np.cos(phi)).max() < 2e-3
+    assert np.abs(placed["z"] - (H - H * np.cos(phi - d) / np.cos(phi)) - true["z"]).max() < 2e-3
+    assert np.abs(placed["y"] - true["y"]).max() < 1e-3
+    nadir = np.abs(phi) < np.radians(1)
+    shift = [np.mean(placed["x"][nadir & (true["point_source_id"] == k)] - true["x"][nadir & (true["point_source_id"] == k)])
+             for k in (1, 2)]
+    assert shift[1] - shift[0] == pytest.approx(2 * H * np.sin(d), rel=0.01)      # 0.52 m
+
+
+def test_a_gnss_random_walk_spreads_overlapping_strips_by_its_sigma(tmp_path):
+    """Twenty passes along the same line, each Δ = 6 s after the one before (3 s leg, 3 s back): where two
+    consecutive strips overlap, their heights differ by the walk's increment over Δ, N(0, q²·Δ)."""
+    q, passes = 0.05, 20
+    points, _, plan = flat_scan(tmp_path, lines=[[[X, 5.0], [X, 35.0]]] * passes,
+                                navigation_errors={"gnss_random_walk_m_per_sqrt_s": [0, 0, q]})
+    gap = plan.legs[1].t0 - plan.legs[0].t0
+    assert gap == pytest.approx(6.0)
+    cell = np.floor(points["y"]).astype(int)
+    heights = np.full((passes, 40), np.nan)
+    for k in range(passes):
+        mine = points["point_source_id"] == k + 1
+        sums = np.bincount(cell[mine], points["z"][mine], minlength=40)
+        counts = np.bincount(cell[mine], minlength=40)
+        heights[k] = np.where(counts > 20, sums / np.maximum(counts, 1), np.nan)
+    differences = np.diff(heights, axis=0)
+    differences = differences[np.isfinite(differences)]
+    assert len(differences) > 400
+    assert np.std(differences) == pytest.approx(q * np.sqrt(gap), rel=0.3)    # 0.122 m
+    assert np.abs(points["x"] - X - 30 * np.tan(np.radians(points["scan_angle"]))).max() < 2e-3   # level
+
+
+def test_gnss_white_noise_and_the_trajectory_file_hold_the_believed_trajectory(tmp_path):
+    """White GNSS noise of σ (east, north, up) at 10 Hz epochs: the trajectory file's believed columns
+    differ from the true ones by it, and each point by the same error interpolated at its time."""
+    import laspy
+
+    from mitsuforest.write.las import las_header, las_points
+    from mitsuforest.write.tables import write_trajectory
+    sigma = [0.1, 0.2, 0.05]
+    points, H, plan = flat_scan(tmp_path, navigation_errors={"gnss_sigma_m": sigma, "rate_hz": 10})
+    scene = load_scene(tmp_path / "scene.yaml").with_({"origin.offset": [1000.0, 2000.0, 10.0]})
+    write_trajectory(tmp_path / "t.csv", scene, plan)
+    header = (tmp_path / "t.csv").read_text().splitlines()[0].split(",")
+    assert header == ["time", "x", "y", "z", "roll", "pitch", "yaw", "line", "believed_x", "believed_y", "believed_z",
+                      "believed_roll", "believed_pitch", "believed_yaw"]
+    table = np.loadtxt(tmp_path / "t.csv", delimiter=",", skiprows=1)
+    assert np.allclose(table[:, 1:4] - [1000, 2000, 10], plan.legs[0].position(table[:, 0]), atol=1e-4)
+    errors = table[:, 8:11] - table[:, 1:4]                  # believed minus true, at the 10 Hz epochs
+    assert np.std(errors, axis=0) == pytest.approx(sigma, rel=0.35)
+    assert np.allclose(table[:, 11:14], table[:, 4:7]) and (table[:, 7] == 1).all()
+    points = points[points["gps_time"] <= table[-1, 0]]       # the table's last row is at 2.9 s
+    err = np.column_stack([np.interp(points["gps_time"], table[:, 0], errors[:, k]) for k in range(3)])
+    flat = np.column_stack([points["x"] - X - H * np.tan(np.radians(points["scan_angle"].astype(float))),
+                            points["y"] - 5.0 - 10.0 * points["gps_time"], points["z"]])
+    assert np.abs(flat - err).max() < 2e-4 + 1e-3            # the table's 0.1 mm digits, float32 points
+    las = las_points(las_header([0, 0, 0]), points)
+    assert (np.asarray(las.point_source_id) == 1).all() and (points["point_source_id"] == 1).all()
+    las.write(tmp_path / "p.las")
+    assert (np.asarray(laspy.read(tmp_path / "p.las").point_source_id) == 1).all()
+
+
+def _trajectory_csv(path, rows, header="time,x,y,z,roll,pitch,yaw"):
+    path.write_text(header + "\n" + "".join(",".join(f"{v:.10g}" for v in r) + "\n" for r in rows))
+    return path
+
+
+def test_a_straight_trajectory_file_reproduces_the_planned_leg(tmp_path):
+    planned, H, plan = flat_scan(tmp_path / "planned")
+    z = plan.legs[0].start[2]
+    t = np.linspace(0.0, 3.0, 7)
+    csv = _trajectory_csv(tmp_path / "line.csv", [[s, X, 5.0 + 10 * s, z, 0, 0, 0] for s in t])
+    flown, _, flown_plan = flat_scan(tmp_path / "flown", lines=None, trajectory=str(csv))
+    assert flown_plan.legs[0].track is not None and (flown_plan.legs[0].t0, flown_plan.legs[0].t1) == (0.0, 3.0)
+    assert '"track"' in flown_plan.to_json()
+    assert np.array_equal(flown["pulse_id"], planned["pulse_id"])
+    for key in ("x", "y", "z"):
+        assert np.abs(flown[key] - planned[key]).max() < 1e-3, key
+    assert (flown["point_source_id"] == 1).all()
+
+
+def test_a_curved_trajectory_file_is_flown_smoothly_with_lines_and_slerped_attitude(tmp_path):
+    """A file with two flight lines (the ``line`` column): the second flies a yawed, rolled arc. Its points
+    lie where the beam from the spline's position, turned by the slerped attitude, meets the ground."""
+    from mitsuforest.plan.trajectory import pose_table
+    from mitsuforest.scan import Platform
+    _, H, plan = flat_scan(tmp_path / "planned")
+    z = plan.legs[0].start[2]
+    rows = [[s, X, 5.0 + 10 * s, z, 0, 0, 0, 7] for s in np.linspace(0, 3, 4)]
+    rows += [[10 + s, X + 5 * np.sin(s), 5 + 8 * s, z + 0.5 * s, 2 * s, -1.0, 10 * s, 9] for s in np.linspace(0, 3, 13)]
+    csv = _trajectory_csv(tmp_path / "two.csv", rows, "time,x,y,z,roll,pitch,yaw,line")
+    points, _, flown = flat_scan(tmp_path / "flown", lines=None, trajectory=str(csv))
+    assert [(leg.t0, leg.t1) for leg in flown.legs] == [(0.0, 3.0), (10.0, 13.0)]
+    second = points[points["point_source_id"] == 2]
+    assert len(second) > 1000 and set(np.unique(points["point_source_id"])) == {1, 2}
+    scene = load_scene(tmp_path / "flown" / "scene.yaml")
+    table = pose_table(flown.legs[1])
+    assert np.allclose(table.pose(np.array([10.0, 11.5, 13.0]))[0][:, 1], [5, 17, 29], atol=1e-6)   # through the rows
+    origin, rotation = Platform(scene).beam(table, second["gps_time"])
+    phi = np.radians(second["scan_angle"].astype(float))
+    d = np.einsum("nij,nj->ni", rotation, np.column_stack([np.sin(phi), np.zeros_like(phi), -np.cos(phi)]))
+    ground = origin + d * ((origin[:, 2] - (z - H)) / -d[:, 2])[:, None]
+    assert np.abs(np.column_stack([second["x"], second["y"], second["z"]]) - ground).max() < 2e-3
+    # The render's trajectory file flies again: the same two lines, through the same poses.
+    from mitsuforest.plan.trajectory import read_trajectory
+    from mitsuforest.write.tables import write_trajectory
+    write_trajectory(tmp_path / "again.csv", scene, flown)
+    again = read_trajectory(tmp_path / "again.csv")
+    assert [len(tr.time) for tr in again] == [30, 30]
+    rows = np.array(rows)[4:]
+    at = np.isin(np.round(rows[:, 0], 6), np.round(again[1].time, 6))
+    assert at.sum() == 6          # the file's rows at 10.0, 10.5 ... 12.5 s
+    assert np.allclose(again[1].position[np.isin(np.round(again[1].time, 6), np.round(rows[at, 0], 6))],
+                       rows[at, 1:4], atol=1e-4)
+    assert np.allclose(again[1].attitude[np.isin(np.round(again[1].time, 6), np.round(rows[at, 0], 6))],
+                       rows[at, 4:7], atol=1e-3)
+
+
+def test_a_lever_arm_and_boresight_move_the_beam(tmp_path):
+    """A sensor 1 m ahead and 0.5 m right of the reference point, turned 2° in roll: the beam leaves from
+    (X + 0.5, y + 1) and every point lands H·tan(φ − 2°) right of it (the roll of the mount as of the body)."""
+    sensor = {**NARROW, "mount": {"lever_arm": [1.0, 0.5, 0.0], "boresight": [2.0, 0.0, 0.0]}}
+    path = scene_file(tmp_path, sensor=sensor, survey={
+        "altitude": 30, "speed": 10, "pulse_frequency": 10000, "scan_frequency": 100, "lines": [[[X, 5.0], [X, 35.0]]]})
+    scene = load_scene(path)
+    plan = make_plan(scene)
+    points = scan(scene, plan, build_scene(plan, {}, scene.sensor, scene.simulation.variant), progress=False).points
+    phi = np.radians(points["scan_angle"].astype(float))
+    assert np.abs(points["x"] - X - 0.5 - 30 * np.tan(phi - np.radians(2))).max() < 2e-3
+    assert np.abs(points["y"] - 6.0 - 10 * points["gps_time"]).max() < 2e-3
+
+
+@pytest.mark.parametrize("text, where, reason", [
+    ("time,x,y,roll,pitch,yaw\n0,1,2,0,0,0\n", "line 1", "the header lacks z"),
+    ("time,x,y,z,roll,pitch,yaw\n0,1,2,30,0,0,0\n1,1,2,30,0,0,0\n1,1,3,30,0,0,0\n", "line 4", "time must increase"),
+    ("time,x,y,z,roll,pitch,yaw\n0,1,2,30,0,0,0\n1,1,nan,30,0,0,0\n", "line 3", "a value is not finite"),
+    ("time,x,y,z,roll,pitch,yaw\n0,1,2,30,0,0,0\n1,1,x,30,0,0,0\n", "line 3", "not a number"),
+    ("time,x,y,z,roll,pitch,yaw\n0,1,2,30,0,0,0\n", "line 1", "a flight line needs at least two rows"),
+    ("time,x,y,z,roll,pitch,yaw,line\n0,1,2,30,0,0,0,1\n1,1,2,30,0,0,0,1\n2,1,2,30,0,0,0,2\n", "line 4",
+     "a flight line needs at least two rows"),
+    ("time,x,y,z,roll,pitch,yaw\n", "line 1", "a flight line needs at least two rows"),
+    ("", "", "empty"),
+])
+def test_a_bad_trajectory_file_is_one_line_and_exit_2(tmp_path, capsys, text, where, reason):
+    csv = tmp_path / "bad.csv"
+    csv.write_text(text)
+    path = scene_file(tmp_path, survey={"trajectory": str(csv)})
+    assert main(["plan", str(path), "-o", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and (f"bad.csv: {where}: {reason}" if where else f"bad.csv: {reason}") in err
+    assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
+
+
+def test_trajectory_settings_that_contradict_are_refused(tmp_path, capsys):
+    csv = _trajectory_csv(tmp_path / "t.csv", [[0, 20, 5, 30, 0, 0, 0], [1, 20, 15, 30, 0, 0, 0]])
+    both = scene_file(tmp_path / "a", survey={"trajectory": str(csv), "lines": [[[0, 0], [1, 1]]]})
+    assert main(["plan", str(both)]) == 2
+    assert "survey.lines: give either survey.lines or survey.trajectory" in capsys.readouterr().err
+    rolled = scene_file(tmp_path / "b", survey={"trajectory": str(csv), "attitude": {"roll": 2}})
+    assert main(["plan", str(rolled)]) == 2
+    assert "survey.attitude: a trajectory file gives its own attitude" in capsys.readouterr().err
+
+
+def test_device_pulses_with_a_pose_table_match_the_numpy_reference(tmp_path, variant):
+    """scan/pulses.py on a pose table (attitude, mount) against its numpy twin: same pulses, rays within float32."""
+    from mitsuforest.scan import Platform
+    from mitsuforest.scan import pulses as device
+    from mitsuforest.scan.reference.pulses import reaching_pulses
+    from mitsuforest.scene.variant import variant_scope
+    sensor = {**NARROW, "field_of_view": 100, "mount": {"lever_arm": [0.3, -0.2, 0.1], "boresight": [1.0, -2.0, 3.0]}}
+    path = scene_file(tmp_path, sensor=sensor, variant=variant, survey={
+        "speed": 5, "lines": [[[X, -5.0], [X + 10, 45.0]]],
+        "attitude": {"roll": {"amplitude_deg": 4, "period_s": 2.0}, "pitch": 1.5, "yaw": {"amplitude_deg": 2, "period_s": 3}}})
+    scene = load_scene(path)
+    leg = make_plan(scene).legs[0]
+    platform = Platform(scene)
+    table = platform.table(leg)
+    box = np.array([[0.0, 0.0, 0.0], [40.0, 40.0, 28.0]])
+    ref, fired = reaching_pulses(leg, scene.sensor, 100_000, 50, 300_000, 50_000, box, platform, table)
+    with variant_scope(variant):
+        got, got_fired = device.reaching_pulses(leg, scene.sensor, 100_000, 50, 300_000, 50_000, box, 0,
+                                                platform.upload(table))
+        assert got_fired == fired and 1000 < len(ref.index) <= fired
+        assert np.array_equal(np.array(got.pulse_id), ref.index)
+        for key in ("origin", "direction", "across"):
+            xyz = np.column_stack([np.array(getattr(getattr(got, key), a)) for a in "xyz"])
+            assert np.abs(xyz - getattr(ref, key)).max() < 1e-5, key
+    # The table holds the waves: roll at 3.5 s is 4·sin(2π·3.5/2) = -4°.
+    position, body = table.pose(np.array([3.5]))
+    assert matrix_euler(ENU_FROM_NED.T @ body)[0, 0] == pytest.approx(-4.0, abs=1e-3)
+    assert matrix_euler(ENU_FROM_NED.T @ body)[0, 1] == pytest.approx(1.5, abs=1e-3)
+
+
+def test_navigation_errors_do_not_depend_on_batches_or_legs_scanned_apart(tmp_path):
+    """The error series are drawn from the seed and the survey's span alone: a survey scanned whole, in
+    small batches, or leg by leg (as the dataset's workers do) gives the same points."""
+    errors = {"gnss_sigma_m": 0.05, "gnss_random_walk_m_per_sqrt_s": 0.02, "imu_sigma_deg": 0.05,
+              "boresight_error_deg": [0.1, -0.1, 0.2]}
+    path = scene_file(tmp_path, sensor=NARROW, survey={
+        "altitude": 30, "speed": 10, "pulse_frequency": 10000, "scan_frequency": 100,
+        "lines": [[[X, 5.0], [X, 35.0]], [[X + 5, 35.0], [X + 5, 5.0]]], "navigation_errors": errors,
+        "attitude": {"roll": {"amplitude_deg": 2, "period_s": 1.3}}})
+    scene = load_scene(path)
+    plan = make_plan(scene)
+    scan_scene = build_scene(plan, {}, scene.sensor, scene.simulation.variant)
+    whole = scan(scene, plan, scan_scene, progress=False).points
+    small = scan(scene.with_({"simulation.pulses_per_batch": 1000}), plan, scan_scene, progress=False).points
+    apart = np.concatenate([scan(scene, plan, scan_scene, progress=False, legs=range(k, k + 1)).points for k in (0, 1)])
+    assert len(whole) > 5000
+    assert whole.tobytes() == small.tobytes() == apart.tobytes()
+    level = scan(scene.with_({"survey.navigation_errors": {}}), plan, scan_scene, progress=False).points
+    assert np.array_equal(level["pulse_id"], whole["pulse_id"])                 # the same pulses ...
+    assert 0.01 < np.abs(level["z"] - whole["z"]).mean() < 0.5                 # ... placed elsewhere
+
+
+def test_the_helios_export_names_the_platform_settings_it_leaves_out(tmp_path):
+    from mitsuforest.write.export import _unexported_platform
+    scene = load_scene(scene_file(tmp_path))
+    assert _unexported_platform(scene) == ""
+    assert _unexported_platform(scene.with_({"survey.attitude.roll": 1})) == "survey.attitude is"
+    assert _unexported_platform(scene.with_({"survey.navigation_errors.gnss_sigma_m": 0.1,
+                                             "sensor.mount.lever_arm": [0, 0, 1]})) == \
+        "sensor.mount, survey.navigation_errors are"
