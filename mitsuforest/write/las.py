@@ -111,55 +111,131 @@ def _without_extra_statistics(header: laspy.LasHeader) -> None:
 
 def las_points(header: laspy.LasHeader, points: np.ndarray) -> laspy.LasData:
     """Georeferenced points (x, y, z include the offset) as a LasData of ``header``'s format."""
-    las = laspy.LasData(header, points=laspy.ScaleAwarePointRecord.zeros(len(points), header=header))
-    las.x, las.y, las.z = points["x"], points["y"], points["z"]
-    las.classification = _ASPRS_LOOKUP[points["classification"]]
-    las.return_number = np.minimum(points["return_number"], LAS_MAX_RETURNS)
-    las.number_of_returns = np.minimum(points["number_of_returns"], LAS_MAX_RETURNS)
-    las.intensity = np.clip(np.round(points["intensity"] / INTENSITY_SCALE), 0, 65535).astype(np.uint16)
-    las.gps_time = points["gps_time"]
-    las.scan_angle = np.round(points["scan_angle"] / 0.006).astype(np.int16)
-    las.label = points["classification"]
-    las.treeid = points["treeid"]
-    las.instance = points["instance"]
-    las.object_id = points["object_id"]
-    las.amplitude = points["intensity"]
-    if "species" in points.dtype.names:
-        las.species = points["species"]
-    return las
+    record = laspy.PackedPointRecord(las_records(header, points), header.point_format)
+    return laspy.LasData(header, points=record)
 
 
+def las_records(header: laspy.LasHeader, points: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    """Georeferenced points as the packed point records of ``header``'s format (its
+    ``point_format.dtype()``), computed as laspy computes them from scaled values; filled into ``out``
+    (rows of a larger array, say) when given.
+
+    :raises OverflowError: a coordinate that the header's scale and offset cannot hold.
+    """
+    out = np.empty(len(points), header.point_format.dtype()) if out is None else out
+    for axis, name, scale, offset in zip("xyz", "XYZ", header.scales, header.offsets):
+        coordinate = np.round((points[axis] - offset) / scale)      # laspy's ScaledArrayView arithmetic
+        if len(coordinate) and (coordinate.max() > _INT32.max or coordinate.min() < _INT32.min):
+            raise OverflowError("Values given do not fit after applying offset and scale")
+        out[name] = coordinate
+    out["intensity"] = np.clip(np.round(points["intensity"] / INTENSITY_SCALE), 0, 65535).astype(np.uint16)
+    out["bit_fields"] = (np.minimum(points["return_number"], LAS_MAX_RETURNS)
+                         | (np.minimum(points["number_of_returns"], LAS_MAX_RETURNS) << 4))
+    out["classification_flags"] = 0
+    out["classification"] = _ASPRS_LOOKUP[points["classification"]]
+    out["user_data"] = 0
+    out["scan_angle"] = np.round(points["scan_angle"] / 0.006).astype(np.int16)
+    out["point_source_id"] = 0
+    out["gps_time"] = points["gps_time"]
+    out["label"] = points["classification"]
+    out["treeid"] = points["treeid"]
+    out["instance"] = points["instance"]
+    out["object_id"] = points["object_id"]
+    out["amplitude"] = points["intensity"]
+    out["species"] = points["species"] if "species" in points.dtype.names else 0
+    return out
+
+
+_INT32 = np.iinfo(np.int32)
 _ASPRS_LOOKUP = np.zeros(256, np.uint8)
 for _code, _asprs in ASPRS_CODE.items():
     _ASPRS_LOOKUP[_code] = _asprs
 
+LAZ_CHUNK = 50_000   # points per LAZ chunk (lazrs' default); chunks are compressed independently
+
 
 class LasStream:
-    """A ``.las`` or ``.laz`` file written batch by batch (laspy updates the header on close)."""
+    """A ``.las`` or ``.laz`` file written batch by batch (laspy updates the header on close).
 
-    def __init__(self, path, offset, crs: str | None = None, compress: bool | None = None):
-        """:param compress: LAZ compression; by default when ``path`` ends in ``.laz``."""
+    As a context manager it is closed at the end of the block, or, after an error, closed without
+    raising again; once closed it refuses writes.
+
+    :param compress: LAZ compression; by default when ``path`` ends in ``.laz``.
+    :param threads: LAZ compression threads: 1 compresses serially in the writing thread, more
+        compresses ``threads`` chunks at a time with lazrs' parallel compressor (the same bytes).
+    """
+
+    def __init__(self, path, offset, crs: str | None = None, compress: bool | None = None, threads: int = 2):
         self.path = Path(path)
         self.header = las_header(offset, crs)
         compress = str(path).endswith(".laz") if compress is None else compress
-        self._writer = laspy.open(str(path), mode="w", header=self.header, do_compress=compress)
+        backend = laspy.LazBackend.LazrsParallel if threads > 1 else laspy.LazBackend.Lazrs
+        with self._io_errors():
+            self._writer = laspy.open(str(path), mode="w", header=self.header, do_compress=compress,
+                                      laz_backend=backend if compress else None)
+        # Whole chunks for every thread per call: lazrs compresses the full chunks of one call in parallel.
+        self._block = threads * LAZ_CHUNK if compress and threads > 1 else 0
+        self._pending: list[np.ndarray] = []
+        self._pending_count = 0
+        self.closed = False
+
+    def __enter__(self) -> LasStream:
+        return self
+
+    def __exit__(self, kind, error, traceback) -> None:
+        if kind is None:
+            self.close()
+        else:
+            self.abort()
 
     def write(self, points: np.ndarray) -> None:
+        """Write georeferenced points (x, y, z include the offset)."""
+        self._refuse_if_closed()
         if len(points):
-            with self._io_errors():
-                self._writer.write_points(las_points(self.header, points).points)
+            self.write_records(las_records(self.header, points))
+
+    def write_records(self, records: np.ndarray) -> None:
+        """Write packed point records (:func:`las_records`); a LAZ file compresses them once whole
+        chunks for every thread have gathered."""
+        self._refuse_if_closed()
+        if len(records):
+            self._pending.append(records)
+            self._pending_count += len(records)
+            if self._pending_count >= self._block:
+                self._flush()
+
+    def _flush(self) -> None:
+        if not self._pending:
+            return
+        records = self._pending[0] if len(self._pending) == 1 else np.concatenate(self._pending)
+        self._pending, self._pending_count = [], 0
+        with self._io_errors():
+            self._writer.write_points(laspy.PackedPointRecord(records, self._writer.header.point_format))
 
     def close(self) -> None:
+        """Write what is pending and finish the file (a second call does nothing)."""
+        if self.closed:
+            return
+        self.closed = True
+        self._flush()
         with self._io_errors():
             self._writer.close()
 
     def abort(self) -> None:
         """Close, unless closed already (laspy cannot close twice); any error of a broken file is moot
         (closing flushes, and on a full disk the LAZ compressor fails again)."""
-        try:
-            self._writer.close()
-        except Exception:   # noqa: BLE001
-            pass
+        self._pending, self.closed = [], True
+        if self._writer.done:
+            return
+        for finish in (self._writer.close, self._writer.dest.close):   # the file stays open if closing failed
+            try:
+                finish()
+            except Exception:   # noqa: BLE001
+                pass
+
+    def _refuse_if_closed(self) -> None:
+        if self.closed:
+            raise ValueError(f"{self.path}: write to a closed LAS stream")
 
     @contextlib.contextmanager
     def _io_errors(self):
@@ -174,6 +250,5 @@ class LasStream:
 def write_las(path, points: np.ndarray, offset, crs: str | None = None) -> None:
     """Write georeferenced points (x, y, z already include ``offset``) to ``.las`` or ``.laz`` at once."""
     with atomic_path(path) as tmp:
-        stream = LasStream(tmp, offset, crs, compress=str(path).endswith(".laz"))
-        stream.write(points)
-        stream.close()
+        with LasStream(tmp, offset, crs, compress=str(path).endswith(".laz")) as stream:
+            stream.write(points)
