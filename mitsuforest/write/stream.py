@@ -3,7 +3,7 @@
 Memory stays bounded by the batch size however many points a survey makes. Statistics (counts,
 classes, returns, spacing) and the quick-look rasters are accumulated batch by batch.
 
-A batch is cut into row ranges that the writer's threads (:mod:`.workers`) handle side by side: each
+A batch is cut into row ranges that the writer's threads (:mod:`mitsuforest.threads`) handle side by side: each
 tallies its statistics, georeferences its points, writes its PCD records at their own offset in the
 file and packs its LAS records into their own rows; the LAS records are then compressed in file
 order. The files are the same bytes whatever the number of threads.
@@ -21,7 +21,7 @@ from .las import LasStream, las_records
 from .pcd import COUNT_DIGITS, pcd_header
 from .profile import ReturnCounts
 from .quicklook import SideTile, TopView
-from .workers import Workers, row_ranges, writer_threads
+from ..threads import Workers, row_ranges, writer_threads
 
 SPACING_TILE = 5.0  # m, side of the tiles in which the mean nearest-neighbour spacing is measured
 
@@ -30,7 +30,7 @@ class PointWriter:
     """Receives local-frame points batch by batch (:meth:`add`) and writes georeferenced files.
 
     :param terrain: the plan's :class:`~mitsuforest.plan.terrain.Terrain`, for heights above the ground.
-    :param threads: the writer's threads (default: :func:`~.workers.writer_threads`, the cores this
+    :param threads: the writer's threads (default: :func:`~mitsuforest.threads.writer_threads`, the cores this
         process may use, or ``MITSUFOREST_WRITER_THREADS``); 1 writes in the calling thread alone.
     """
 
@@ -106,14 +106,21 @@ class PointWriter:
         for las, rows in zip(self._las, records):
             las_records(las.header, geo, rows[start:stop])
         first = points["return_number"] == 1
-        tiles = []
-        for x0, y0 in self._tiles:
-            sel = ((points["x"] >= x0) & (points["x"] < x0 + SPACING_TILE)
-                   & (points["y"] >= y0) & (points["y"] < y0 + SPACING_TILE))
-            tiles.append(np.column_stack([points["x"][sel], points["y"][sel], points["z"][sel]]))
         return (np.bincount(points["classification"], minlength=256),
                 np.bincount(points["number_of_returns"][first], minlength=256),
-                self.counts.tally(points), self.side.select(points), tiles)
+                self.counts.tally(points), self.side.select(points), self._in_tiles(points))
+
+    def _in_tiles(self, points: np.ndarray) -> list[np.ndarray]:
+        """(k, 3) x, y, z of the points in each spacing tile."""
+        x, y = points["x"].copy(), points["y"].copy()      # contiguous: four times faster to compare
+        tiles = []
+        for x0, y0 in self._tiles:
+            inside = (x >= x0) & (x < x0 + SPACING_TILE)
+            inside &= y >= y0
+            inside &= y < y0 + SPACING_TILE
+            rows = np.flatnonzero(inside)
+            tiles.append(np.column_stack([x[rows], y[rows], points["z"][rows]]))
+        return tiles
 
     def _pcd_dtype(self, dtype: np.dtype) -> np.dtype:
         """The PCD's point record: x, y, z as float32 (``F 4``, which every PCD reader, Open3D's legacy

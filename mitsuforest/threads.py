@@ -1,6 +1,7 @@
-"""The point writer's threads: how many, and a batch cut into row ranges that they encode side by side.
+"""Host threads for the numpy work on each batch of points: how many, and a batch cut into row ranges
+that they handle side by side (the scan's point array, the writer's encoding and statistics).
 
-numpy's copies, casts and arithmetic and the kernel's file writes release the GIL, so threads encode
+numpy's copies, casts and arithmetic and the kernel's file writes release the GIL, so threads handle
 the parts of one batch in parallel. Each part lands at its own rows or file offset, so the bytes
 written do not depend on the number of threads.
 """
@@ -10,15 +11,15 @@ from __future__ import annotations
 import os
 from concurrent.futures import Future, ThreadPoolExecutor, wait
 
-from ..errors import UserError
+from .errors import UserError
 
 THREADS_VARIABLE = "MITSUFOREST_WRITER_THREADS"
 MIN_ROWS = 32768   # the smallest part worth a task of its own
 
 
 def writer_threads() -> int:
-    """The writer's thread count: ``MITSUFOREST_WRITER_THREADS`` if set, else the cores this process
-    may run on.
+    """The thread count for the points' host work: ``MITSUFOREST_WRITER_THREADS`` if set, else the
+    cores this process may run on.
 
     :raises UserError: for a value that is not a whole number of at least 1.
     """
@@ -73,3 +74,14 @@ class Workers:
     def close(self) -> None:
         if self._pool is not None:
             self._pool.shutdown(wait=True)
+
+
+_shared: Workers | None = None
+
+
+def shared_workers() -> Workers:
+    """A process-wide :class:`Workers` of :func:`writer_threads` threads, made on first use."""
+    global _shared
+    if _shared is None:
+        _shared = Workers(writer_threads())
+    return _shared
