@@ -79,6 +79,14 @@ class Workers:
 _shared: Workers | None = None
 
 
+def _forget_shared() -> None:
+    global _shared
+    _shared = None   # a forked child has none of its parent's threads: it makes its own
+
+
+os.register_at_fork(after_in_child=_forget_shared)
+
+
 def shared_workers() -> Workers:
     """A process-wide :class:`Workers` of :func:`writer_threads` threads, made on first use."""
     global _shared

@@ -152,6 +152,7 @@ for _code, _asprs in ASPRS_CODE.items():
     _ASPRS_LOOKUP[_code] = _asprs
 
 LAZ_CHUNK = 50_000   # points per LAZ chunk (lazrs' default); chunks are compressed independently
+MAX_CHUNKS_PER_CALL = 16   # LAZ records held back for one call: at most 37 MB
 
 
 class LasStream:
@@ -174,7 +175,7 @@ class LasStream:
             self._writer = laspy.open(str(path), mode="w", header=self.header, do_compress=compress,
                                       laz_backend=backend if compress else None)
         # Whole chunks for every thread per call: lazrs compresses the full chunks of one call in parallel.
-        self._block = threads * LAZ_CHUNK if compress and threads > 1 else 0
+        self._block = min(threads, MAX_CHUNKS_PER_CALL) * LAZ_CHUNK if compress and threads > 1 else 0
         self._pending: list[np.ndarray] = []
         self._pending_count = 0
         self.closed = False
