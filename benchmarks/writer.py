@@ -1,6 +1,7 @@
 """The point writer alone (PCD, LAZ, statistics), on synthetic scan lines, with 1, 2, 4... threads.
 
-Needs no Mitsuba: the points are a leg's worth of first returns along a sweeping scan line over
+Needs neither Mitsuba nor the tree libraries (numpy, laspy with lazrs, scipy, Pillow, matplotlib and
+PyYAML do): the points are a leg's worth of first returns along a sweeping scan line over
 the demo's kind of plot, every field varied. Each thread count writes the same points; the files'
 SHA-256 must agree across thread counts (the writer's bytes do not depend on its threads), and the
 script stops if they do not. CPU time counts every thread of the process.
@@ -18,16 +19,23 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from mitsuforest.config import load_scene  # noqa: E402
-from mitsuforest.scan import POINT_DTYPE  # noqa: E402
 from mitsuforest.threads import writer_threads  # noqa: E402
 from mitsuforest.write import PointWriter, Staging  # noqa: E402
+
+# scan/tracer.py's POINT_DTYPE, spelled out: importing the scan package needs Mitsuba and the tree libraries.
+POINT_DTYPE = np.dtype([
+    ("treeid", "<u2"), ("x", "<f8"), ("y", "<f8"), ("z", "<f8"), ("classification", "u1"),
+    ("instance", "<u4"), ("object_id", "<u4"), ("number_of_returns", "u1"), ("return_number", "u1"),
+    ("intensity", "<f4"), ("gps_time", "<f8"), ("scan_angle", "<f4"), ("pulse_id", "<u8"), ("range", "<f4"),
+    ("species", "u1"),
+])
 
 
 def scan_lines(count: int, batch: int, side: float = 100.0, seed: int = 0) -> list[np.ndarray]:
@@ -78,8 +86,9 @@ def main(argv=None):
     p.add_argument("--dir", type=Path, help="where to write (default: the system's temporary folder)")
     args = p.parse_args(argv)
     threads = args.threads or sorted({1, writer_threads()})
-    scene = load_scene(ROOT / "scenes" / "demo.yaml").with_({"output.formats": args.formats,
-                                                             "area.size": [100.0, 100.0]})
+    scene = SimpleNamespace(name="writer", seed=1, area=SimpleNamespace(size=(100.0, 100.0)),   # what the writer reads
+                            origin=SimpleNamespace(offset=(0.0, 0.0, 0.0), crs=None),
+                            output=SimpleNamespace(formats=args.formats))
     batches = scan_lines(args.points, args.batch)
     cpu_name = next((line.split(":", 1)[1].strip() for line in open("/proc/cpuinfo") if line.startswith("model name")),
                     "?") if os.path.exists("/proc/cpuinfo") else "?"
