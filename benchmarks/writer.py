@@ -8,6 +8,7 @@ script stops if they do not. CPU time counts every thread of the process.
 
     python benchmarks/writer.py                                  # 4 M points, 1 thread and this machine's cores
     python benchmarks/writer.py --threads 1 2 4 8 16 --dir /dev/shm --repeat 3
+    PYTHONPATH=../base python benchmarks/writer.py       # an older commit's writer (one thread), for comparison
 """
 
 from __future__ import annotations
@@ -24,10 +25,18 @@ from types import SimpleNamespace
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+if not os.environ.get("PYTHONPATH"):     # else the writer of the checkout PYTHONPATH names
+    sys.path.insert(0, str(ROOT))
 
-from mitsuforest.threads import writer_threads  # noqa: E402
 from mitsuforest.write import PointWriter, Staging  # noqa: E402
+
+try:
+    from mitsuforest.threads import writer_threads
+    THREADED = True
+except ImportError:      # a commit from before the writer's threads (PYTHONPATH=that checkout), for comparison
+    def writer_threads() -> int:
+        return len(os.sched_getaffinity(0))
+    THREADED = False
 
 # scan/tracer.py's POINT_DTYPE, spelled out: importing the scan package needs Mitsuba and the tree libraries.
 POINT_DTYPE = np.dtype([
@@ -66,7 +75,7 @@ def scan_lines(count: int, batch: int, side: float = 100.0, seed: int = 0) -> li
 def write_once(batches, scene, threads: int, folder: Path) -> tuple[float, float, dict]:
     staging = Staging(folder, scene.name)
     start, cpu = time.perf_counter(), time.process_time()
-    writer = PointWriter(staging, scene, threads=threads)
+    writer = PointWriter(staging, scene, threads=threads) if THREADED else PointWriter(staging, scene)
     for batch in batches:
         writer.add(batch)
     writer.close()
@@ -85,7 +94,7 @@ def main(argv=None):
     p.add_argument("--repeat", type=int, default=2)
     p.add_argument("--dir", type=Path, help="where to write (default: the system's temporary folder)")
     args = p.parse_args(argv)
-    threads = args.threads or sorted({1, writer_threads()})
+    threads = (args.threads or sorted({1, writer_threads()})) if THREADED else [1]
     scene = SimpleNamespace(name="writer", seed=1, area=SimpleNamespace(size=(100.0, 100.0)),   # what the writer reads
                             origin=SimpleNamespace(offset=(0.0, 0.0, 0.0), crs=None),
                             output=SimpleNamespace(formats=args.formats))
@@ -94,6 +103,8 @@ def main(argv=None):
                     "?") if os.path.exists("/proc/cpuinfo") else "?"
     print(f"{args.points:,} points in batches of {args.batch:,}, {' '.join(args.formats)}; {cpu_name}, "
           f"{len(os.sched_getaffinity(0))} cores")
+    if not THREADED:
+        print(f"  the writer of {sys.modules['mitsuforest'].__file__}: one thread, LAZ by laspy's default backend")
     print(f"  {'threads':>7s} {'wall':>8s} {'CPU':>8s} {'M points/s':>11s}  files")
     reference = None
     with tempfile.TemporaryDirectory(dir=args.dir) as tmp:
