@@ -31,7 +31,8 @@ def _batches(seed=3) -> list[np.ndarray]:
         p["x"], p["y"] = rng.uniform(-1, 21, n), rng.uniform(-1, 21, n)
         p["z"] = rng.uniform(-0.5, 30, n)
         p["classification"] = rng.integers(1, 9, n)
-        p["treeid"], p["instance"], p["object_id"] = rng.integers(0, 12, n), rng.integers(0, 50, n), rng.integers(0, 9e5, n)
+        p["treeid"], p["instance"] = rng.integers(0, 12, n), rng.integers(0, 50, n)
+        p["object_id"] = rng.integers(0, 9e5, n)
         p["number_of_returns"] = rng.integers(1, 20, n)
         p["return_number"] = np.minimum(rng.integers(1, 20, n), p["number_of_returns"])
         p["intensity"] = rng.uniform(0, 0.08, n).astype(np.float32)
@@ -152,3 +153,12 @@ def test_row_ranges_cover_the_rows_once():
     assert len(ranges) == 7 and ranges[0][0] == 0 and ranges[-1][1] == 1_000_003
     assert all(a[1] == b[0] for a, b in zip(ranges, ranges[1:]))
     assert max(b - a for a, b in ranges) - min(b - a for a, b in ranges) <= 1
+
+
+def test_a_bad_thread_count_is_refused_before_any_work(tmp_path, monkeypatch, capsys):
+    from mitsuforest.cli import main
+    monkeypatch.setenv(THREADS_VARIABLE, "many")
+    code = main(["render", str(ROOT / "scenes" / "demo.yaml"), "-o", str(tmp_path / "out")])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and err == f"mitsuforest: {THREADS_VARIABLE}: must be a whole number >= 1, got 'many'"
+    assert not (tmp_path / "out").exists()

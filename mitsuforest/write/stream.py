@@ -3,10 +3,10 @@
 Memory stays bounded by the batch size however many points a survey makes. Statistics (counts,
 classes, returns, spacing) and the quick-look rasters are accumulated batch by batch.
 
-A batch is cut into row ranges that the writer's threads (:mod:`mitsuforest.threads`) handle side by side: each
-tallies its statistics, georeferences its points, writes its PCD records at their own offset in the
-file and packs its LAS records into their own rows; the LAS records are then compressed in file
-order. The files are the same bytes whatever the number of threads.
+A batch is cut into row ranges that the writer's threads (:mod:`mitsuforest.threads`) handle side
+by side: each tallies its statistics, georeferences its points, writes its PCD records at their own
+offset in the file and packs its LAS records into their own rows; the LAS records are then
+compressed in file order. The files are the same bytes whatever the number of threads.
 """
 
 from __future__ import annotations
@@ -16,12 +16,12 @@ import os
 
 import numpy as np
 
+from ..threads import Workers, row_ranges, writer_threads
 from .atomic import naming_errors
 from .las import LasStream, las_records
 from .pcd import COUNT_DIGITS, pcd_header
 from .profile import ReturnCounts
 from .quicklook import SideTile, TopView
-from ..threads import Workers, row_ranges, writer_threads
 
 SPACING_TILE = 5.0  # m, side of the tiles in which the mean nearest-neighbour spacing is measured
 
@@ -30,8 +30,9 @@ class PointWriter:
     """Receives local-frame points batch by batch (:meth:`add`) and writes georeferenced files.
 
     :param terrain: the plan's :class:`~mitsuforest.plan.terrain.Terrain`, for heights above the ground.
-    :param threads: the writer's threads (default: :func:`~mitsuforest.threads.writer_threads`, the cores this
-        process may use, or ``MITSUFOREST_WRITER_THREADS``); 1 writes in the calling thread alone.
+    :param threads: the writer's threads (default: :func:`~mitsuforest.threads.writer_threads`, the
+        cores this process may use, or ``MITSUFOREST_WRITER_THREADS``); 1 writes in the calling thread
+        alone.
     """
 
     def __init__(self, staging, scene: dict, keep: bool = False, terrain=None, threads: int | None = None):
