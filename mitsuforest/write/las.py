@@ -176,8 +176,8 @@ class LasStream:
                                       laz_backend=backend if compress else None)
         # Whole chunks for every thread per call: lazrs compresses the full chunks of one call in parallel.
         self._block = min(threads, MAX_CHUNKS_PER_CALL) * LAZ_CHUNK if compress and threads > 1 else 0
-        self._pending: list[np.ndarray] = []
-        self._pending_count = 0
+        self._buffer = np.empty(0, self.header.point_format.dtype())    # records not yet written, then room
+        self._held = 0
         self.closed = False
 
     def __enter__(self) -> LasStream:
@@ -191,41 +191,58 @@ class LasStream:
 
     def write(self, points: np.ndarray) -> None:
         """Write georeferenced points (x, y, z include the offset)."""
-        self._refuse_if_closed()
-        if len(points):
-            self.write_records(las_records(self.header, points))
+        las_records(self.header, points, self.reserve(len(points)))
+        self.commit(len(points))
 
     def write_records(self, records: np.ndarray) -> None:
-        """Write packed point records (:func:`las_records`); a LAZ file compresses them once whole
-        chunks for every thread have gathered."""
-        self._refuse_if_closed()
-        if len(records):
-            self._pending.append(records)
-            self._pending_count += len(records)
-            if self._pending_count >= self._block:
-                self._flush()
+        """Write packed point records (:func:`las_records`)."""
+        self.reserve(len(records))[:] = records
+        self.commit(len(records))
 
-    def _flush(self) -> None:
-        if not self._pending:
-            return
-        records = self._pending[0] if len(self._pending) == 1 else np.concatenate(self._pending)
-        self._pending, self._pending_count = [], 0
+    def reserve(self, count: int) -> np.ndarray:
+        """Rows for the next ``count`` records, for the caller to fill (threads may fill parts of it)
+        before :meth:`commit`: a buffer reused from batch to batch."""
+        self._refuse_if_closed()
+        need = self._held + count
+        if len(self._buffer) < need:
+            grown = np.empty(max(need, self._block + count), self._buffer.dtype)
+            grown[:self._held] = self._buffer[:self._held]
+            self._buffer = grown
+        return self._buffer[self._held:need]
+
+    def commit(self, count: int) -> None:
+        """Write the ``count`` records filled in since :meth:`reserve`. A LAZ file compressed on
+        several threads takes them once a whole chunk for every thread has gathered, and whole chunks
+        only: lazrs compresses the full chunks of a call in parallel, but would complete a chunk left
+        over from the call before on the calling thread alone."""
+        self._refuse_if_closed()
+        self._held += count
+        if self._held and self._held >= self._block:
+            self._write_held(whole_chunks=self._block > 0)
+
+    def _write_held(self, whole_chunks: bool = False) -> None:
+        ready = self._held - self._held % LAZ_CHUNK if whole_chunks else self._held
         with self._io_errors():
-            self._writer.write_points(laspy.PackedPointRecord(records, self._writer.header.point_format))
+            self._writer.write_points(laspy.PackedPointRecord(self._buffer[:ready], self._writer.header.point_format))
+        rest = self._held - ready                     # under one chunk, so it does not overlap its new place
+        self._buffer[:rest] = self._buffer[ready:self._held]
+        self._held = rest
 
     def close(self) -> None:
-        """Write what is pending and finish the file (a second call does nothing)."""
+        """Write what is held back and finish the file (a second call does nothing)."""
         if self.closed:
             return
         self.closed = True
-        self._flush()
+        if self._held:
+            self._write_held()
+        self._buffer = self._buffer[:0]
         with self._io_errors():
             self._writer.close()
 
     def abort(self) -> None:
         """Close, unless closed already (laspy cannot close twice); any error of a broken file is moot
         (closing flushes, and on a full disk the LAZ compressor fails again)."""
-        self._pending, self.closed = [], True
+        self._buffer, self._held, self.closed = self._buffer[:0], 0, True
         if self._writer.done:
             return
         for finish in (self._writer.close, self._writer.dest.close):   # the file stays open if closing failed

@@ -71,14 +71,14 @@ class PointWriter:
         self.dtype = points.dtype
         if len(points) == 0:
             return
-        records = [np.empty(len(points), las.header.point_format.dtype()) for las in self._las]
+        records = [las.reserve(len(points)) for las in self._las]
         tasks = [self._workers.submit(self.top.add, points)]       # in order: a pixel keeps its last highest point
         try:
             for start, stop in row_ranges(len(points), self.threads):
                 tasks.append(self._workers.submit(self._part, points, start, stop, records))
             tallies = self._workers.results(tasks)[1:]
-            for las, rows in zip(self._las, records):
-                las.write_records(rows)
+            for las in self._las:
+                las.commit(len(points))
         finally:
             Workers.finish(tasks)          # none is left writing when an error is raised
         for classes, returns, counts, side, tiles in tallies:
