@@ -13,7 +13,7 @@ from mitsuforest.write import PointWriter, Staging, read_pcd
 from mitsuforest.write.las import ASPRS_CODE, COORDINATE_SCALE, INTENSITY_SCALE, LasStream, las_header, las_records
 
 OFFSET = (500000.123, 6100000.456, 12.5)
-BATCHES = (70_000, 1, 0, 123_457, 40_000)       # parts of several sizes, an empty batch, a batch of one
+BATCHES = (70_000, 1, 0, 123_457, 40_000, 90_001)   # parts of several sizes, an empty batch, a batch of one
 
 
 def _scene(offset, formats=("pcd", "las", "laz")):
@@ -53,11 +53,13 @@ def _write(tmp_path, name, scene, threads) -> tuple[dict, PointWriter]:
     return {p.suffix: p.read_bytes() for p in staging.path.iterdir()}, writer
 
 
-@pytest.mark.parametrize("offset", [(0.0, 0.0, 0.0), OFFSET])
-def test_one_thread_and_many_write_the_same_bytes_and_statistics(tmp_path, offset):
+@pytest.mark.parametrize("offset, threads", [((0.0, 0.0, 0.0), 4), (OFFSET, 2), (OFFSET, 4)])
+def test_one_thread_and_many_write_the_same_bytes_and_statistics(tmp_path, offset, threads):
+    """With 2 threads the LAZ stream hands lazrs 150,000 points twice, each time holding back the
+    rest of a chunk; with 4, 200,000 once."""
     scene = _scene(offset)
     serial, one = _write(tmp_path, "one", scene, threads=1)
-    parallel, many = _write(tmp_path, "many", scene, threads=4)
+    parallel, many = _write(tmp_path, "many", scene, threads=threads)
     assert set(serial) == {".pcd", ".las", ".laz"}
     assert all(serial[k] == parallel[k] for k in serial)
     assert one.statistics() == many.statistics()
