@@ -7,6 +7,7 @@ SHA-256 must agree across thread counts (the writer's bytes do not depend on its
 script stops if they do not. CPU time counts every thread of the process.
 
     python benchmarks/writer.py                                  # 4 M points, 1 thread and this machine's cores
+    python benchmarks/writer.py --quick                          # 400,000 points, 1 and 2 threads (CI)
     python benchmarks/writer.py --threads 1 2 4 8 16 --dir /dev/shm --repeat 3
     PYTHONPATH=../base python benchmarks/writer.py       # an older commit's writer (one thread), for comparison
 """
@@ -93,7 +94,10 @@ def main(argv=None):
     p.add_argument("--formats", nargs="+", default=["pcd", "laz"])
     p.add_argument("--repeat", type=int, default=2)
     p.add_argument("--dir", type=Path, help="where to write (default: the system's temporary folder)")
+    p.add_argument("--quick", action="store_true", help="400,000 points, 1 and 2 threads, once (CI)")
     args = p.parse_args(argv)
+    if args.quick:
+        args.points, args.threads, args.repeat = 400_000, [1, 2], 1
     threads = (args.threads or sorted({1, writer_threads()})) if THREADED else [1]
     scene = SimpleNamespace(name="writer", seed=1, area=SimpleNamespace(size=(100.0, 100.0)),   # what the writer reads
                             origin=SimpleNamespace(offset=(0.0, 0.0, 0.0), crs=None),
