@@ -163,7 +163,8 @@ class LasStream:
 
     :param compress: LAZ compression; by default when ``path`` ends in ``.laz``.
     :param threads: LAZ compression threads: 1 compresses serially in the writing thread, more
-        compresses ``threads`` chunks at a time with lazrs' parallel compressor (the same bytes).
+        compresses ``threads`` chunks (at most 16) at a time with lazrs' parallel compressor (the
+        same bytes).
     """
 
     def __init__(self, path, offset, crs: str | None = None, compress: bool | None = None, threads: int = 2):
@@ -222,8 +223,9 @@ class LasStream:
 
     def _write_held(self, whole_chunks: bool = False) -> None:
         ready = self._held - self._held % LAZ_CHUNK if whole_chunks else self._held
+        records = laspy.PackedPointRecord(self._buffer[:ready], self._writer.header.point_format)
         with self._io_errors():
-            self._writer.write_points(laspy.PackedPointRecord(self._buffer[:ready], self._writer.header.point_format))
+            self._writer.write_points(records)
         rest = self._held - ready                     # under one chunk, so it does not overlap its new place
         self._buffer[:rest] = self._buffer[ready:self._held]
         self._held = rest
@@ -235,14 +237,14 @@ class LasStream:
         self.closed = True
         if self._held:
             self._write_held()
-        self._buffer = self._buffer[:0]
+        self._buffer = self._buffer[:0].copy()     # lets the buffer go
         with self._io_errors():
             self._writer.close()
 
     def abort(self) -> None:
         """Close, unless closed already (laspy cannot close twice); any error of a broken file is moot
         (closing flushes, and on a full disk the LAZ compressor fails again)."""
-        self._buffer, self._held, self.closed = self._buffer[:0], 0, True
+        self._buffer, self._held, self.closed = self._buffer[:0].copy(), 0, True
         if self._writer.done:
             return
         for finish in (self._writer.close, self._writer.dest.close):   # the file stays open if closing failed
