@@ -2,9 +2,10 @@
 
 Runs one leg of a scene twice (the first compiles the kernels) and reports the second: pulse
 generation, tracing and labelling the sub-rays, the waveform, the echo records (compaction and the
-copy back to numpy), the point array, and the writer (PCD and LAS into a temporary folder). Each
-stage ends with ``dr.sync_thread()`` so that its time is its own; the total is therefore a little
-above a render's, where stages overlap.
+copy back to numpy), the point array, and the writer (PCD and LAS into a temporary folder, closing
+included). Each stage ends with ``dr.sync_thread()`` so that its time is its own; the total is
+therefore a little above a render's, where stages overlap. CPU time counts every thread of the
+process, the writer's own threads included (``MITSUFOREST_WRITER_THREADS`` sets how many).
 
     python benchmarks/profile_leg.py                                  # open scene, leg 5, the scene's settings
     python benchmarks/profile_leg.py --samples 19 --pattern stratified --variant cuda_ad_mono --batch 1000000
@@ -67,6 +68,7 @@ def profile(scene, leg_index: int, batch: int, folder: Path) -> tuple[dict, int,
         watch.cpu.clear()
         writer = PointWriter(Staging(folder / str(run), scene.name), scene)
         add = watch.wrap("writer (PCD, LAS, statistics)", writer.add)
+        close = watch.wrap("writer (PCD, LAS, statistics)", writer.close)   # LAZ's last chunk, headers
         start, cpu = time.perf_counter(), time.process_time()
         with variant_scope(scan_scene.variant):
             for first in range(0, total, batch):
@@ -74,7 +76,7 @@ def profile(scene, leg_index: int, batch: int, folder: Path) -> tuple[dict, int,
                                                min(batch, total - first))
                 add(pts)
                 points += len(pts) if run else 0
-        writer.close()
+        close()
         watch.seconds["total"] = time.perf_counter() - start
         watch.cpu["total"] = time.process_time() - cpu
     return dict(watch.seconds), dict(watch.cpu), total, points

@@ -24,6 +24,7 @@ from .plan import Plan, make_plan
 from .realism import realism_table
 from .scan import scan
 from .scene import build_scene, scene_variant
+from .threads import writer_threads
 from .trees import build_models
 from .trees.imported import import_report
 from .write import (PointWriter, Staging, check_output_folder, earlier_results, output_lock, write_manifest,
@@ -66,6 +67,7 @@ def render(scene, *, output_dir=None, seed=None, variant=None, overwrite=False, 
     name, out = scene.name, Path(scene.output.dir)
     if scan_source is None:
         scene_variant(scene)    # before any work, naming the scene file
+    writer_threads()            # likewise a bad MITSUFOREST_WRITER_THREADS
     if write:
         check_output_folder(out)
         _refuse_existing(out, name, overwrite)

@@ -224,6 +224,13 @@ def test_pictures_benchmark_quick():
 
 
 @pytest.mark.slow
+def test_writer_benchmark_quick():
+    stdout = _run([str(ROOT / "benchmarks" / "writer.py"), "--quick"], ROOT)
+    rows = [line.split() for line in stdout.splitlines() if line.split() and line.split()[0].isdigit()]
+    assert [r[0] for r in rows] == ["1", "2"] and rows[0][-2:] == rows[1][-2:], stdout   # same hashes
+
+
+@pytest.mark.slow
 def test_readme_python_block_runs():
     """README's "From Python" block, run as written (from the repository root), gives the values its
     comments state and points with labels."""

@@ -27,8 +27,11 @@ def _quiet(*_):
 
 
 def set_threads(threads: int | None) -> None:
-    """Limit this worker process's Dr.Jit thread pool (LocalCluster: cores / workers)."""
+    """Limit this worker process's Dr.Jit thread pool (LocalCluster: cores / workers), and its point
+    writer's threads unless ``MITSUFOREST_WRITER_THREADS`` says otherwise."""
     if threads:
+        from ..threads import THREADS_VARIABLE
+        os.environ.setdefault(THREADS_VARIABLE, str(threads))
         import drjit as dr
         if dr.thread_count() != threads:
             dr.set_thread_count(threads)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..scene.variant import variant_scope
+from ..threads import row_ranges, shared_workers
 from .beam import beam_cells, beam_pattern
 from .echo_kernel import EchoKernel
 from .pulses import reaching_pulses, upload_pulses
@@ -122,12 +123,21 @@ class PulseTracer:
 
     @staticmethod
     def _points(echoes: dict, table) -> np.ndarray:
+        """The echoes as one POINT_DTYPE array, its row ranges filled by the host threads at once."""
         out = np.zeros(len(echoes["pulse_id"]), POINT_DTYPE)
-        for key in ("treeid", "x", "y", "z", "classification", "instance", "object_id", "number_of_returns",
-                    "return_number", "gps_time", "pulse_id", "range"):
-            out[key] = echoes[key]
-        out["intensity"] = echoes["amplitude"]
-        out["scan_angle"] = np.rad2deg(echoes["scan_angle"])
-        out["species"] = table.species(out["instance"])
-        out["reflectance"] = reflectance_db(out["intensity"], out["range"])
+        workers = shared_workers()
+        workers.results([workers.submit(_fill_points, out, echoes, table, start, stop)
+                         for start, stop in row_ranges(len(out), workers.threads)])
         return out
+
+
+def _fill_points(out: np.ndarray, echoes: dict, table, start: int, stop: int) -> None:
+    """Rows ``start:stop`` of :meth:`PulseTracer._points`."""
+    rows = out[start:stop]
+    for key in ("treeid", "x", "y", "z", "classification", "instance", "object_id", "number_of_returns",
+                "return_number", "gps_time", "pulse_id", "range"):
+        rows[key] = echoes[key][start:stop]
+    rows["intensity"] = echoes["amplitude"][start:stop]
+    np.rad2deg(echoes["scan_angle"][start:stop], out=rows["scan_angle"])
+    rows["species"] = table.species(echoes["instance"][start:stop])
+    rows["reflectance"] = reflectance_db(rows["intensity"], rows["range"])

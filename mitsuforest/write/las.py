@@ -137,26 +137,44 @@ def _without_extra_statistics(header: laspy.LasHeader) -> None:
 def las_points(header: laspy.LasHeader, points: np.ndarray, intensity: IntensityMapping | None = None) -> laspy.LasData:
     """Georeferenced points (x, y, z include the offset) as a LasData of ``header``'s format, their
     intensity in counts by the sensor's ``intensity`` mapping (by default amplitude × 1e6)."""
-    las = laspy.LasData(header, points=laspy.ScaleAwarePointRecord.zeros(len(points), header=header))
-    las.x, las.y, las.z = points["x"], points["y"], points["z"]
-    las.classification = _ASPRS_LOOKUP[points["classification"]]
-    las.return_number = np.minimum(points["return_number"], LAS_MAX_RETURNS)
-    las.number_of_returns = np.minimum(points["number_of_returns"], LAS_MAX_RETURNS)
+    record = laspy.PackedPointRecord(las_records(header, points, intensity=intensity), header.point_format)
+    return laspy.LasData(header, points=record)
+
+
+def las_records(header: laspy.LasHeader, points: np.ndarray, out: np.ndarray | None = None,
+                intensity: IntensityMapping | None = None) -> np.ndarray:
+    """Georeferenced points as the packed point records of ``header``'s format (its
+    ``point_format.dtype()``), computed as laspy computes them from scaled values, their intensity in
+    counts by the sensor's ``intensity`` mapping (by default amplitude × 1e6); filled into ``out``
+    (rows of a larger array, say) when given.
+
+    :raises OverflowError: a coordinate that the header's scale and offset cannot hold.
+    """
+    out = np.empty(len(points), header.point_format.dtype()) if out is None else out
+    for axis, name, scale, offset in zip("xyz", "XYZ", header.scales, header.offsets):
+        coordinate = np.round((points[axis] - offset) / scale)      # laspy's ScaledArrayView arithmetic
+        if len(coordinate) and (coordinate.max() > _INT32.max or coordinate.min() < _INT32.min):
+            raise OverflowError("Values given do not fit after applying offset and scale")
+        out[name] = coordinate
+    names = points.dtype.names
     reflectance = _reflectance(points)
-    las.intensity = intensity_counts(points["intensity"], reflectance, intensity or IntensityMapping())
-    las.gps_time = points["gps_time"]
-    las.scan_angle = np.round(points["scan_angle"] / 0.006).astype(np.int16)
-    las.label = points["classification"]
-    las.treeid = points["treeid"]
-    las.instance = points["instance"]
-    las.object_id = points["object_id"]
-    las.amplitude = points["intensity"]
-    if "species" in points.dtype.names:
-        las.species = points["species"]
-    las.reflectance = reflectance
-    if "point_source_id" in points.dtype.names:
-        las.point_source_id = points["point_source_id"]
-    return las
+    out["intensity"] = intensity_counts(points["intensity"], reflectance, intensity or IntensityMapping())
+    out["bit_fields"] = (np.minimum(points["return_number"], LAS_MAX_RETURNS)
+                         | (np.minimum(points["number_of_returns"], LAS_MAX_RETURNS) << 4))
+    out["classification_flags"] = 0
+    out["classification"] = _ASPRS_LOOKUP[points["classification"]]
+    out["user_data"] = 0
+    out["scan_angle"] = np.round(points["scan_angle"] / 0.006).astype(np.int16)
+    out["point_source_id"] = points["point_source_id"] if "point_source_id" in names else 0
+    out["gps_time"] = points["gps_time"]
+    out["label"] = points["classification"]
+    out["treeid"] = points["treeid"]
+    out["instance"] = points["instance"]
+    out["object_id"] = points["object_id"]
+    out["amplitude"] = points["intensity"]
+    out["species"] = points["species"] if "species" in names else 0
+    out["reflectance"] = reflectance
+    return out
 
 
 def _reflectance(points: np.ndarray) -> np.ndarray:
@@ -169,40 +187,119 @@ def _reflectance(points: np.ndarray) -> np.ndarray:
     return np.full(len(points), np.nan, np.float32)
 
 
+_INT32 = np.iinfo(np.int32)
 _ASPRS_LOOKUP = np.zeros(256, np.uint8)
 for _code, _asprs in ASPRS_CODE.items():
     _ASPRS_LOOKUP[_code] = _asprs
 
+LAZ_CHUNK = 50_000   # points per LAZ chunk (lazrs' default); chunks are compressed independently
+MAX_CHUNKS_PER_CALL = 16   # LAZ records held back for one call: at most 37 MB
+
 
 class LasStream:
-    """A ``.las`` or ``.laz`` file written batch by batch (laspy updates the header on close)."""
+    """A ``.las`` or ``.laz`` file written batch by batch (laspy updates the header on close).
 
-    def __init__(self, path, offset, crs: str | None = None, compress: bool | None = None,
+    As a context manager it is closed at the end of the block, or, after an error, closed without
+    raising again; once closed it refuses writes.
+
+    :param compress: LAZ compression; by default when ``path`` ends in ``.laz``.
+    :param threads: LAZ compression threads: 1 compresses serially in the writing thread, more
+        compresses ``threads`` chunks (at most 16) at a time with lazrs' parallel compressor (the
+        same bytes).
+    :param intensity: the sensor's intensity mapping (by default amplitude × 1e6).
+    """
+
+    def __init__(self, path, offset, crs: str | None = None, compress: bool | None = None, threads: int = 2,
                  intensity: IntensityMapping | None = None):
-        """:param compress: LAZ compression; by default when ``path`` ends in ``.laz``.
-        :param intensity: the sensor's intensity mapping (by default amplitude × 1e6)."""
         self.path = Path(path)
         self.intensity = intensity
         self.header = las_header(offset, crs, intensity)
         compress = str(path).endswith(".laz") if compress is None else compress
-        self._writer = laspy.open(str(path), mode="w", header=self.header, do_compress=compress)
+        backend = laspy.LazBackend.LazrsParallel if threads > 1 else laspy.LazBackend.Lazrs
+        with self._io_errors():
+            self._writer = laspy.open(str(path), mode="w", header=self.header, do_compress=compress,
+                                      laz_backend=backend if compress else None)
+        # Whole chunks for every thread per call: lazrs compresses the full chunks of one call in parallel.
+        self._block = min(threads, MAX_CHUNKS_PER_CALL) * LAZ_CHUNK if compress and threads > 1 else 0
+        self._buffer = np.empty(0, self.header.point_format.dtype())    # records not yet written, then room
+        self._held = 0
+        self.closed = False
+
+    def __enter__(self) -> LasStream:
+        return self
+
+    def __exit__(self, kind, error, traceback) -> None:
+        if kind is None:
+            self.close()
+        else:
+            self.abort()
 
     def write(self, points: np.ndarray) -> None:
-        if len(points):
-            with self._io_errors():
-                self._writer.write_points(las_points(self.header, points, self.intensity).points)
+        """Write georeferenced points (x, y, z include the offset)."""
+        las_records(self.header, points, self.reserve(len(points)), self.intensity)
+        self.commit(len(points))
+
+    def write_records(self, records: np.ndarray) -> None:
+        """Write packed point records (:func:`las_records`)."""
+        self.reserve(len(records))[:] = records
+        self.commit(len(records))
+
+    def reserve(self, count: int) -> np.ndarray:
+        """Rows for the next ``count`` records, for the caller to fill (threads may fill parts of it)
+        before :meth:`commit`: a buffer reused from batch to batch."""
+        self._refuse_if_closed()
+        need = self._held + count
+        if len(self._buffer) < need:
+            grown = np.empty(max(need, self._block + count), self._buffer.dtype)
+            grown[:self._held] = self._buffer[:self._held]
+            self._buffer = grown
+        return self._buffer[self._held:need]
+
+    def commit(self, count: int) -> None:
+        """Write the ``count`` records filled in since :meth:`reserve`. A LAZ file compressed on
+        several threads takes them once a whole chunk for every thread has gathered, and whole chunks
+        only: lazrs compresses the full chunks of a call in parallel, but would complete a chunk left
+        over from the call before on the calling thread alone."""
+        self._refuse_if_closed()
+        self._held += count
+        if self._held and self._held >= self._block:
+            self._write_held(whole_chunks=self._block > 0)
+
+    def _write_held(self, whole_chunks: bool = False) -> None:
+        ready = self._held - self._held % LAZ_CHUNK if whole_chunks else self._held
+        records = laspy.PackedPointRecord(self._buffer[:ready], self._writer.header.point_format)
+        with self._io_errors():
+            self._writer.write_points(records)
+        rest = self._held - ready                     # under one chunk, so it does not overlap its new place
+        self._buffer[:rest] = self._buffer[ready:self._held]
+        self._held = rest
 
     def close(self) -> None:
+        """Write what is held back and finish the file (a second call does nothing)."""
+        if self.closed:
+            return
+        self.closed = True
+        if self._held:
+            self._write_held()
+        self._buffer = self._buffer[:0].copy()     # lets the buffer go
         with self._io_errors():
             self._writer.close()
 
     def abort(self) -> None:
         """Close, unless closed already (laspy cannot close twice); any error of a broken file is moot
         (closing flushes, and on a full disk the LAZ compressor fails again)."""
-        try:
-            self._writer.close()
-        except Exception:   # noqa: BLE001
-            pass
+        self._buffer, self._held, self.closed = self._buffer[:0].copy(), 0, True
+        if self._writer.done:
+            return
+        for finish in (self._writer.close, self._writer.dest.close):   # the file stays open if closing failed
+            try:
+                finish()
+            except Exception:   # noqa: BLE001
+                pass
+
+    def _refuse_if_closed(self) -> None:
+        if self.closed:
+            raise ValueError(f"{self.path}: write to a closed LAS stream")
 
     @contextlib.contextmanager
     def _io_errors(self):
@@ -217,6 +314,6 @@ class LasStream:
 def write_las(path, points: np.ndarray, offset, crs: str | None = None, intensity: IntensityMapping | None = None) -> None:
     """Write georeferenced points (x, y, z already include ``offset``) to ``.las`` or ``.laz`` at once."""
     with atomic_path(path) as tmp:
-        stream = LasStream(tmp, offset, crs, compress=str(path).endswith(".laz"), intensity=intensity)
-        stream.write(points)
-        stream.close()
+        with LasStream(tmp, offset, crs, compress=str(path).endswith(".laz"),
+                       intensity=intensity) as stream:
+            stream.write(points)

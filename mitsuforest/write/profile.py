@@ -53,14 +53,25 @@ class ReturnCounts:
         self.by_return = np.zeros((MAX_RETURN + 1, 256), np.int64)   # [return number, class]
 
     def add(self, points) -> None:
+        self.merge(self.tally(points))
+
+    def tally(self, points) -> tuple[np.ndarray, np.ndarray] | None:
+        """The counts of ``points`` alone, (BINS, 256) by height and (MAX_RETURN + 1, 256) by return,
+        for :meth:`merge` (parts of a batch can be tallied side by side); None for no points."""
         if len(points) == 0:
-            return
+            return None
         cls = points["classification"].astype(np.int64)
         height = points["z"] - self.ground(points["x"], points["y"])
         row = np.clip(((height - LOWEST_M) / BIN_M).astype(np.int64), 0, BINS - 1)
-        self.by_height += np.bincount(row * 256 + cls, minlength=BINS * 256).reshape(BINS, 256)
+        by_height = np.bincount(row * 256 + cls, minlength=BINS * 256).reshape(BINS, 256)
         rn = np.minimum(points["return_number"].astype(np.int64), MAX_RETURN)
-        self.by_return += np.bincount(rn * 256 + cls, minlength=(MAX_RETURN + 1) * 256).reshape(-1, 256)
+        by_return = np.bincount(rn * 256 + cls, minlength=(MAX_RETURN + 1) * 256).reshape(-1, 256)
+        return by_height, by_return
+
+    def merge(self, tally) -> None:
+        if tally is not None:
+            self.by_height += tally[0]
+            self.by_return += tally[1]
 
     @property
     def first(self) -> np.ndarray:

@@ -80,9 +80,13 @@ class SideTile:
         return self.x0, self.x0 + self.tile
 
     def add(self, points) -> None:
+        self.parts.append(self.select(points))
+
+    def select(self, points) -> np.ndarray:
+        """The part of ``points`` that :meth:`add` keeps: those in the tile, with the fields it draws."""
         sel = ((points["x"] >= self.x0) & (points["x"] < self.x0 + self.tile)
                & (points["y"] >= self.y0) & (points["y"] < self.y0 + self.tile))
-        self.parts.append(points[sel][[f for f in TILE_FIELDS if f in points.dtype.names]])
+        return points[sel][[f for f in TILE_FIELDS if f in points.dtype.names]]
 
     def points(self) -> np.ndarray:
         if self.parts:

@@ -1,0 +1,198 @@
+"""The point writer's threads: the same bytes with one thread and with several, LAZ and PCD that read
+back as the points written, LAS records as laspy makes them, and the thread count's setting."""
+
+import laspy
+import numpy as np
+import pytest
+from conftest import ROOT
+
+from mitsuforest.errors import UserError
+from mitsuforest.scan import POINT_DTYPE
+from mitsuforest.threads import THREADS_VARIABLE, row_ranges, writer_threads
+from mitsuforest.write import PointWriter, Staging, read_pcd
+from mitsuforest.write.las import ASPRS_CODE, COORDINATE_SCALE, LasStream, las_header, las_records
+
+DEFAULT_GAIN = 1e6   # the default intensity mapping: counts per unit of amplitude
+
+OFFSET = (500000.123, 6100000.456, 12.5)
+BATCHES = (70_000, 1, 0, 123_457, 40_000, 90_001)   # parts of several sizes, an empty batch, a batch of one
+
+
+def _scene(offset, formats=("pcd", "las", "laz")):
+    from mitsuforest.config import load_scene
+    return load_scene(ROOT / "scenes" / "demo.yaml").with_({"origin.offset": list(offset),
+                                                            "output.formats": list(formats)})
+
+
+def _batches(seed=3) -> list[np.ndarray]:
+    """Points over the demo's 20 m plot with every field varied (returns above 15 included)."""
+    rng = np.random.default_rng(seed)
+    out, t = [], 0.0
+    for n in BATCHES:
+        p = np.zeros(n, POINT_DTYPE)
+        p["x"], p["y"] = rng.uniform(-1, 21, n), rng.uniform(-1, 21, n)
+        p["z"] = rng.uniform(-0.5, 30, n)
+        p["classification"] = rng.integers(1, 9, n)
+        p["treeid"], p["instance"] = rng.integers(0, 12, n), rng.integers(0, 50, n)
+        p["object_id"] = rng.integers(0, 9e5, n)
+        p["number_of_returns"] = rng.integers(1, 20, n)
+        p["return_number"] = np.minimum(rng.integers(1, 20, n), p["number_of_returns"])
+        p["intensity"] = rng.uniform(0, 0.08, n).astype(np.float32)
+        p["gps_time"] = t + np.cumsum(rng.uniform(0, 5e-6, n))
+        t = p["gps_time"][-1] if n else t
+        p["scan_angle"] = rng.uniform(-60, 60, n)
+        p["pulse_id"], p["range"], p["species"] = np.arange(n), rng.uniform(1, 60, n), rng.integers(0, 5, n)
+        p["reflectance"] = rng.uniform(-30, 5, n)
+        p["point_source_id"] = rng.integers(1, 9, n)
+        out.append(p)
+    return out
+
+
+def _write(tmp_path, name, scene, threads) -> tuple[dict, PointWriter]:
+    staging = Staging(tmp_path / name, scene.name)
+    writer = PointWriter(staging, scene, keep=True, threads=threads)
+    for batch in _batches():
+        writer.add(batch)
+    writer.close()
+    return {p.suffix: p.read_bytes() for p in staging.path.iterdir()}, writer
+
+
+@pytest.mark.parametrize("offset, threads", [((0.0, 0.0, 0.0), 4), (OFFSET, 2), (OFFSET, 4)])
+def test_one_thread_and_many_write_the_same_bytes_and_statistics(tmp_path, offset, threads):
+    """With 2 threads the LAZ stream hands lazrs 150,000 points twice, each time holding back the
+    rest of a chunk; with 4, 200,000 once."""
+    scene = _scene(offset)
+    serial, one = _write(tmp_path, "one", scene, threads=1)
+    parallel, many = _write(tmp_path, "many", scene, threads=threads)
+    assert set(serial) == {".pcd", ".las", ".laz"}
+    assert all(serial[k] == parallel[k] for k in serial)
+    assert one.statistics() == many.statistics()
+    assert np.array_equal(one.top.top, many.top.top) and np.array_equal(one.top.cls, many.top.cls)
+    assert np.array_equal(one.side.points(), many.side.points())
+    assert np.array_equal(one.counts.by_height, many.counts.by_height)
+    assert np.array_equal(one.counts.by_return, many.counts.by_return)
+    assert one.count == many.count == sum(BATCHES)
+
+
+def test_files_read_back_as_the_points_written(tmp_path):
+    """The LAZ (and LAS) read by laspy and the PCD read back hold the georeferenced points: x, y, z to
+    the 0.1 mm grid, labels and times exact."""
+    files, writer = _write(tmp_path, "out", _scene(OFFSET), threads=4)
+    points = writer.points
+    geo = np.concatenate(_batches())
+    for axis, o in zip("xyz", OFFSET):
+        geo[axis] += o
+    assert np.array_equal(points, geo)
+    pcd = read_pcd(next((tmp_path / "out").glob(".*/demo.pcd")))
+    assert np.array_equal(pcd, geo)                           # float64 x, y, z with an offset
+    for suffix in (".laz", ".las"):
+        las = laspy.read(next((tmp_path / "out").glob(f".*/demo{suffix}")))
+        assert las.header.point_count == len(geo)
+        for axis in "xyz":
+            assert np.abs(np.asarray(las[axis]) - geo[axis]).max() <= COORDINATE_SCALE / 2 + 1e-9
+        assert np.array_equal(las.label, geo["classification"])
+        assert np.array_equal(las.classification, [ASPRS_CODE[c] for c in geo["classification"]])
+        assert np.array_equal(las.return_number, np.minimum(geo["return_number"], 15))
+        assert np.array_equal(las.number_of_returns, np.minimum(geo["number_of_returns"], 15))
+        assert np.array_equal(las.gps_time, geo["gps_time"])
+        assert np.array_equal(las.amplitude, geo["intensity"])
+        assert np.array_equal(las.intensity, np.minimum(np.round(DEFAULT_GAIN * geo["intensity"].astype(float)), 65535))
+        for name in ("treeid", "instance", "object_id", "species", "reflectance", "point_source_id"):
+            assert np.array_equal(las[name], geo[name]), name
+        assert list(las.header.number_of_points_by_return[:3]) == [
+            int(np.sum(np.minimum(geo["return_number"], 15) == k)) for k in (1, 2, 3)]
+
+
+def test_las_records_are_those_laspy_makes(tmp_path):
+    """The records packed with numpy are byte for byte those laspy's LasData makes of the same points."""
+    points = np.concatenate(_batches())[:20000]
+    for axis, o in zip("xyz", OFFSET):
+        points[axis] += o
+    header = las_header(OFFSET)
+    las = laspy.LasData(header, points=laspy.ScaleAwarePointRecord.zeros(len(points), header=header))
+    las.x, las.y, las.z = points["x"], points["y"], points["z"]
+    las.classification = [ASPRS_CODE[c] for c in points["classification"]]
+    las.return_number = np.minimum(points["return_number"], 15)
+    las.number_of_returns = np.minimum(points["number_of_returns"], 15)
+    las.intensity = np.clip(np.round(DEFAULT_GAIN * points["intensity"].astype(float)), 0, 65535).astype(np.uint16)
+    las.gps_time = points["gps_time"]
+    las.scan_angle = np.round(points["scan_angle"] / 0.006).astype(np.int16)
+    las.label, las.amplitude = points["classification"], points["intensity"]
+    for name in ("treeid", "instance", "object_id", "species", "reflectance", "point_source_id"):
+        las[name] = points[name]
+    assert las_records(header, points).tobytes() == las.points.array.tobytes()
+
+
+def test_las_stream_closes_on_error_and_refuses_writes_once_closed(tmp_path):
+    points = _batches()[0]
+    with LasStream(tmp_path / "a.laz", (0, 0, 0)) as stream:
+        stream.write(points)
+    assert laspy.read(tmp_path / "a.laz").header.point_count == len(points)
+    with pytest.raises(ValueError, match="closed"):
+        stream.write(points)
+    stream.close()                                             # a second close does nothing
+    with pytest.raises(RuntimeError, match="stop"):
+        with LasStream(tmp_path / "b.laz", (0, 0, 0)) as broken:
+            broken.write(points)
+            raise RuntimeError("stop")
+    assert broken.closed and broken._writer.dest.closed
+    with pytest.raises(ValueError, match="closed"):
+        broken.write(points)
+
+
+def test_thread_count_follows_the_cores_or_the_variable(monkeypatch):
+    import os
+    monkeypatch.delenv(THREADS_VARIABLE, raising=False)
+    assert writer_threads() == len(os.sched_getaffinity(0))
+    monkeypatch.setenv(THREADS_VARIABLE, "3")
+    assert writer_threads() == 3
+    for bad in ("0", "two", "-1", "1.5"):
+        monkeypatch.setenv(THREADS_VARIABLE, bad)
+        with pytest.raises(UserError, match=f"{THREADS_VARIABLE}: must be a whole number >= 1, got '{bad}'"):
+            writer_threads()
+
+
+def test_row_ranges_cover_the_rows_once():
+    assert row_ranges(0, 4) == [(0, 0)]
+    assert row_ranges(100, 4) == [(0, 100)]                    # below the part size: one part
+    ranges = row_ranges(1_000_003, 7, minimum=1000)
+    assert len(ranges) == 7 and ranges[0][0] == 0 and ranges[-1][1] == 1_000_003
+    assert all(a[1] == b[0] for a, b in zip(ranges, ranges[1:]))
+    assert max(b - a for a, b in ranges) - min(b - a for a, b in ranges) <= 1
+
+
+def test_a_bad_thread_count_is_refused_before_any_work(tmp_path, monkeypatch, capsys):
+    from mitsuforest.cli import main
+    monkeypatch.setenv(THREADS_VARIABLE, "many")
+    code = main(["render", str(ROOT / "scenes" / "demo.yaml"), "-o", str(tmp_path / "out")])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and err == f"mitsuforest: {THREADS_VARIABLE}: must be a whole number >= 1, got 'many'"
+    assert not (tmp_path / "out").exists()
+
+
+def test_point_array_filled_by_threads_is_the_echoes(monkeypatch):
+    """The scan's point array, filled by row ranges on four threads, holds each echo field in its place
+    (intensity from the amplitude, the scan angle in degrees, species by instance)."""
+    from types import SimpleNamespace
+
+    from mitsuforest.scan import tracer
+    from mitsuforest.threads import Workers
+    rng = np.random.default_rng(5)
+    n = 150_001
+    echoes = {k: rng.integers(0, 200, n).astype(t) for k, t in (
+        ("treeid", np.uint16), ("classification", np.uint8), ("instance", np.uint32), ("object_id", np.uint32),
+        ("number_of_returns", np.uint32), ("return_number", np.uint32), ("pulse_id", np.uint64))}
+    echoes.update({k: rng.uniform(-50, 50, n).astype(np.float32) for k in ("x", "y", "z", "range", "amplitude")})
+    echoes["gps_time"], echoes["scan_angle"] = rng.uniform(0, 1e3, n), rng.uniform(-1, 1, n).astype(np.float32)
+    codes = rng.integers(0, 4, 200).astype(np.uint8)
+    table = SimpleNamespace(species=lambda instance: codes[np.asarray(instance, np.int64)])
+    workers = Workers(4)
+    monkeypatch.setattr(tracer, "shared_workers", lambda: workers)
+    points = tracer.PulseTracer._points(echoes, table)
+    workers.close()
+    for key in ("treeid", "x", "y", "z", "classification", "instance", "object_id", "number_of_returns",
+                "return_number", "gps_time", "pulse_id", "range"):
+        assert np.array_equal(points[key], echoes[key].astype(points.dtype[key])), key
+    assert np.array_equal(points["intensity"], echoes["amplitude"])
+    assert np.array_equal(points["scan_angle"], np.rad2deg(echoes["scan_angle"]))
+    assert np.array_equal(points["species"], codes[echoes["instance"]])
