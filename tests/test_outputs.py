@@ -65,7 +65,7 @@ def test_species_round_trip_through_pcd_las_and_tables(rendered):
     from mitsuforest.classes import SPECIES_CODES
     folder = rendered / "a"
     pcd, las = read_pcd(folder / "test.pcd"), laspy.read(folder / "test.las")
-    assert pcd.dtype.names[:10] == tuple(FIELDS) and pcd.dtype.names[-1] == "species"
+    assert pcd.dtype.names[:10] == tuple(FIELDS) and pcd.dtype.names[-2:] == ("species", "height_above_ground")
     assert np.array_equal(np.asarray(las.species), pcd["species"])
     ids = list(csv.DictReader((folder / "test_ids.csv").open()))
     by_instance = {int(r["instance"]): SPECIES_CODES[r["species"]] for r in ids}
@@ -289,4 +289,4 @@ def test_every_class_has_its_asprs_code_and_extra_dimensions_carry_no_partial_st
     las = las_points(header, points)
     assert np.asarray(las.classification).tolist() == [2, 5, 5, 64, 65, 66, 4, 3]
     structs = header.vlrs.get("ExtraBytesVlr")[0].extra_bytes_structs
-    assert len(structs) == 6 and all(s.options == 0 for s in structs)
+    assert len(structs) == 7 and all(s.options == 0 for s in structs)

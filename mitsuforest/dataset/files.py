@@ -118,7 +118,8 @@ def class_shares(classes: dict) -> dict:
 
 def read_plot_points(folder, name: str, formats) -> np.ndarray:
     """A plot's points as written: the PCD when there is one (all fields; x, y, z georeferenced when
-    ``origin.offset`` is set, local otherwise), else the LAS/LAZ (our fields; no pulse_id or range)."""
+    ``origin.offset`` is set, local otherwise), else the LAS/LAZ (our fields; no pulse_id or range). Both carry ``height_above_ground``, which the
+    tiles keep."""
     folder = Path(folder)
     if "pcd" in formats:
         return np.array(read_pcd(folder / f"{name}.pcd"))
@@ -127,13 +128,14 @@ def read_plot_points(folder, name: str, formats) -> np.ndarray:
     las = laspy.read(str(folder / f"{name}.{fmt}"))
     dtype = [("treeid", "<u2"), ("x", "<f8"), ("y", "<f8"), ("z", "<f8"), ("classification", "u1"),
              ("instance", "<u4"), ("object_id", "<u4"), ("number_of_returns", "u1"), ("return_number", "u1"),
-             ("intensity", "<f4"), ("gps_time", "<f8"), ("scan_angle", "<f4")]
+             ("intensity", "<f4"), ("gps_time", "<f8"), ("scan_angle", "<f4"), ("height_above_ground", "<f4")]
     out = np.zeros(len(las.points), dtype)
     for key, value in (("treeid", las.treeid), ("x", las.x), ("y", las.y), ("z", las.z),
                        ("classification", las.label), ("instance", las.instance), ("object_id", las.object_id),
                        ("number_of_returns", las.number_of_returns), ("return_number", las.return_number),
                        ("intensity", las.amplitude), ("gps_time", las.gps_time),
-                       ("scan_angle", np.asarray(las.scan_angle) * 0.006)):
+                       ("scan_angle", np.asarray(las.scan_angle) * 0.006),
+                       ("height_above_ground", las.height_above_ground)):
         out[key] = np.asarray(value)
     return out
 

@@ -3,7 +3,8 @@
 Classification uses ASPRS codes where they fit — ground 2, ground vegetation 3 (low vegetation), bush 4
 (medium vegetation), tree wood and leaves 5 (high vegetation) — and the user range for the rest: deadwood 64, rock 65, stump 66. Our own
 classes (1-8, as in the PCD) are in the extra dimension ``label``; ``treeid``, ``instance``,
-``object_id`` and ``species`` (classes.SPECIES_CODES, also in the VLR) are extra dimensions too. Intensity is scaled to 16 bits by a fixed factor
+``object_id``, ``species`` (classes.SPECIES_CODES, also in the VLR) and ``height_above_ground`` (float32 m,
+see write/ground.py) are extra dimensions too. Intensity is scaled to 16 bits by a fixed factor
 (INTENSITY_SCALE, also written in the header's VLR and the file description): the float amplitude
 is kept exact in the extra dimension ``amplitude``. Return numbers and counts above 15, which point format 6 cannot hold
 (a pulse with more echoes than that needs over 15 sub-rays and ``max_returns`` 0 or above 15), are
@@ -91,6 +92,7 @@ def las_header(offset, crs: str | None = None) -> laspy.LasHeader:
         laspy.ExtraBytesParams("object_id", np.uint32, "component id"),
         laspy.ExtraBytesParams("amplitude", np.float32, "echo amplitude (white at 1 m=1)"),
         laspy.ExtraBytesParams("species", np.uint8, "tree family code, 0 none"),
+        laspy.ExtraBytesParams("height_above_ground", np.float32, "m above the terrain"),
     ])
     _without_extra_statistics(header)
     header.vlrs.append(laspy.VLR("mitsuforest", 1, "intensity and classes", json.dumps(
@@ -126,6 +128,8 @@ def las_points(header: laspy.LasHeader, points: np.ndarray) -> laspy.LasData:
     las.amplitude = points["intensity"]
     if "species" in points.dtype.names:
         las.species = points["species"]
+    if "height_above_ground" in points.dtype.names:
+        las.height_above_ground = points["height_above_ground"]
     return las
 
 

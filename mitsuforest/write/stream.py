@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from .atomic import naming_errors
+from .ground import ground_surface, with_height_above_ground
 from .las import LasStream
 from .pcd import COUNT_DIGITS, pcd_header
 from .profile import ReturnCounts
@@ -37,6 +38,7 @@ class PointWriter:
         self.top = TopView(self.area)
         self.side = SideTile(self.area)
         self.counts = ReturnCounts(terrain, self.area)      # profile and return charts, realism table
+        self._ground = ground_surface(terrain)              # every point's height_above_ground
         rng = np.random.default_rng([scene.seed, 99])
         corner = [rng.uniform(0, max(s - SPACING_TILE, 0), 4) for s in self.area]
         self._tiles = np.column_stack(corner)
@@ -44,7 +46,8 @@ class PointWriter:
         self.dtype = None
 
     def add(self, points: np.ndarray) -> None:
-        """Add a batch of local-frame points (POINT_DTYPE)."""
+        """Add a batch of local-frame points (POINT_DTYPE); each file gets ``height_above_ground`` too."""
+        points = with_height_above_ground(points, self._ground)
         if self.dtype is None and self._pcd_file:
             self._pcd_record = self._pcd_dtype(points.dtype)
             self._pcd_file.write(pcd_header(self._pcd_record, 0, COUNT_DIGITS).encode("ascii"))
