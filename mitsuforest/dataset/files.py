@@ -118,8 +118,8 @@ def class_shares(classes: dict) -> dict:
 
 def read_plot_points(folder, name: str, formats) -> np.ndarray:
     """A plot's points as written: the PCD when there is one (all fields; x, y, z georeferenced when
-    ``origin.offset`` is set, local otherwise), else the LAS/LAZ (our fields; no pulse_id or range). Both carry ``height_above_ground``, which the
-    tiles keep."""
+    ``origin.offset`` is set, local otherwise), else the LAS/LAZ (our fields; no pulse_id or range).
+    Both carry ``height_above_ground``, which the tiles keep."""
     folder = Path(folder)
     if "pcd" in formats:
         return np.array(read_pcd(folder / f"{name}.pcd"))
