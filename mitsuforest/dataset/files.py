@@ -28,6 +28,7 @@ from ..classes import CLASS_NAMES, DEADWOOD, TREE_LEAVES, TREE_WOOD
 from ..config.types import to_mapping
 from ..write.atomic import atomic_path, write_json, write_text
 from ..write.las import write_las
+from ..write.output_profiles import PROFILES, stem_ids_from_table, write_profile
 from ..write.pcd import pcd_header, read_pcd
 from ..write.tables import csv_text
 from . import tiles as tiling
@@ -153,7 +154,8 @@ def read_volumes(path) -> dict:
 
 def write_tiles(root, scene, tiles) -> list[dict]:
     """Cut a rendered plot's points into tiles (see :mod:`.tiles`): one point file and one tree table
-    per tile, each written atomically. Returns one record per tile."""
+    per tile, and the ``output.profile``'s file unless it is ``ours``, each written atomically. Returns one
+    record per tile."""
     name, folder = scene.name, plot_folder(root, scene.name)
     points = read_plot_points(folder, name, scene.output.formats)
     offset = np.asarray(scene.origin.offset, np.float64)
@@ -165,6 +167,8 @@ def write_tiles(root, scene, tiles) -> list[dict]:
     out_dir = folder / "tiles"
     shutil.rmtree(out_dir, ignore_errors=True)      # an earlier run's tiles (another layout, or damaged)
     out_dir.mkdir()
+    profile = PROFILES.get(scene.output.profile)      # None: ours only
+    stems = stem_ids_from_table(folder / f"{name}_ids.csv") if profile else None
     nx, ny = tiling.tile_grid(scene.area.size, tiles.size)
     ci, cj = tiling.core_tile(x, y, scene.area.size, tiles.size)
     records = []
@@ -177,6 +181,10 @@ def write_tiles(root, scene, tiles) -> list[dict]:
             tile_points = points[sel]
             point_file = out_dir / f"{tile_id}.{tiles.format}"
             _write_points(point_file, tile_points, offset, scene.origin.crs)
+            written = [point_file]
+            if profile:
+                written.append(out_dir / f"{tile_id}{profile.suffix}")
+                write_profile(written[-1], scene.output.profile, tile_points, offset, scene.origin.crs, stems)
             rows = _tree_rows(tile_points, kept[sel], instances, boxes, volumes, extent, offset, x[sel], y[sel])
             table = out_dir / f"{tile_id}_trees.csv"
             write_text(table, csv_text(["instance", "kind", "treeid", "volume_union_m3", "points", "whole_inside"],
@@ -187,7 +195,7 @@ def write_tiles(root, scene, tiles) -> list[dict]:
                 "core": list(tiling.core_bounds(i, j, scene.area.size, tiles.size)),
                 "points": int(sel.sum()), "core_points": int(core.sum()), "trees": len(rows),
                 "classes": {int(k): int(v) for k, v in enumerate(classes) if v},
-                "files": checksums(root, [point_file, table]),
+                "files": checksums(root, [*written, table]),
             })
     return records
 

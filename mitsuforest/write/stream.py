@@ -12,6 +12,7 @@ from .atomic import naming_errors
 from .ground import ground_surface, with_height_above_ground
 from .las import LasStream
 from .pcd import COUNT_DIGITS, pcd_header
+from .output_profiles import PROFILES
 from .profile import ReturnCounts
 from .quicklook import SideTile, TopView
 
@@ -22,15 +23,20 @@ class PointWriter:
     """Receives local-frame points batch by batch (:meth:`add`) and writes georeferenced files.
 
     :param terrain: the plan's :class:`~mitsuforest.plan.terrain.Terrain`, for heights above the ground.
+    :param stems: sorted object ids of the stem components, for an ``output.profile`` that tells stems from
+        branches (:func:`~.output_profiles.stem_ids`).
     """
 
-    def __init__(self, staging, scene: dict, keep: bool = False, terrain=None):
+    def __init__(self, staging, scene: dict, keep: bool = False, terrain=None, stems=()):
         self.offset = np.asarray(scene.origin.offset, np.float64)
         self.area = scene.area.size
         formats = scene.output.formats if staging else []
         self._pcd_file = open(staging.file(".pcd"), "wb") if staging and "pcd" in formats else None  # noqa: SIM115
         self._las = [LasStream(staging.file("." + f), self.offset, scene.origin.crs)
                      for f in ("las", "laz") if f in formats]
+        profile = PROFILES.get(scene.output.profile) if staging else None     # None: ours only
+        if profile:                                  # written batch by batch like the LAS files
+            self._las.append(profile.stream(staging.file(profile.suffix), self.offset, scene.origin.crs, stems))
         self._kept = [] if keep else None
         self.count = 0
         self.classes = np.zeros(256, np.int64)
