@@ -229,7 +229,7 @@ SCENE_SPEC = {
     },
     "output": {
         "dir": FilePath(None, nullable=True, must_exist=False),
-        "formats": ListOf(Text(choices=("pcd", "las", "laz")), ["pcd", "laz"], min_length=1),
+        "formats": ListOf(Text(choices=("pcd", "las", "laz", "copc")), ["pcd", "laz"], min_length=1),
         "profile": Text("ours", choices=OUTPUT_PROFILES),
     },
 }

@@ -125,7 +125,7 @@ def read_plot_points(folder, name: str, formats) -> np.ndarray:
     if "pcd" in formats:
         return np.array(read_pcd(folder / f"{name}.pcd"))
     import laspy
-    fmt = "las" if "las" in formats else "laz"
+    fmt = next(f for f in ("las", "laz", "copc") if f in formats).replace("copc", "copc.laz")   # COPC is LAZ
     las = laspy.read(str(folder / f"{name}.{fmt}"))
     dtype = [("treeid", "<u2"), ("x", "<f8"), ("y", "<f8"), ("z", "<f8"), ("classification", "u1"),
              ("instance", "<u4"), ("object_id", "<u4"), ("number_of_returns", "u1"), ("return_number", "u1"),

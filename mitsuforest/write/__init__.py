@@ -32,7 +32,7 @@ __all__ = ["Staging", "check_output_folder", "output_lock", "PointWriter", "geor
            "write_manifest"]
 
 PLAN, MANIFEST = "_plan.json", "_manifest.json"
-SUFFIXES = (".pcd", ".las", ".laz", "_volumes.csv", "_ids.csv", PLAN, "_trajectory.csv",
+SUFFIXES = (".pcd", ".las", ".laz", ".copc.laz", "_volumes.csv", "_ids.csv", PLAN, "_trajectory.csv",
             MANIFEST, "_top.png", "_side.png", "_profile.png", "_returns.png", *PROFILE_SUFFIXES)
 
 

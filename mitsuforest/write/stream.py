@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from .atomic import naming_errors
+from .copc import CopcStream
 from .ground import ground_surface, with_height_above_ground
 from .las import LasStream
 from .pcd import COUNT_DIGITS, pcd_header
@@ -34,6 +35,8 @@ class PointWriter:
         self._pcd_file = open(staging.file(".pcd"), "wb") if staging and "pcd" in formats else None  # noqa: SIM115
         self._las = [LasStream(staging.file("." + f), self.offset, scene.origin.crs)
                      for f in ("las", "laz") if f in formats]
+        if "copc" in formats:                        # spooled, then built into an octree on close
+            self._las.append(CopcStream(staging.file(".copc.laz"), self.offset, scene.origin.crs))
         profile = PROFILES.get(scene.output.profile) if staging else None     # None: ours only
         if profile:                                  # written batch by batch like the LAS files
             self._las.append(profile.stream(staging.file(profile.suffix), self.offset, scene.origin.crs, stems))
