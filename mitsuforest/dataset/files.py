@@ -27,7 +27,7 @@ import yaml
 from ..classes import CLASS_NAMES, DEADWOOD, TREE_LEAVES, TREE_WOOD
 from ..config.types import to_mapping
 from ..write.atomic import atomic_path, write_json, write_text
-from ..write.las import write_las
+from ..write.las import read_las_points, write_las
 from ..write.output_profiles import PROFILES, stem_ids_from_table, write_profile
 from ..write.pcd import pcd_header, read_pcd
 from ..write.tables import csv_text
@@ -124,21 +124,8 @@ def read_plot_points(folder, name: str, formats) -> np.ndarray:
     folder = Path(folder)
     if "pcd" in formats:
         return np.array(read_pcd(folder / f"{name}.pcd"))
-    import laspy
     fmt = next(f for f in ("las", "laz", "copc") if f in formats).replace("copc", "copc.laz")   # COPC is LAZ
-    las = laspy.read(str(folder / f"{name}.{fmt}"))
-    dtype = [("treeid", "<u2"), ("x", "<f8"), ("y", "<f8"), ("z", "<f8"), ("classification", "u1"),
-             ("instance", "<u4"), ("object_id", "<u4"), ("number_of_returns", "u1"), ("return_number", "u1"),
-             ("intensity", "<f4"), ("gps_time", "<f8"), ("scan_angle", "<f4"), ("height_above_ground", "<f4")]
-    out = np.zeros(len(las.points), dtype)
-    for key, value in (("treeid", las.treeid), ("x", las.x), ("y", las.y), ("z", las.z),
-                       ("classification", las.label), ("instance", las.instance), ("object_id", las.object_id),
-                       ("number_of_returns", las.number_of_returns), ("return_number", las.return_number),
-                       ("intensity", las.amplitude), ("gps_time", las.gps_time),
-                       ("scan_angle", np.asarray(las.scan_angle) * 0.006),
-                       ("height_above_ground", las.height_above_ground)):
-        out[key] = np.asarray(value)
-    return out
+    return read_las_points(folder / f"{name}.{fmt}")
 
 
 def read_volumes(path) -> dict:

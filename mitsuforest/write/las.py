@@ -181,3 +181,23 @@ def write_las(path, points: np.ndarray, offset, crs: str | None = None) -> None:
         stream = LasStream(tmp, offset, crs, compress=str(path).endswith(".laz"))
         stream.write(points)
         stream.close()
+
+
+def read_las_points(path) -> np.ndarray:
+    """The points of one of our ``.las``/``.laz`` files (a tile's too) under the PCD's field names:
+    ``classification`` is our class (the ``label`` dimension), ``intensity`` the float amplitude; x, y,
+    z georeferenced. No ``pulse_id`` or ``range``, which the LAS file does not hold."""
+    las = laspy.read(str(path))
+    dtype = [("treeid", "<u2"), ("x", "<f8"), ("y", "<f8"), ("z", "<f8"), ("classification", "u1"),
+             ("instance", "<u4"), ("object_id", "<u4"), ("number_of_returns", "u1"), ("return_number", "u1"),
+             ("intensity", "<f4"), ("gps_time", "<f8"), ("scan_angle", "<f4"), ("height_above_ground", "<f4")]
+    out = np.zeros(len(las.points), dtype)
+    for key, value in (("treeid", las.treeid), ("x", las.x), ("y", las.y), ("z", las.z),
+                       ("classification", las.label), ("instance", las.instance), ("object_id", las.object_id),
+                       ("number_of_returns", las.number_of_returns), ("return_number", las.return_number),
+                       ("intensity", las.amplitude), ("gps_time", las.gps_time),
+                       ("scan_angle", np.asarray(las.scan_angle) * 0.006)):
+        out[key] = np.asarray(value)
+    names = set(las.point_format.dimension_names)      # files of versions before the field: NaN
+    out["height_above_ground"] = las.height_above_ground if "height_above_ground" in names else np.nan
+    return out
