@@ -147,8 +147,8 @@ class CopcStream:
                     if c not in files:
                         files[c] = open(spool_dir / f"{self._spool_path.name}.{c}", "wb")   # noqa: SIM115
                     files[c].write(rest[column == c].tobytes())
-            for records, keys in upper:
-                yield records, keys
+            if upper:                                  # one node is added once: all its chunks together
+                yield np.concatenate([r for r, _ in upper]), np.concatenate([k for _, k in upper])
             upper.clear()
             for f in files.values():
                 f.close()
