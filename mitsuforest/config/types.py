@@ -31,7 +31,7 @@ from ..trees.sources import MeshTree, QsmTree
 # Australia's National Forest Inventory crown cover classes.
 FOREST_BANDS = {"woodland": (0.20, 0.50), "open": (0.50, 0.80), "closed": (0.80, 1.00)}
 BEAM_PATTERNS = ("stratified", "fixed")   # see scan/beam.py
-OUTPUT_PROFILES = ("ours", "for-instance", "forestformer3d", "treelearn")   # write/profiles.py PROFILES, and ours
+OUTPUT_PROFILES = ("ours", "for-instance", "forestformer3d", "treelearn")   # write/output_profiles.py PROFILES, and ours
 SPEED_OF_LIGHT = 299_792_458.0
 
 

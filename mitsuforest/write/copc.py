@@ -117,55 +117,93 @@ class CopcStream:
             f.write(struct.pack("<15Q", *self.returns))
 
     def _nodes(self, cube):
-        """``(records, keys (n, 4) level x y z)`` groups: the levels above ``P`` as the spool is read,
-        then each column of level ``P`` with the levels below it."""
-        top = min(int(np.ceil(np.log(max(self.count, 1) / PARTITION_POINTS) / np.log(4))), 4) if self.count else 0
-        top = max(top, 0)
+        """``(records, keys (n, 4) level x y z)`` of whole nodes, from spool files beside the output:
+        one per level above the column level ``P`` (points taken as the spool is read), then one per
+        x, y column of level ``P`` with the levels from ``P`` down."""
+        top = _column_level(self.count)
         taken = [np.zeros(0, np.int64) for _ in range(top)]       # occupied sample cells of levels < top
-        upper, columns = [], {}
-        spool_dir = self._spool_path.parent
-        files = {}
+        keyed = np.dtype([("key", "<i8", (4,)), ("record", self.record)])
+        spools = Spools(self._spool_path)
         try:
             for records in self._read_spool():
-                xyz = cube.unit(records)
+                unit = cube.unit(records)
                 level = np.full(len(records), -1, np.int64)
                 for lev in range(top):
                     free = np.flatnonzero(level < 0)
-                    cells = cube.cells(xyz[free], lev, GRID)
+                    cells = cube.cells(unit[free], lev, GRID)
                     first = _first_new(cells, taken[lev])
                     level[free[first]] = lev
                     taken[lev] = np.union1d(taken[lev], cells[first])
-                done = level >= 0
-                if done.any():
-                    upper.append((records[done], cube.keys(xyz[done], level[done])))
-                rest = records[~done]
-                if top == 0:
-                    columns.setdefault(0, []).append(rest)
-                    continue
-                column = cube.column(xyz[~done], top)
+                for lev in range(top):
+                    at = level == lev
+                    rows = np.zeros(at.sum(), keyed)
+                    rows["key"], rows["record"] = cube.keys(unit[at], level[at]), records[at]
+                    spools.add(f"level{lev}", rows)
+                rest = level < 0
+                column = cube.column(unit[rest], top)
                 for c in np.unique(column):
-                    if c not in files:
-                        files[c] = open(spool_dir / f"{self._spool_path.name}.{c}", "wb")   # noqa: SIM115
-                    files[c].write(rest[column == c].tobytes())
-            if upper:                                  # one node is added once: all its chunks together
-                yield np.concatenate([r for r, _ in upper]), np.concatenate([k for _, k in upper])
-            upper.clear()
-            for f in files.values():
-                f.close()
-            parts = ([np.concatenate(columns[0])] if columns else []) if top == 0 else \
-                (np.fromfile(f.name, self.record) for f in files.values())
-            for records in parts:
+                    spools.add(f"column{c}", records[rest][column == c])
+            for lev in range(top):
+                for rows in spools.read(f"level{lev}", keyed, by_column=lev):
+                    yield rows["record"], rows["key"]
+            for name in spools.names("column"):
+                records = next(spools.read(name, self.record))
                 yield records, _levels_below(cube, records, top)
         finally:
-            for f in files.values():
-                f.close()
-                Path(f.name).unlink(missing_ok=True)
+            spools.remove()
 
     def _read_spool(self):
         size = self.record.itemsize
         with open(self._spool_path, "rb") as f:
             while block := f.read(CHUNK * size):
                 yield np.frombuffer(block, self.record)
+
+
+def _column_level(count: int) -> int:
+    """``P``: the octree level whose x, y columns hold about :data:`PARTITION_POINTS` points each (at
+    most 4: 256 columns)."""
+    return int(np.clip(np.ceil(np.log(max(count, 1) / PARTITION_POINTS) / np.log(4)), 0, 4))
+
+
+class Spools:
+    """Named temporary files beside ``base`` (``base.NAME``), appended to as the spool is read."""
+
+    def __init__(self, base: Path):
+        self.base, self.files = base, {}
+
+    def add(self, name: str, rows: np.ndarray) -> None:
+        if len(rows):
+            if name not in self.files:
+                self.files[name] = open(f"{self.base}.{name}", "wb")   # noqa: SIM115 (closed in read/remove)
+            self.files[name].write(rows.tobytes())
+
+    def names(self, prefix: str) -> list[str]:
+        return [n for n in self.files if n.startswith(prefix)]
+
+    def read(self, name: str, dtype: np.dtype, by_column: int | None = None):
+        """The file's rows at once; with ``by_column`` (a level) and more than
+        :data:`PARTITION_POINTS` rows, one x, y column of that level at a time (rows keyed)."""
+        if name not in self.files:
+            return
+        self.files[name].close()
+        path = f"{self.base}.{name}"
+        count = os.path.getsize(path) // dtype.itemsize
+        if by_column is None or count <= PARTITION_POINTS:
+            yield np.fromfile(path, dtype)
+            return
+        side = 1 << by_column
+        for c in range(side * side):
+            parts = []
+            with open(path, "rb") as f:
+                while block := f.read(CHUNK * dtype.itemsize):
+                    rows = np.frombuffer(block, dtype)
+                    parts.append(rows[rows["key"][:, 2] * side + rows["key"][:, 1] == c])
+            yield np.concatenate(parts)
+
+    def remove(self) -> None:
+        for name, f in self.files.items():
+            f.close()
+            Path(f"{self.base}.{name}").unlink(missing_ok=True)
 
 
 class Cube:

@@ -31,7 +31,7 @@ from laspy.vlrs.known import WktCoordinateSystemVlr
 
 from ..classes import (BUSH, DEADWOOD, GROUND, GROUND_VEGETATION, ROCK, STUMP, TREE_LEAVES, TREE_WOOD)
 from .atomic import atomic_path, naming_errors
-from .las import COORDINATE_SCALE, INTENSITY_SCALE, LAS_MAX_RETURNS, crs_wkt
+from .las import COORDINATE_SCALE, INTENSITY_SCALE, LAS_MAX_RETURNS, LasStream, _without_extra_statistics, crs_wkt
 
 TREE_CLASSES = (TREE_WOOD, TREE_LEAVES)
 
@@ -66,60 +66,56 @@ def for_instance_classes(points: np.ndarray, stems: np.ndarray) -> np.ndarray:
     return np.where(stem, FOR_INSTANCE_STEM, out).astype(np.uint8)
 
 
-class ForInstanceStream:
-    """A FOR-instance style ``.las``/``.laz`` (LAS 1.4, point format 6), written batch by batch:
-    ``classification`` holds the FOR-instance classes, the extra dimension ``treeID`` (int32) the tree,
-    ``label`` our class and ``height_above_ground`` the height (m). Coordinates, intensity scaling and
-    the CRS are as in our own LAS files (:mod:`.las`)."""
+def for_instance_header(offset, crs: str | None) -> laspy.LasHeader:
+    """LAS 1.4 point format 6 with the extra dimensions ``treeID`` (int32), ``label`` (our class) and
+    ``height_above_ground``; offsets, scales, the CRS and the intensity scale as in our LAS files."""
+    header = laspy.LasHeader(point_format=6, version="1.4")
+    header.offsets = np.asarray(offset, float)
+    header.scales = np.full(3, COORDINATE_SCALE)
+    header.add_extra_dims([
+        laspy.ExtraBytesParams("treeID", np.int32, "tree id, 0 for non-tree"),
+        laspy.ExtraBytesParams("label", np.uint8, "mitsuforest class 1-8"),
+        laspy.ExtraBytesParams("height_above_ground", np.float32, "m above the terrain"),
+    ])
+    _without_extra_statistics(header)
+    header.vlrs.append(laspy.VLR("mitsuforest", 2, "FOR-instance classes", json.dumps(
+        {"profile": "for-instance", "classification": FOR_INSTANCE_NAMES, "intensity_scale": INTENSITY_SCALE}).encode()))
+    header.global_encoding.wkt = True
+    if crs:
+        header.vlrs.append(WktCoordinateSystemVlr(crs_wkt(crs)))
+    return header
+
+
+def for_instance_points(header: laspy.LasHeader, points: np.ndarray, stems: np.ndarray) -> laspy.ScaleAwarePointRecord:
+    """Georeferenced points as FOR-instance records of ``header``."""
+    las = laspy.ScaleAwarePointRecord.zeros(len(points), header=header)
+    las.x, las.y, las.z = points["x"], points["y"], points["z"]
+    las.classification = for_instance_classes(points, stems)
+    las.return_number = np.minimum(points["return_number"], LAS_MAX_RETURNS)
+    las.number_of_returns = np.minimum(points["number_of_returns"], LAS_MAX_RETURNS)
+    las.intensity = np.clip(np.round(points["intensity"] / INTENSITY_SCALE), 0, 65535).astype(np.uint16)
+    las.gps_time = points["gps_time"]
+    las.scan_angle = np.round(points["scan_angle"] / 0.006).astype(np.int16)
+    las.treeID = tree_ids(points)
+    las.label = points["classification"]
+    las.height_above_ground = points["height_above_ground"]
+    return las
+
+
+class ForInstanceStream(LasStream):
+    """A FOR-instance style ``.las``/``.laz`` written batch by batch (:func:`for_instance_header`); closing,
+    aborting and error reports as our own LAS stream's."""
 
     def __init__(self, path, offset, crs: str | None, stems: np.ndarray):
         self.path, self.stems = Path(path), np.asarray(stems)
-        header = laspy.LasHeader(point_format=6, version="1.4")
-        header.offsets = np.asarray(offset, float)
-        header.scales = np.full(3, COORDINATE_SCALE)
-        header.add_extra_dims([
-            laspy.ExtraBytesParams("treeID", np.int32, "tree id, 0 for non-tree"),
-            laspy.ExtraBytesParams("label", np.uint8, "mitsuforest class 1-8"),
-            laspy.ExtraBytesParams("height_above_ground", np.float32, "m above the terrain"),
-        ])
-        for s in header.vlrs.get("ExtraBytesVlr")[0].extra_bytes_structs:   # no first-batch min/max
-            s.options &= ~(s.MIN_BIT_MASK | s.MAX_BIT_MASK)
-        header.vlrs.append(laspy.VLR("mitsuforest", 2, "FOR-instance classes", json.dumps(
-            {"profile": "for-instance", "classification": FOR_INSTANCE_NAMES,
-             "intensity_scale": INTENSITY_SCALE}).encode()))
-        header.global_encoding.wkt = True
-        if crs:
-            header.vlrs.append(WktCoordinateSystemVlr(crs_wkt(crs)))
-        self.header = header
-        with naming_errors(self.path):
-            self._writer = laspy.open(str(path), mode="w", header=header, do_compress=str(path).endswith(".laz"))
+        self.header = for_instance_header(offset, crs)
+        with self._io_errors():
+            self._writer = laspy.open(str(path), mode="w", header=self.header, do_compress=str(path).endswith(".laz"))
 
     def write(self, points: np.ndarray) -> None:
-        if not len(points):
-            return
-        las = laspy.ScaleAwarePointRecord.zeros(len(points), header=self.header)
-        las.x, las.y, las.z = points["x"], points["y"], points["z"]
-        las.classification = for_instance_classes(points, self.stems)
-        las.return_number = np.minimum(points["return_number"], LAS_MAX_RETURNS)
-        las.number_of_returns = np.minimum(points["number_of_returns"], LAS_MAX_RETURNS)
-        las.intensity = np.clip(np.round(points["intensity"] / INTENSITY_SCALE), 0, 65535).astype(np.uint16)
-        las.gps_time = points["gps_time"]
-        las.scan_angle = np.round(points["scan_angle"] / 0.006).astype(np.int16)
-        las.treeID = tree_ids(points)
-        las.label = points["classification"]
-        las.height_above_ground = points["height_above_ground"]
-        with naming_errors(self.path):
-            self._writer.write_points(las)
-
-    def close(self) -> None:
-        with naming_errors(self.path):
-            self._writer.close()
-
-    def abort(self) -> None:
-        try:
-            self._writer.close()
-        except Exception:   # noqa: BLE001 (a broken file is being discarded)
-            pass
+        if len(points):
+            with self._io_errors():
+                self._writer.write_points(for_instance_points(self.header, points, self.stems))
 
 
 # --- ForestFormer3D (binary PLY) ---------------------------------------------------------------------
