@@ -48,6 +48,7 @@ def main() -> None:
             for first in range(0, n, BATCH):
                 stream.write(cloud(rng, first, min(BATCH, n - first)))
             spooled = time.perf_counter()
+            spool_rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
             stream.close()
             done = time.perf_counter()
             with laspy.CopcReader.open(str(path)) as reader:
@@ -56,7 +57,8 @@ def main() -> None:
                 levels = max(k.level for k in entries)
             print(f"{n:,} points: spool {spooled - start:.1f} s, octree {done - spooled:.1f} s, "
                   f"{path.stat().st_size / n:.1f} bytes/point, {len(entries)} nodes, levels 0-{levels}, "
-                  f"root {root:,} points; peak RSS so far {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MB")
+                  f"root {root:,} points; peak RSS so far {spool_rss:.0f} MB after spooling, "
+                  f"{resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MB after the octree")
 
 
 if __name__ == "__main__":

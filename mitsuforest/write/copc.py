@@ -4,8 +4,9 @@ viewers stream level by level and laspy's ``CopcReader`` queries by box and leve
 
 laspy (2.7) reads COPC but does not write it; copc-lib (``copclib`` on PyPI) writes it. Memory stays
 bounded: batches are spooled to a temporary file beside the output as packed LAS records; on close
-the octree is built in one pass over the spool plus one per column of the octree's level ``P`` in x,
-y (each at most about :data:`PARTITION_POINTS` points in memory).
+one pass over the spool sorts them into spool files: one per level above a level ``P`` chosen so
+that each x, y column of level ``P`` holds about :data:`PARTITION_POINTS` points, and one per such
+column. Each is then read (a large level's one column at a time) and added node by node.
 
 Octree: the root cube holds every point; a node takes from the points inside it that no coarser node
 took the first (in write order) of each cell of an ``R × R × R`` grid over it (``R`` =
@@ -28,7 +29,7 @@ from .las import crs_wkt, las_header, las_points
 
 GRID = 128                  # sample cells per node side (COPC spacing at the root = cube side / GRID)
 MAX_LEVEL = 14              # the deepest level takes every point left (cells of level 13 are 0.1 mm in a 100 m cube)
-PARTITION_POINTS = 2_000_000
+PARTITION_POINTS = 1_000_000
 CHUNK = 1_000_000           # spooled records read at a time
 EXTRA_BYTES = ("LASF_Spec", 4)
 POINTS_BY_RETURN = 255      # byte offset of the LAS 1.4 header's 15 points-by-return counts
