@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import resource
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -18,8 +19,11 @@ from pathlib import Path
 import laspy
 import numpy as np
 
-from mitsuforest.scan import POINT_DTYPE
-from mitsuforest.write.copc import CopcStream
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from mitsuforest.scan import POINT_DTYPE  # noqa: E402
+from mitsuforest.write.copc import CopcStream  # noqa: E402
 
 BATCH = 500_000
 
