@@ -203,3 +203,16 @@ def test_an_unknown_profile_is_refused_in_one_line(tmp_path, capsys):
     assert err.endswith("output.profile: must be one of ours, for-instance, forestformer3d, treelearn, got "
                         "'forinstance' (did you mean 'for-instance'?)") and "\n" not in err
     assert not (tmp_path / "o").exists()
+
+
+def test_rendering_again_with_another_profile_removes_the_old_file(tmp_path):
+    """A profile's file belongs to the render: --overwrite with another profile leaves no stale one."""
+    from mitsuforest.cli import main
+    path = scene_file(tmp_path, area={"size": [8, 8]}, survey={"pulse_frequency": 10000, "lines": [[[4, -2], [4, 10]]]},
+                      output={"formats": ["pcd"], "profile": "treelearn"})
+    out = tmp_path / "out"
+    assert main(["render", str(path), "-o", str(out), "--quiet"]) == 0
+    assert (out / "test_treelearn.npy").is_file()
+    path.write_text(path.read_text().replace("profile: treelearn", "profile: forestformer3d"))
+    assert main(["render", str(path), "-o", str(out), "--quiet", "--overwrite"]) == 0
+    assert (out / "test_ff3d.ply").is_file() and not (out / "test_treelearn.npy").exists()
