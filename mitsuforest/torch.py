@@ -86,7 +86,8 @@ class TileDataset(torch.utils.data.Dataset):
         points = self.read_tile(i)
         missing = [f for f in (*self.fields, self.label) if f not in points.dtype.names]
         if missing:
-            raise ValueError(f"{self.tile_file(i)}: no field {', '.join(missing)} (it has {', '.join(points.dtype.names)})")
+            raise ValueError(f"{self.tile_file(i)}: no field {', '.join(missing)} "
+                             f"(it has {', '.join(points.dtype.names)})")
         rows = self._sample(i, len(points))
         centre = {"x": (float(tile["x0"]) + float(tile["x1"])) / 2, "y": (float(tile["y0"]) + float(tile["y1"])) / 2}
         columns = [points[f][rows].astype(np.float64) - centre.get(f, 0.0) for f in self.fields]

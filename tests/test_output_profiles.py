@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from helpers import scene_file
 
-from mitsuforest.classes import BUSH, DEADWOOD, GROUND, GROUND_VEGETATION, ROCK, STUMP, TREE_LEAVES, TREE_WOOD
+from mitsuforest.classes import BUSH, DEADWOOD, GROUND, ROCK, STUMP, TREE_LEAVES, TREE_WOOD
 from mitsuforest.config.types import OUTPUT_PROFILES
 from mitsuforest.pipeline import render
 from mitsuforest.write.output_profiles import PROFILES, ForestFormer3DStream, TreeLearnStream, write_profile

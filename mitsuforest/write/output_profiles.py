@@ -78,8 +78,8 @@ def for_instance_header(offset, crs: str | None) -> laspy.LasHeader:
         laspy.ExtraBytesParams("height_above_ground", np.float32, "m above the terrain"),
     ])
     _without_extra_statistics(header)
-    header.vlrs.append(laspy.VLR("mitsuforest", 2, "FOR-instance classes", json.dumps(
-        {"profile": "for-instance", "classification": FOR_INSTANCE_NAMES, "intensity_scale": INTENSITY_SCALE}).encode()))
+    note = {"profile": "for-instance", "classification": FOR_INSTANCE_NAMES, "intensity_scale": INTENSITY_SCALE}
+    header.vlrs.append(laspy.VLR("mitsuforest", 2, "FOR-instance classes", json.dumps(note).encode()))
     header.global_encoding.wkt = True
     if crs:
         header.vlrs.append(WktCoordinateSystemVlr(crs_wkt(crs)))
