@@ -30,6 +30,7 @@ from .trees.imported import import_report
 from .write import (PointWriter, Staging, check_output_folder, earlier_results, output_lock, write_manifest,
                     write_render_outputs)
 from .write.background import Background
+from .write.output_profiles import stem_ids
 
 DEPENDENCIES = ("mitsuba", "drjit", "numpy", "trimesh", "manifold3d", "laspy", "scipy", "pyyaml", "pyproj", "rasterio",
                 "matplotlib")
@@ -123,7 +124,7 @@ def _scan_and_write(scene, plan, models, scan_scene, timings, run_scan, keep_poi
     place; on any failure or interrupt the staging folder is removed."""
     writer = None
     try:
-        writer = PointWriter(staging, scene, keep=keep_points, terrain=plan.terrain)
+        writer = PointWriter(staging, scene, keep=keep_points, terrain=plan.terrain, stems=stem_ids(plan, models))
         sink = Background(writer.add)
         try:
             result = run_scan(sink)

@@ -231,6 +231,12 @@ def test_writer_benchmark_quick():
 
 
 @pytest.mark.slow
+def test_copc_benchmark_small():
+    pytest.importorskip("copclib", reason="copclib (the test extra) writes COPC")
+    stdout = _run([str(ROOT / "benchmarks" / "copc_write.py"), "200000"], ROOT)
+    assert "200,000 points: spool" in stdout and "after the octree" in stdout
+
+
 def test_readme_python_block_runs():
     """README's "From Python" block, run as written (from the repository root), gives the values its
     comments state and points with labels."""

@@ -40,8 +40,10 @@ def rendered(tmp_path_factory):
 
 
 def test_all_files_written(rendered):
+    from mitsuforest.write.output_profiles import PROFILES
     names = sorted(p.name for p in (rendered / "a").iterdir())
-    assert names == sorted(f for f in output_files("test") if not f.endswith(".laz"))
+    profiles = tuple(p.suffix for p in PROFILES.values())      # written only with an output.profile
+    assert names == sorted(f for f in output_files("test") if not f.endswith((".laz", *profiles)))
 
 
 def test_pcd_header_and_independent_reader(rendered):
@@ -65,7 +67,7 @@ def test_species_round_trip_through_pcd_las_and_tables(rendered):
     from mitsuforest.classes import SPECIES_CODES
     folder = rendered / "a"
     pcd, las = read_pcd(folder / "test.pcd"), laspy.read(folder / "test.las")
-    assert pcd.dtype.names[:10] == tuple(FIELDS) and pcd.dtype.names[-3:] == ("species", "reflectance", "point_source_id")
+    assert pcd.dtype.names[:10] == tuple(FIELDS) and pcd.dtype.names[-4:] == ("species", "reflectance", "point_source_id", "height_above_ground")
     assert np.array_equal(np.asarray(las.species), pcd["species"])
     assert np.array_equal(np.asarray(las.point_source_id), pcd["point_source_id"]) and pcd["point_source_id"].min() == 1
     ids = list(csv.DictReader((folder / "test_ids.csv").open()))

@@ -21,7 +21,8 @@ from ..errors import ConfigError, UserError
 from ..trees.archetypes import DEFAULT_ARCHETYPES, FAMILY_ARCHETYPES, FIELDS as ARCHETYPE_FIELDS, Archetype
 from ..trees.sources import DEFAULT_LEAF_PATTERNS, REPAIR_MODES, UNITS, UP_AXES, MeshTree, QsmTree
 from .schema import REQUIRED, Context, Custom, FilePath, ListOf, Number, Text, Vector, name_problem, parse_mapping
-from .types import BEAM_PATTERNS, FOREST_BANDS, INTENSITY_SOURCES, POINT_POSITIONS, Scene, Sensor, display_path, from_mapping, to_mapping
+from .types import (BEAM_PATTERNS, FOREST_BANDS, INTENSITY_SOURCES, OUTPUT_PROFILES, POINT_POSITIONS, Scene, Sensor, display_path,
+                    from_mapping, to_mapping)
 
 __all__ = ["load_scene", "load_sensor", "scene_from_mapping", "read_yaml", "validate_scene", "scene_error", "Scene", "Sensor",
            "ConfigError", "FOREST_BANDS"]
@@ -264,7 +265,8 @@ SCENE_SPEC = {
     },
     "output": {
         "dir": FilePath(None, nullable=True, must_exist=False),
-        "formats": ListOf(Text(choices=("pcd", "las", "laz")), ["pcd", "laz"], min_length=1),
+        "formats": ListOf(Text(choices=("pcd", "las", "laz", "copc")), ["pcd", "laz"], min_length=1),
+        "profile": Text("ours", choices=OUTPUT_PROFILES),
     },
 }
 

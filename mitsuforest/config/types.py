@@ -35,6 +35,7 @@ FOREST_BANDS = {"woodland": (0.20, 0.50), "open": (0.50, 0.80), "closed": (0.80,
 BEAM_PATTERNS = ("stratified", "fixed")   # see scan/beam.py
 POINT_POSITIONS = ("beam_axis", "surface")  # see scan/tracer.py
 INTENSITY_SOURCES = ("amplitude", "reflectance")   # see scan/radiometry.py
+OUTPUT_PROFILES = ("ours", "for-instance", "forestformer3d", "treelearn")   # write/output_profiles.py PROFILES, and ours
 SPEED_OF_LIGHT = 299_792_458.0
 
 
@@ -267,6 +268,7 @@ class Simulation:
 class Output:
     dir: str
     formats: tuple[str, ...]
+    profile: str = "ours"                     # one of OUTPUT_PROFILES
 
 
 @dataclass(frozen=True)

@@ -27,7 +27,8 @@ import yaml
 from ..classes import CLASS_NAMES, DEADWOOD, TREE_LEAVES, TREE_WOOD
 from ..config.types import to_mapping
 from ..write.atomic import atomic_path, write_json, write_text
-from ..write.las import write_las
+from ..write.las import read_las_points, write_las
+from ..write.output_profiles import PROFILES, stem_ids_from_table, write_profile
 from ..write.pcd import pcd_header, read_pcd
 from ..write.tables import csv_text
 from . import tiles as tiling
@@ -118,35 +119,13 @@ def class_shares(classes: dict) -> dict:
 
 def read_plot_points(folder, name: str, formats) -> np.ndarray:
     """A plot's points as written: the PCD when there is one (all fields; x, y, z georeferenced when
-    ``origin.offset`` is set, local otherwise), else the LAS/LAZ (our fields; no pulse_id or range)."""
+    ``origin.offset`` is set, local otherwise), else the LAS/LAZ (our fields; no pulse_id or range).
+    Both carry ``height_above_ground``, which the tiles keep."""
     folder = Path(folder)
     if "pcd" in formats:
         return np.array(read_pcd(folder / f"{name}.pcd"))
-    import laspy
-    fmt = "las" if "las" in formats else "laz"
-    las = laspy.read(str(folder / f"{name}.{fmt}"))
-    dtype = [("treeid", "<u2"), ("x", "<f8"), ("y", "<f8"), ("z", "<f8"), ("classification", "u1"),
-             ("instance", "<u4"), ("object_id", "<u4"), ("number_of_returns", "u1"), ("return_number", "u1"),
-             ("intensity", "<f4"), ("gps_time", "<f8"), ("scan_angle", "<f4"), ("species", "u1"), ("reflectance", "<f4"),
-             ("point_source_id", "<u2")]
-    out = np.zeros(len(las.points), dtype)
-    for key, value in (("treeid", las.treeid), ("x", las.x), ("y", las.y), ("z", las.z),
-                       ("classification", las.label), ("instance", las.instance), ("object_id", las.object_id),
-                       ("number_of_returns", las.number_of_returns), ("return_number", las.return_number),
-                       ("intensity", las.amplitude), ("gps_time", las.gps_time),
-                       ("scan_angle", np.asarray(las.scan_angle) * 0.006), ("reflectance", _las_reflectance(las)),
-                       ("point_source_id", las.point_source_id)):
-        out[key] = np.asarray(value)
-    if "species" in las.point_format.extra_dimension_names:   # files written before it was added lack it
-        out["species"] = np.asarray(las.species)
-    return out
-
-
-def _las_reflectance(las) -> np.ndarray:
-    """The ``reflectance`` extra dimension (dB), NaN in a LAS written before it existed."""
-    if "reflectance" in las.point_format.extra_dimension_names:
-        return np.asarray(las.reflectance)
-    return np.full(len(las.points), np.nan, np.float32)
+    fmt = next(f for f in ("las", "laz", "copc") if f in formats).replace("copc", "copc.laz")   # COPC is LAZ
+    return read_las_points(folder / f"{name}.{fmt}")
 
 
 def read_volumes(path) -> dict:
@@ -162,7 +141,8 @@ def read_volumes(path) -> dict:
 
 def write_tiles(root, scene, tiles) -> list[dict]:
     """Cut a rendered plot's points into tiles (see :mod:`.tiles`): one point file and one tree table
-    per tile, each written atomically. Returns one record per tile."""
+    per tile, and the ``output.profile``'s file unless it is ``ours``, each written atomically. Returns one
+    record per tile."""
     name, folder = scene.name, plot_folder(root, scene.name)
     points = read_plot_points(folder, name, scene.output.formats)
     offset = np.asarray(scene.origin.offset, np.float64)
@@ -174,6 +154,8 @@ def write_tiles(root, scene, tiles) -> list[dict]:
     out_dir = folder / "tiles"
     shutil.rmtree(out_dir, ignore_errors=True)      # an earlier run's tiles (another layout, or damaged)
     out_dir.mkdir()
+    profile = PROFILES.get(scene.output.profile)      # None: ours only
+    stems = stem_ids_from_table(folder / f"{name}_ids.csv") if profile else None
     nx, ny = tiling.tile_grid(scene.area.size, tiles.size)
     ci, cj = tiling.core_tile(x, y, scene.area.size, tiles.size)
     records = []
@@ -186,6 +168,10 @@ def write_tiles(root, scene, tiles) -> list[dict]:
             tile_points = points[sel]
             point_file = out_dir / f"{tile_id}.{tiles.format}"
             _write_points(point_file, tile_points, offset, scene.origin.crs, scene.sensor.intensity)
+            written = [point_file]
+            if profile:
+                written.append(out_dir / f"{tile_id}{profile.suffix}")
+                write_profile(written[-1], scene.output.profile, tile_points, offset, scene.origin.crs, stems)
             rows = _tree_rows(tile_points, kept[sel], instances, boxes, volumes, extent, offset, x[sel], y[sel])
             table = out_dir / f"{tile_id}_trees.csv"
             write_text(table, csv_text(["instance", "kind", "treeid", "volume_union_m3", "points", "whole_inside"],
@@ -196,7 +182,7 @@ def write_tiles(root, scene, tiles) -> list[dict]:
                 "core": list(tiling.core_bounds(i, j, scene.area.size, tiles.size)),
                 "points": int(sel.sum()), "core_points": int(core.sum()), "trees": len(rows),
                 "classes": {int(k): int(v) for k, v in enumerate(classes) if v},
-                "files": checksums(root, [point_file, table]),
+                "files": checksums(root, [*written, table]),
             })
     return records
 

@@ -34,6 +34,22 @@ class Terrain:
         return ((1 - u) * (1 - v) * z[j, i] + u * (1 - v) * z[j, i + 1]
                 + (1 - u) * v * z[j + 1, i] + u * v * z[j + 1, i + 1])
 
+    def surface_height(self, px, py) -> np.ndarray:
+        """Height of the ground as rendered: the plane of the triangle of :meth:`mesh` over each point
+        (each cell is cut along its diagonal from ``(x[i], y[j])`` to ``(x[i+1], y[j+1])``). It differs
+        from :meth:`height` inside a cell by up to a quarter of the cell's twist; a ground point lies on
+        this surface up to its ranging noise. Points beyond the grid get the height at its edge."""
+        px, py = np.asarray(px, float), np.asarray(py, float)
+        fx = np.interp(px, self.x, np.arange(len(self.x)))      # clamped at the grid's edges
+        fy = np.interp(py, self.y, np.arange(len(self.y)))
+        i, j = np.minimum(fx.astype(int), len(self.x) - 2), np.minimum(fy.astype(int), len(self.y) - 2)
+        u, v = fx - i, fy - j
+        z = self.z
+        z00, z11 = z[j, i], z[j + 1, i + 1]
+        lower = u >= v              # the triangle (i, j), (i+1, j), (i+1, j+1)
+        return np.where(lower, z00 + u * (z[j, i + 1] - z00) + v * (z11 - z[j, i + 1]),
+                        z00 + v * (z[j + 1, i] - z00) + u * (z11 - z[j + 1, i]))
+
     @property
     def mean_height(self) -> float:
         return float(self.z.mean())
@@ -150,3 +166,59 @@ def _barycentric(tri_xy: np.ndarray, px: np.ndarray, py: np.ndarray, eps: float 
     b1 = (dx * e2[:, 1] - dy * e2[:, 0]) / safe
     b2 = (e1[:, 0] * dy - e1[:, 1] * dx) / safe
     return b1, b2, valid & (b1 >= -eps) & (b2 >= -eps) & (b1 + b2 <= 1 + eps)
+
+
+class TriangleSurface:
+    """Heights of a triangle mesh seen from above, at scattered points: the barycentric height in the
+    triangle over each point (where triangles overlap in plan view the later one wins, as in
+    :func:`heights_under`), ``fallback`` where none is. For grounds that are only a mesh (a HELIOS++
+    scene's); a :class:`Terrain` answers :meth:`Terrain.surface_height` directly.
+
+    Triangles are binned on a square grid of about their median size, so a point is tested against
+    the few triangles of its cell only.
+
+    :param vertices: (n, 3) float.
+    :param faces: (m, 3) int.
+    """
+
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray, fallback: float = 0.0):
+        self.triangles = np.asarray(vertices, np.float64)[np.asarray(faces, np.int64)]
+        self.fallback = float(fallback)
+        xy = self.triangles[:, :, :2]
+        lo, hi = xy.min(1), xy.max(1)
+        extent = hi - lo
+        self.cell = max(float(np.median(extent.max(1))) if len(xy) else 1.0, 1e-3)
+        self.origin = lo.min(0) if len(xy) else np.zeros(2)
+        self.shape = tuple(int(n) for n in (np.floor((hi.max(0) - self.origin) / self.cell) + 1)) if len(xy) else (1, 1)
+        first, last = self._cells(lo), self._cells(hi)
+        width, height = last[:, 0] - first[:, 0] + 1, last[:, 1] - first[:, 1] + 1
+        pairs = width * height
+        t = np.repeat(np.arange(len(xy)), pairs)
+        k = np.arange(len(t)) - np.repeat(np.cumsum(pairs) - pairs, pairs)
+        key = (first[t, 1] + k // width[t]) * self.shape[0] + first[t, 0] + k % width[t]
+        order = np.argsort(key, kind="stable")
+        self.members = t[order]                                   # triangle numbers, cell by cell
+        self.starts = np.searchsorted(key[order], np.arange(self.shape[0] * self.shape[1] + 1))
+
+    def _cells(self, xy: np.ndarray) -> np.ndarray:
+        return np.floor((xy - self.origin) / self.cell).astype(np.int64)
+
+    def __call__(self, px, py) -> np.ndarray:
+        px, py = np.asarray(px, np.float64), np.asarray(py, np.float64)
+        out = np.full(len(px), self.fallback)
+        cells = self._cells(np.column_stack([px, py]))
+        inside = np.flatnonzero((cells >= 0).all(1) & (cells[:, 0] < self.shape[0]) & (cells[:, 1] < self.shape[1]))
+        key = cells[inside, 1] * self.shape[0] + cells[inside, 0]
+        lo, count = self.starts[key], self.starts[key + 1] - self.starts[key]
+        point = np.repeat(inside, count)
+        k = np.arange(len(point)) - np.repeat(np.cumsum(count) - count, count)
+        tri = self.members[np.repeat(lo, count) + k]
+        b1, b2, ok = _barycentric(self.triangles[tri, :, :2], px[point], py[point])
+        zt = self.triangles[tri, :, 2]
+        z = zt[:, 0] + b1 * (zt[:, 1] - zt[:, 0]) + b2 * (zt[:, 2] - zt[:, 0])
+        last = np.zeros(len(px), np.int64) - 1          # the latest triangle over each point
+        np.maximum.at(last, point[ok], tri[ok])
+        hit = point[ok]
+        chosen = tri[ok] == last[hit]
+        out[hit[chosen]] = z[ok][chosen]
+        return out

@@ -22,6 +22,7 @@ from ..errors import UserError
 from .atomic import TMP_MARK, fsync_file, fsync_folder, owner_is_gone, owner_tag, write_json, write_text
 from .las import write_las
 from .pcd import read_pcd
+from .output_profiles import PROFILE_SUFFIXES
 from .figures import write_profile_figure, write_returns_figure, write_tile_figure, write_top_figure
 from .stream import PointWriter, georeference
 from .tables import write_ids, write_trajectory, write_volumes
@@ -31,8 +32,8 @@ __all__ = ["Staging", "check_output_folder", "output_lock", "PointWriter", "geor
            "write_manifest"]
 
 PLAN, MANIFEST = "_plan.json", "_manifest.json"
-SUFFIXES = (".pcd", ".las", ".laz", "_volumes.csv", "_ids.csv", PLAN, "_trajectory.csv",
-            MANIFEST, "_top.png", "_side.png", "_profile.png", "_returns.png")
+SUFFIXES = (".pcd", ".las", ".laz", ".copc.laz", "_volumes.csv", "_ids.csv", PLAN, "_trajectory.csv",
+            MANIFEST, "_top.png", "_side.png", "_profile.png", "_returns.png", *PROFILE_SUFFIXES)
 
 
 def output_files(name: str) -> list[str]:

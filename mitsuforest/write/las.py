@@ -3,7 +3,8 @@
 Classification uses ASPRS codes where they fit — ground 2, ground vegetation 3 (low vegetation), bush 4
 (medium vegetation), tree wood and leaves 5 (high vegetation) — and the user range for the rest: deadwood 64, rock 65, stump 66. Our own
 classes (1-8, as in the PCD) are in the extra dimension ``label``; ``treeid``, ``instance``,
-``object_id`` and ``species`` (classes.SPECIES_CODES, also in the VLR) are extra dimensions too. Intensity is
+``object_id``, ``species`` (classes.SPECIES_CODES, also in the VLR) and ``height_above_ground`` (float32 m,
+see write/ground.py) are extra dimensions too. Intensity is
 the sensor's 16-bit counts (its ``intensity`` mapping: gain, offset and saturation applied to the
 amplitude or the reflectance, :func:`~mitsuforest.scan.radiometry.intensity_counts`; the mapping is
 written in the header's VLR): the float amplitude is kept exact in the extra dimension ``amplitude``,
@@ -116,6 +117,7 @@ def las_header(offset, crs: str | None = None, intensity: IntensityMapping | Non
         laspy.ExtraBytesParams("amplitude", np.float32, "echo amplitude (white at 1 m=1)"),
         laspy.ExtraBytesParams("species", np.uint8, "tree family code, 0 none"),
         laspy.ExtraBytesParams("reflectance", np.float32, "dB: amplitude/white target's"),
+        laspy.ExtraBytesParams("height_above_ground", np.float32, "m above the terrain"),
     ])
     _without_extra_statistics(header)
     header.vlrs.append(laspy.VLR("mitsuforest", 1, "intensity and classes", json.dumps(
@@ -174,6 +176,7 @@ def las_records(header: laspy.LasHeader, points: np.ndarray, out: np.ndarray | N
     out["amplitude"] = points["intensity"]
     out["species"] = points["species"] if "species" in names else 0
     out["reflectance"] = reflectance
+    out["height_above_ground"] = points["height_above_ground"] if "height_above_ground" in names else np.nan
     return out
 
 
@@ -207,13 +210,15 @@ class LasStream:
         compresses ``threads`` chunks (at most 16) at a time with lazrs' parallel compressor (the
         same bytes).
     :param intensity: the sensor's intensity mapping (by default amplitude × 1e6).
+    :param header: another header than ours (:func:`las_header`), for records the caller packs
+        (:meth:`write_records`).
     """
 
     def __init__(self, path, offset, crs: str | None = None, compress: bool | None = None, threads: int = 2,
-                 intensity: IntensityMapping | None = None):
+                 intensity: IntensityMapping | None = None, header: laspy.LasHeader | None = None):
         self.path = Path(path)
         self.intensity = intensity
-        self.header = las_header(offset, crs, intensity)
+        self.header = header or las_header(offset, crs, intensity)
         compress = str(path).endswith(".laz") if compress is None else compress
         backend = laspy.LazBackend.LazrsParallel if threads > 1 else laspy.LazBackend.Lazrs
         with self._io_errors():
@@ -317,3 +322,28 @@ def write_las(path, points: np.ndarray, offset, crs: str | None = None, intensit
         with LasStream(tmp, offset, crs, compress=str(path).endswith(".laz"),
                        intensity=intensity) as stream:
             stream.write(points)
+
+
+def read_las_points(path) -> np.ndarray:
+    """The points of one of our ``.las``/``.laz`` files (a tile's too) under the PCD's field names:
+    ``classification`` is our class (the ``label`` dimension), ``intensity`` the float amplitude; x, y,
+    z georeferenced. No ``pulse_id`` or ``range``, which the LAS file does not hold; a dimension that a
+    file of an earlier version lacks reads 0 (``species``) or NaN (``reflectance``,
+    ``height_above_ground``)."""
+    las = laspy.read(str(path))
+    dtype = [("treeid", "<u2"), ("x", "<f8"), ("y", "<f8"), ("z", "<f8"), ("classification", "u1"),
+             ("instance", "<u4"), ("object_id", "<u4"), ("number_of_returns", "u1"), ("return_number", "u1"),
+             ("intensity", "<f4"), ("gps_time", "<f8"), ("scan_angle", "<f4"), ("species", "u1"),
+             ("reflectance", "<f4"), ("point_source_id", "<u2"), ("height_above_ground", "<f4")]
+    out = np.zeros(len(las.points), dtype)
+    for key, value in (("treeid", las.treeid), ("x", las.x), ("y", las.y), ("z", las.z),
+                       ("classification", las.label), ("instance", las.instance), ("object_id", las.object_id),
+                       ("number_of_returns", las.number_of_returns), ("return_number", las.return_number),
+                       ("intensity", las.amplitude), ("gps_time", las.gps_time),
+                       ("scan_angle", np.asarray(las.scan_angle) * 0.006), ("point_source_id", las.point_source_id)):
+        out[key] = np.asarray(value)
+    extra = set(las.point_format.extra_dimension_names)
+    out["species"] = np.asarray(las.species) if "species" in extra else 0
+    for key in ("reflectance", "height_above_ground"):
+        out[key] = np.asarray(las[key]) if key in extra else np.nan
+    return out

@@ -18,8 +18,11 @@ import numpy as np
 
 from ..threads import Workers, row_ranges, writer_threads
 from .atomic import naming_errors
+from .copc import CopcStream
+from .ground import ground_surface, with_height_above_ground
 from .las import LasStream, las_records
 from .pcd import COUNT_DIGITS, pcd_header
+from .output_profiles import PROFILES
 from .profile import ReturnCounts
 from .quicklook import SideTile, TopView
 
@@ -33,9 +36,12 @@ class PointWriter:
     :param threads: the writer's threads (default: :func:`~mitsuforest.threads.writer_threads`, the
         cores this process may use, or ``MITSUFOREST_WRITER_THREADS``); 1 writes in the calling thread
         alone.
+    :param stems: sorted object ids of the stem components, for an ``output.profile`` that tells stems from
+        branches (:func:`~.output_profiles.stem_ids`).
     """
 
-    def __init__(self, staging, scene: dict, keep: bool = False, terrain=None, threads: int | None = None):
+    def __init__(self, staging, scene: dict, keep: bool = False, terrain=None, threads: int | None = None,
+                 stems=()):
         self.threads = writer_threads() if threads is None else threads
         self.offset = np.asarray(scene.origin.offset, np.float64)
         self.area = scene.area.size
@@ -46,6 +52,12 @@ class PointWriter:
                                intensity=scene.sensor.intensity)
                      for f in ("las", "laz") if f in formats]
         self._workers = Workers(self.threads)
+        self._others = []      # written whole batch by batch, after the threaded LAS and PCD records
+        if "copc" in formats:                        # spooled, then built into an octree on close
+            self._others.append(CopcStream(staging.file(".copc.laz"), self.offset, scene.origin.crs))
+        profile = PROFILES.get(scene.output.profile) if staging else None     # None: ours only
+        if profile:
+            self._others.append(profile.stream(staging.file(profile.suffix), self.offset, scene.origin.crs, stems))
         self._kept = [] if keep else None
         self.count = 0
         self.classes = np.zeros(256, np.int64)
@@ -53,6 +65,7 @@ class PointWriter:
         self.top = TopView(self.area)
         self.side = SideTile(self.area)
         self.counts = ReturnCounts(terrain, self.area)      # profile and return charts, realism table
+        self._ground = ground_surface(terrain)              # every point's height_above_ground
         rng = np.random.default_rng([scene.seed, 99])
         corner = [rng.uniform(0, max(s - SPACING_TILE, 0), 4) for s in self.area]
         self._tiles = np.column_stack(corner)
@@ -60,8 +73,9 @@ class PointWriter:
         self.dtype = None
 
     def add(self, points: np.ndarray) -> None:
-        """Add a batch of local-frame points (POINT_DTYPE); returns once it is written (LAZ: once it
-        is compressed or waits for whole chunks)."""
+        """Add a batch of local-frame points (POINT_DTYPE); each file gets ``height_above_ground`` too.
+        Returns once it is written (LAZ: once it is compressed or waits for whole chunks)."""
+        points = with_height_above_ground(points, self._ground)
         if self.dtype is None and self._pcd_file:
             self._pcd_record = self._pcd_dtype(points.dtype)
             header = pcd_header(self._pcd_record, 0, COUNT_DIGITS).encode("ascii")
@@ -92,8 +106,12 @@ class PointWriter:
         self.count += len(points)
         if self._pcd_file:
             self._pcd_end += len(points) * self._pcd_record.itemsize
-        if self._kept is not None:
-            self._kept.append(georeference(points, self.offset))
+        if self._others or self._kept is not None:
+            geo = georeference(points, self.offset)
+            for stream in self._others:
+                stream.write(geo)
+            if self._kept is not None:
+                self._kept.append(geo)
 
     def _part(self, batch: np.ndarray, start: int, stop: int, records: list[np.ndarray]) -> tuple:
         """Rows ``start:stop`` of a batch: written to the PCD, packed into each LAS file's ``records``,
@@ -135,7 +153,7 @@ class PointWriter:
     def close(self) -> None:
         """Finish the files: the PCD header is written once the point count is known."""
         self._workers.close()
-        for las in self._las:
+        for las in (*self._las, *self._others):
             las.close()
         if self._pcd_file:
             if self.dtype is None:
@@ -149,7 +167,7 @@ class PointWriter:
     def abort(self) -> None:
         """Close whatever is still open (after a failure, possibly inside :meth:`close`)."""
         self._workers.close()
-        for las in self._las:
+        for las in (*self._las, *self._others):
             las.abort()
         if self._pcd_file and not self._pcd_file.closed:
             self._pcd_file.close()
