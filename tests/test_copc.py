@@ -43,13 +43,14 @@ def test_copc_reader_reads_the_points_of_the_las_file(rendered):
     ours, theirs = _sorted(las.points), _sorted(points)
     for name in ("X", "Y", "Z", "intensity", "classification", "return_number", "number_of_returns", "gps_time",
                  "scan_angle", "label", "treeid", "instance", "object_id", "amplitude", "species",
-                 "height_above_ground"):
+                 "reflectance", "point_source_id", "height_above_ground"):
         assert np.array_equal(np.asarray(theirs[name]), np.asarray(ours[name])), name
     whole = laspy.read(str(rendered / "test.copc.laz"))       # a COPC is a LAZ too
     assert whole.header.parse_crs().to_epsg() == 28355
     assert list(whole.header.number_of_points_by_return[:3]) == list(las.header.number_of_points_by_return[:3])
     note = next(v for v in whole.header.vlrs if v.user_id == "mitsuforest")
-    assert json.loads(note.record_data)["intensity_scale"] == 1e-6
+    assert json.loads(note.record_data)["intensity"] == {"source": "amplitude", "gain": 1e6, "offset": 0.0,
+                                                         "saturation": 65535}
 
 
 def test_every_node_has_a_parent_with_points_and_lies_in_its_voxel(rendered):

@@ -384,7 +384,8 @@ def test_tiles_of_a_plot_written_only_as_las_keep_every_field(tmp_path, fmt):
     points["scan_angle"] = rng.integers(-5000, 5000, len(points)) * 0.006
     write_las(tmp_path / f"p.{fmt}", points, [0.0, 0.0, 0.0])
     read = read_plot_points(tmp_path, "p", [fmt])
-    assert set(read.dtype.names) == set(POINT_DTYPE.names) - {"pulse_id", "range"}
+    assert set(read.dtype.names) == set(POINT_DTYPE.names) - {"pulse_id", "range"} | {"height_above_ground"}
     assert read["species"].tolist() == points["species"].tolist() and set(read["species"]) == {1, 2, 3}
-    for name in read.dtype.names:
+    assert np.isnan(read["height_above_ground"]).all()        # the points written had none
+    for name in set(read.dtype.names) - {"height_above_ground"}:
         assert np.allclose(read[name], points[name], atol=1e-4), name

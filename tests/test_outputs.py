@@ -293,7 +293,7 @@ def test_every_class_has_its_asprs_code_and_extra_dimensions_carry_no_partial_st
     las = las_points(header, points)
     assert np.asarray(las.classification).tolist() == [2, 5, 5, 64, 65, 66, 4, 3]
     structs = header.vlrs.get("ExtraBytesVlr")[0].extra_bytes_structs
-    assert len(structs) == 7 and all(s.options == 0 for s in structs)
+    assert len(structs) == 8 and all(s.options == 0 for s in structs)   # label, treeid, instance, object_id, amplitude, species, reflectance, height_above_ground
 
 
 def test_intensity_mapping_is_monotone_clips_at_saturation_and_reaches_the_las(tmp_path):

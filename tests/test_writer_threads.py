@@ -3,6 +3,7 @@ back as the points written, LAS records as laspy makes them, and the thread coun
 
 import laspy
 import numpy as np
+import numpy.lib.recfunctions  # noqa: F401 (np.lib.recfunctions)
 import pytest
 from conftest import ROOT
 
@@ -82,9 +83,10 @@ def test_files_read_back_as_the_points_written(tmp_path):
     geo = np.concatenate(_batches())
     for axis, o in zip("xyz", OFFSET):
         geo[axis] += o
-    assert np.array_equal(points, geo)
+    assert points.dtype.names == (*geo.dtype.names, "height_above_ground")   # the writer adds it
+    assert all(np.array_equal(points[name], geo[name]) for name in geo.dtype.names)
     pcd = read_pcd(next((tmp_path / "out").glob(".*/demo.pcd")))
-    assert np.array_equal(pcd, geo)                           # float64 x, y, z with an offset
+    assert all(np.array_equal(pcd[name], geo[name]) for name in geo.dtype.names)   # float64 x, y, z with an offset
     for suffix in (".laz", ".las"):
         las = laspy.read(next((tmp_path / "out").glob(f".*/demo{suffix}")))
         assert las.header.point_count == len(geo)
@@ -120,7 +122,12 @@ def test_las_records_are_those_laspy_makes(tmp_path):
     las.label, las.amplitude = points["classification"], points["intensity"]
     for name in ("treeid", "instance", "object_id", "species", "reflectance", "point_source_id"):
         las[name] = points[name]
+    las.height_above_ground = np.full(len(points), np.nan, np.float32)   # not among the points' fields: unknown
     assert las_records(header, points).tobytes() == las.points.array.tobytes()
+    with_height = np.lib.recfunctions.append_fields(points, "height_above_ground", points["z"] - 2.0, "<f4",
+                                                    usemask=False)
+    las.height_above_ground = with_height["height_above_ground"]
+    assert las_records(header, with_height).tobytes() == las.points.array.tobytes()
 
 
 def test_las_stream_closes_on_error_and_refuses_writes_once_closed(tmp_path):
