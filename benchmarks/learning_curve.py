@@ -116,8 +116,9 @@ def classifier() -> HistGradientBoostingClassifier:
     return HistGradientBoostingClassifier(max_iter=200, learning_rate=0.1, class_weight="balanced", random_state=0)
 
 
-def learning_curve(train, test, counts) -> list[tuple[int, float, float]]:
-    """(plots, balanced accuracy, wood F1) for a classifier trained on the first ``n`` plots, each ``n``."""
+def learning_curve(train, test, counts) -> tuple[list[tuple[int, float, float]], HistGradientBoostingClassifier]:
+    """(plots, balanced accuracy, wood F1) for a classifier trained on the first ``n`` plots, each ``n``
+    in ``counts``; and the classifier trained on the most."""
     x_test = np.vstack([x for x, _, _ in test])
     y_test = np.concatenate([y for _, y, _ in test])
     rows = []

@@ -143,7 +143,7 @@ class UniqueTrees:
     weight: float = 1.0
 
 
-MAX_UNIQUE = 1000        # trees per unique entry: each is its own model in memory (5-30 MB)
+MAX_UNIQUE = 1000        # trees per unique entry: each is its own model in memory (5-11 MB of mesh arrays for the built-in archetypes)
 UNIQUE_STREAM = 29       # the plan's random streams: the scene seed with a number per purpose
 
 # How a unique tree departs from its template (one of its family's built-in archetypes, drawn at random):
