@@ -197,15 +197,15 @@ def _plan(args) -> int:
 
 
 def _trees(args) -> int:
-    from .trees.archetypes import DEFAULT_ARCHETYPES
+    from .trees.archetypes import DEFAULT_ARCHETYPES, expanded
     from .trees.gallery import write_gallery
     from .write import check_output_folder
     check_output_folder(args.output)
     models = ()
     if args.scene:
         from .config import load_scene
-        forest = load_scene(args.scene).forest
-        archetypes, models = forest.archetypes, forest.models
+        scene = load_scene(args.scene)
+        archetypes, models = expanded(scene.forest.archetypes, scene.seed), scene.forest.models   # unique: the plot's trees
     else:
         archetypes = DEFAULT_ARCHETYPES
     write_gallery(archetypes, args.output, models=models)

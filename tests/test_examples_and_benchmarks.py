@@ -4,6 +4,7 @@ import os
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 from helpers import ROOT
 
@@ -245,3 +246,14 @@ def test_readme_python_block_runs():
     script = block + ("assert scene.pulse_frequency == 100000 and abs(scene.sensor.detection_threshold - 9.6e-06) < 1e-12\n"
                       "assert len(result.points) > 10000 and set(result.points['classification']) >= {1, 2, 3}\n")
     _run(["-c", script], ROOT)
+
+
+def test_learning_curve_benchmark_smallest():
+    """Two training plots and one test plot per condition: the table has its rows, and the classifier
+    tells wood from leaves on trees it never saw far better than chance (0.5)."""
+    stdout = _run([str(ROOT / "benchmarks" / "learning_curve.py"), "--plots", "2", "--test-plots", "1",
+                   "--tree-points", "3000", "--no-figure", "--no-real"], ROOT)
+    rows = [line.split("|")[1:-1] for line in stdout.splitlines() if line.startswith("| 1 |") or line.startswith("| 2 |")]
+    assert [r[0].strip() for r in rows] == ["1", "2"]
+    scores = np.array([[float(x) for x in r[1:]] for r in rows])   # balanced accuracy, wood F1, per condition
+    assert scores.shape == (2, 4) and scores[:, [0, 2]].min() > 0.7 and scores.max() <= 1

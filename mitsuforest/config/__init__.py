@@ -18,7 +18,8 @@ from pathlib import Path
 import yaml
 
 from ..errors import ConfigError, UserError
-from ..trees.archetypes import DEFAULT_ARCHETYPES, FAMILY_ARCHETYPES, FIELDS as ARCHETYPE_FIELDS, Archetype
+from ..trees.archetypes import (DEFAULT_ARCHETYPES, FAMILY_ARCHETYPES, FIELDS as ARCHETYPE_FIELDS, MAX_UNIQUE, Archetype,
+                                 UniqueTrees)
 from ..trees.sources import DEFAULT_LEAF_PATTERNS, REPAIR_MODES, UNITS, UP_AXES, MeshTree, QsmTree
 from .schema import REQUIRED, Context, Custom, FilePath, ListOf, Number, Text, Vector, name_problem, parse_mapping
 from .types import (BEAM_PATTERNS, FOREST_BANDS, INTENSITY_SOURCES, OUTPUT_PROFILES, POINT_POSITIONS, Scene, Sensor, display_path,
@@ -97,8 +98,11 @@ def _archetypes(value, ctx: Context, key: str):
     spec["base"] = Number(None, integer=True, ge=1, nullable=True)
     out = []
     for i, item in enumerate(value):
-        item = dataclasses.asdict(item) if isinstance(item, Archetype) else item
+        item = dataclasses.asdict(item) if isinstance(item, (Archetype, UniqueTrees)) else item
         where = f"{key}[{i}]"
+        if isinstance(item, dict) and "unique" in item:
+            out.append(_unique_entry(item, ctx, where))
+            continue
         given = parse_mapping(spec, item, ctx, where)
         base, family = given.pop("base"), FAMILY_ARCHETYPES[given["species"]]
         if base and base > len(family):   # `base: N` counts the archetypes of the entry's species
@@ -107,6 +111,23 @@ def _archetypes(value, ctx: Context, key: str):
         explicit = {k: given[k] for k in item if k != "base"}
         out.append(Archetype(**{**{k: given[k] for k in ARCHETYPE_FIELDS}, **merged, **explicit}))
     return out
+
+
+UNIQUE_SPEC = {"species": _field_spec(ARCHETYPE_FIELDS["species"]),
+               "unique": Number(REQUIRED, integer=True, ge=1, le=MAX_UNIQUE),
+               "weight": _field_spec(ARCHETYPE_FIELDS["weight"])}
+
+
+def _unique_entry(item: dict, ctx: Context, where: str) -> UniqueTrees:
+    """``{species: S, unique: N, weight: W}``: N trees drawn for each plot (trees/archetypes.py,
+    :func:`~mitsuforest.trees.archetypes.drawn_archetype`); their parameters cannot be given."""
+    for name in item:
+        if name == "base":
+            ctx.fail(f"{where}.base", "each unique tree starts from a random built-in archetype of its species; "
+                     "give only species, unique and weight")
+        if name in ARCHETYPE_FIELDS and name not in UNIQUE_SPEC:
+            ctx.fail(f"{where}.{name}", "is drawn for each unique tree; give only species, unique and weight")
+    return UniqueTrees(**parse_mapping(UNIQUE_SPEC, item, ctx, where))
 
 
 MAX_TREE_MODELS = 65_534   # treeid is 16 bits, and deadwood takes the number after the last tree model
@@ -427,7 +448,7 @@ def _check_scene(scene: dict, ctx: Context):
         ctx.fail("forest.trees_file", "grows procedural trees of the listed sizes: give it without forest.models")
     if forest["trees_file"] is None and not sum(a.weight for a in [*forest["archetypes"], *forest["models"]]) > 0:
         ctx.fail("forest.archetypes", "at least one archetype or model needs weight > 0")
-    if len(forest["archetypes"]) + len(forest["models"]) > MAX_TREE_MODELS:
+    if sum(getattr(a, "unique", 1) for a in forest["archetypes"]) + len(forest["models"]) > MAX_TREE_MODELS:
         ctx.fail("forest.models", f"at most {MAX_TREE_MODELS:,} archetypes and models together (treeid is 16 bits)")
     if scene["terrain"]["type"] in ("mesh", "dem") and not scene["terrain"]["path"]:
         ctx.fail("terrain.path", f"is required when terrain.type is {scene['terrain']['type']}")

@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import display_path  # noqa: F401 (re-exported: config uses it from here)
-from ..trees.archetypes import Archetype
+from ..trees.archetypes import Archetype, UniqueTrees
 from ..trees.sources import MeshTree, QsmTree
 
 # Australia's National Forest Inventory crown cover classes.
@@ -157,7 +157,7 @@ class Forest:
     trees: int | None
     min_spacing: float
     tilt: float
-    archetypes: tuple[Archetype, ...]
+    archetypes: tuple[Archetype | UniqueTrees, ...]   # unique entries: drawn per plot by the plan
     models: tuple[MeshTree | QsmTree, ...] = ()   # imported trees (trees/sources.py), treeids after the archetypes
     trees_file: str | None = None             # a tree list (plan/tree_list.py): one procedural model per row
 
@@ -365,7 +365,7 @@ def to_mapping(section, plain: bool = False) -> dict:
     A nested sensor and the archetypes stay objects (the parser takes them back as they are), unless
     ``plain`` asks for JSON-ready data.
     """
-    if isinstance(section, (Archetype, MeshTree, QsmTree)):
+    if isinstance(section, (Archetype, UniqueTrees, MeshTree, QsmTree)):
         return dataclasses.asdict(section)
     return {key: _nested(getattr(section, f.name), plain) for f, key in _keyed_fields(type(section))}
 
@@ -373,7 +373,7 @@ def to_mapping(section, plain: bool = False) -> dict:
 def _nested(value, plain: bool):
     if isinstance(value, (tuple, list)):
         return [_nested(v, plain) for v in value]
-    if isinstance(value, (Sensor, Archetype, MeshTree, QsmTree)) and not plain:
+    if isinstance(value, (Sensor, Archetype, UniqueTrees, MeshTree, QsmTree)) and not plain:
         return value
     if dataclasses.is_dataclass(value):
         return to_mapping(value, plain)

@@ -17,7 +17,7 @@ import numpy as np
 from ..classes import DEADWOOD_TREEID, GROUND_OBJECT_ID
 from ..config import RSA_JAMMING, scene_error
 from ..errors import UserError
-from ..trees.archetypes import grown_to, nearest_template
+from ..trees.archetypes import UniqueTrees, grown_to, nearest_template, unique_archetypes
 from ..trees.imported import summary as imported_summary
 from ..trees.models import tree_components
 from ..trees.skeleton import grow
@@ -69,7 +69,7 @@ def _plan(scene) -> Plan:
     legs = _checked_legs(scene, flight_legs(size, scene.survey, terrain.mean_height), terrain)   # before the slow part
     _check_understory_fits(scene)
     listed = _tree_list(scene) if scene.forest.trees_file else None
-    tree_models = _tree_models(scene.forest) if listed is None else _listed_tree_models(scene, listed)
+    tree_models = _tree_models(scene.forest, scene.seed) if listed is None else _listed_tree_models(scene, listed)
     crowns = [crown for crown, _ in tree_models.values()]
     models = {name: spec for name, (_, spec) in tree_models.items()}
     if listed is None:
@@ -153,13 +153,15 @@ def _deadwood_treeid(tree_models: int) -> int:
     return max(DEADWOOD_TREEID, tree_models + 1)
 
 
-def _tree_models(forest) -> dict[str, tuple[np.ndarray, ModelSpec]]:
-    """``treeNN``: (crown points, spec) of the archetypes, then of the imported models (``forest.models``),
-    numbered on: tree model N carries treeid N."""
+def _tree_models(forest, seed: int) -> dict[str, tuple[np.ndarray, ModelSpec]]:
+    """``treeNN``: (crown points, spec) of the archetypes (a unique entry's N drawn trees in its place),
+    then of the imported models (``forest.models``), numbered on: tree model N carries treeid N."""
     out = {}
-    for a in forest.archetypes:
-        crown, components = _summarise(a)
-        out[f"tree{len(out) + 1:02d}"] = crown, ModelSpec("tree", components, archetype=a)
+    for i, entry in enumerate(forest.archetypes):
+        drawn = isinstance(entry, UniqueTrees)
+        for a in unique_archetypes(entry, seed, i) if drawn else (entry,):
+            crown, components = _summarise(a)
+            out[f"tree{len(out) + 1:02d}"] = crown, ModelSpec("tree", components, archetype=a, drawn=drawn or None)
     for entry in forest.models:
         crown, components = imported_summary(entry)   # builds (or loads) the model: files are read here
         out[f"tree{len(out) + 1:02d}"] = crown, ModelSpec("tree", components, source=entry)
@@ -233,9 +235,15 @@ def _tree(archetype_index: int, xy, terrain, tilt_max, rng) -> PlacedObject:
 
 
 def _place_trees(forest, size, crowns, terrain, rng) -> tuple[list[PlacedObject], float]:
-    """Dart throwing with ``min_spacing`` until the tree count or the canopy-cover target is met."""
-    weights = np.array([a.weight for a in (*forest.archetypes, *forest.models)], float)
+    """Dart throwing with ``min_spacing`` until the tree count or the canopy-cover target is met.
+
+    Each tree draws an entry of ``forest.archetypes`` and ``forest.models`` by weight; a unique entry
+    then gives its next drawn tree in turn, so its N trees are all placed before any is placed twice."""
+    entries = (*forest.archetypes, *forest.models)
+    weights = np.array([a.weight for a in entries], float)
     weights /= weights.sum()
+    sizes = [e.unique if isinstance(e, UniqueTrees) else 1 for e in entries]
+    first, placed = np.cumsum([0, *sizes[:-1]]), [0] * len(entries)
     target_count, target_cover = forest.trees, forest.target_cover
     grid = CoverGrid(size)
     trees, positions = [], np.empty((0, 2))
@@ -254,7 +262,9 @@ def _place_trees(forest, size, crowns, terrain, rng) -> tuple[list[PlacedObject]
                                f"the others in a {size[0]:g} x {size[1]:g} m plot; lower it or the tree target")
             continue
         misses = 0
-        k = int(rng.choice(len(weights), p=weights))
+        e = int(rng.choice(len(weights), p=weights))
+        k = int(first[e]) + placed[e] % sizes[e]
+        placed[e] += 1
         tree = _tree(k, xy, terrain, forest.tilt, rng)
         grid.add(crown_outline(apply(tree.matrix, crowns[k])))
         trees.append(tree)

@@ -64,6 +64,7 @@ class ModelSpec:
     kind: str                            # tree, bush, rock, deadwood, stump, grass, litter (or custom, in tests)
     components: int                      # labelled components (object ids per placed copy)
     archetype: Archetype | None = None   # procedural trees
+    drawn: bool | None = None            # a unique tree (forest.archetypes unique: N): one plot's own, not cached on disk
     source: MeshTree | QsmTree | None = None   # imported trees (forest.models)
     seed: int | None = None              # understory
     length: float | None = None          # deadwood

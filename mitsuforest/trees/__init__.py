@@ -25,7 +25,9 @@ def build_model(name: str, spec) -> Model:
     understory kind with its seed (deadwood also its length and radius)."""
     if spec.kind == "tree" and spec.source is not None:
         return imported_model(spec.source, name)
-    if spec.kind == "tree":
+    if spec.kind == "tree" and spec.drawn:   # used by one plot only: caching thousands would fill the disk
+        model = tree_model(spec.archetype, name)
+    elif spec.kind == "tree":
         archetype = spec.archetype
         params = {k: v for k, v in dataclasses.asdict(archetype).items() if k != "weight"}
         model = cached("tree", params, lambda: tree_model(archetype, name))

@@ -10,6 +10,8 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from ..classes import TREE_SPECIES
 
 
@@ -103,35 +105,97 @@ def describe() -> str:
     return "\n".join(rows)
 
 
-# Jucker et al. (2017) exponent of DBH ~ (height x crown diameter)^b; 0.85 sits between their angiosperm
-# (0.81, 0.89) and gymnosperm (0.89) fits (README, "Allometry check").
+# Jucker et al. (2017): DBH ~ (height x crown diameter)^b; 0.85 lies between their angiosperm and
+# gymnosperm fits (README, "Allometry check").
 ALLOMETRY_EXPONENT = 0.85
+
+
+def _within(name: str, value: float) -> float:
+    """``value`` clipped to the bounds of the archetype field ``name``."""
+    meta = FIELDS[name].metadata
+    return float(min(max(value, meta["lo"]), meta["hi"]))
 
 
 def grown_to(template: Archetype, height: float, crown_diameter: float, seed: int,
              leaf_area: float | None = None) -> Archetype:
-    """``template`` grown to ``height`` (m) and ``crown_diameter`` (m): one tree of a listed forest.
+    """``template`` at another ``height`` and ``crown_diameter`` (m), with the skeleton ``seed``.
 
-    The stem diameter follows Jucker et al.'s allometry from the template's, and the leaf area (unless
-    given, m²) keeps the template's leaf area per unit of crown volume (crown width² × crown length), so a
-    small tree is not as dense as a tall one; the other parameters (form, branching, leaves) are the
-    template's.
+    The stem diameter scales as ``(height · crown_diameter) ** ALLOMETRY_EXPONENT`` (Jucker et al.), and
+    the leaf area (unless given, m²) with the crown's volume (width² × height), so leaf area density
+    stays the template's; form, branching and leaves are the template's.
     """
-    height = float(min(max(height, FIELDS["height"].metadata["lo"]), FIELDS["height"].metadata["hi"]))
-    crown_diameter = float(min(max(crown_diameter, FIELDS["crown_diameter"].metadata["lo"]),
-                               FIELDS["crown_diameter"].metadata["hi"]))
-    size = (height * crown_diameter) / (template.height * template.crown_diameter)
-    dbh = min(max(template.dbh * size ** ALLOMETRY_EXPONENT, FIELDS["dbh"].metadata["lo"]), FIELDS["dbh"].metadata["hi"])
+    height, crown_diameter = _within("height", height), _within("crown_diameter", crown_diameter)
+    size = height * crown_diameter / (template.height * template.crown_diameter)
     crown_volume = (crown_diameter / template.crown_diameter) ** 2 * height / template.height
-    if leaf_area is None:
-        leaf_area = template.leaf_area * crown_volume
-    leaf_area = min(leaf_area, FIELDS["leaf_area"].metadata["hi"])
+    leaf_area = template.leaf_area * crown_volume if leaf_area is None else leaf_area
     return dataclasses.replace(template, height=round(height, 3), crown_diameter=round(crown_diameter, 3),
-                               dbh=round(dbh, 4), leaf_area=round(leaf_area, 2), seed=int(seed), weight=1.0)
+                               dbh=round(_within("dbh", template.dbh * size ** ALLOMETRY_EXPONENT), 4),
+                               leaf_area=round(_within("leaf_area", leaf_area), 2), seed=int(seed), weight=1.0)
+
+
+@dataclass(frozen=True)
+class UniqueTrees:
+    """A ``forest.archetypes`` entry ``{species: S, unique: N}``: N distinct trees of family S in each plot,
+    drawn by :func:`drawn_archetype` from the scene's seed (:func:`unique_archetypes`)."""
+
+    species: str
+    unique: int
+    weight: float = 1.0
+
+
+MAX_UNIQUE = 1000        # trees per unique entry: each is its own model in memory (5-11 MB of mesh arrays for the built-in archetypes)
+UNIQUE_STREAM = 29       # the plan's random streams: the scene seed with a number per purpose
+
+# How a unique tree departs from its template (one of its family's built-in archetypes, drawn at random):
+# a factor or an offset ``sd · z`` with z a standard normal truncated to [-2, 2], then clipped to the
+# field's bounds. Height and crown diameter are relative; the crown diameter follows the drawn height
+# first (same crown/height ratio as the template), and dbh and leaf area follow both (:func:`grown_to`).
+RELATIVE_SPREAD = {"height": 0.15, "crown_diameter": 0.12, "branches": 0.15, "leaf_area": 0.15}
+ABSOLUTE_SPREAD = {"taper": 0.05, "crown_ratio": 0.05, "fork_height": 0.05, "branch_angle": 5.0,
+                   "curvature": 8.0, "leaf_inclination": 6.0, "leaf_clumping": 0.05, "lean": 1.0}
+
+
+def _z(rng) -> float:
+    """A standard normal draw truncated to [-2, 2] (by rejection: deterministic in ``rng``)."""
+    while abs(z := float(rng.standard_normal())) > 2:
+        pass
+    return z
+
+
+def drawn_archetype(species: str, rng, weight: float = 1.0) -> Archetype:
+    """One tree of ``species`` drawn around a random built-in archetype of its family (see
+    :data:`RELATIVE_SPREAD`, :data:`ABSOLUTE_SPREAD`), with its own skeleton seed."""
+    family = FAMILY_ARCHETYPES[species]
+    template = family[int(rng.integers(len(family)))]
+    factor = {name: 1 + sd * _z(rng) for name, sd in RELATIVE_SPREAD.items()}
+    offset = {name: sd * _z(rng) for name, sd in ABSOLUTE_SPREAD.items()}
+    height = template.height * factor["height"]
+    crown = template.crown_diameter * height / template.height * factor["crown_diameter"]
+    grown = grown_to(template, height, crown, seed=int(rng.integers(0, 2**31 - 1)))
+    changed = {name: round(_within(name, getattr(template, name) + d), 3) for name, d in offset.items()
+               if name != "fork_height" or template.forks > 1}    # a single leader has no fork to move
+    changed["branches"] = int(round(_within("branches", template.branches * factor["branches"])))
+    changed["leaf_area"] = round(_within("leaf_area", grown.leaf_area * factor["leaf_area"]), 2)
+    return dataclasses.replace(grown, **changed, weight=weight)
+
+
+def unique_archetypes(entry: UniqueTrees, seed: int, index: int) -> tuple[Archetype, ...]:
+    """The ``entry.unique`` trees of the ``index``-th ``forest.archetypes`` entry in a plot of scene seed
+    ``seed``; tree i from ``default_rng([seed, UNIQUE_STREAM, index, i])``, so the same scene gives
+    the same trees and raising ``unique`` keeps the first ones. Each weighs ``entry.weight / unique``."""
+    return tuple(drawn_archetype(entry.species, np.random.default_rng([int(seed), UNIQUE_STREAM, index, i]),
+                                 weight=entry.weight / entry.unique) for i in range(entry.unique))
+
+
+def expanded(archetypes, seed: int) -> tuple[Archetype, ...]:
+    """A scene's ``forest.archetypes`` with each :class:`UniqueTrees` entry replaced by its drawn trees."""
+    return tuple(a for i, entry in enumerate(archetypes)
+                 for a in (unique_archetypes(entry, seed, i) if isinstance(entry, UniqueTrees) else (entry,)))
 
 
 def nearest_template(species: str, height: float, archetypes=()) -> Archetype:
-    """The archetype of ``species`` nearest in height: among ``archetypes`` (a scene's list) where it has
-    one of that species, else among the family's built-in ones."""
-    pool = [a for a in archetypes if a.species == species] or list(FAMILY_ARCHETYPES[species])
+    """The archetype of ``species`` nearest in height: among ``archetypes`` (a scene's list; its
+    unique-tree entries have no height and are passed over) where it has one of that species, else among
+    the family's built-in ones."""
+    pool = [a for a in archetypes if isinstance(a, Archetype) and a.species == species] or list(FAMILY_ARCHETYPES[species])
     return min(pool, key=lambda a: abs(a.height - height))
