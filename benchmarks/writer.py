@@ -101,7 +101,7 @@ def main(argv=None):
     threads = (args.threads or sorted({1, writer_threads()})) if THREADED else [1]
     scene = SimpleNamespace(name="writer", seed=1, area=SimpleNamespace(size=(100.0, 100.0)),   # what the writer reads
                             origin=SimpleNamespace(offset=(0.0, 0.0, 0.0), crs=None),
-                            output=SimpleNamespace(formats=args.formats),
+                            output=SimpleNamespace(formats=args.formats, profile="ours"),
                             sensor=SimpleNamespace(intensity=None))   # None: the default intensity mapping
     batches = scan_lines(args.points, args.batch)
     cpu_name = next((line.split(":", 1)[1].strip() for line in open("/proc/cpuinfo") if line.startswith("model name")),

@@ -20,14 +20,26 @@ def ground_surface(terrain):
     return TriangleSurface(*terrain.mesh(), fallback=terrain.mean_height)
 
 
+def with_room_for_height(points: np.ndarray) -> np.ndarray:
+    """``points`` themselves when they hold ``height_above_ground``, else an empty (unfilled) array of
+    their fields and that one, for :func:`fill_height` to fill by row ranges (on several threads)."""
+    if FIELD in points.dtype.names:
+        return points
+    return np.empty(len(points), np.dtype(points.dtype.descr + [(FIELD, "<f4")]))
+
+
+def fill_height(points: np.ndarray, out: np.ndarray, surface) -> np.ndarray:
+    """``out`` (rows of :func:`with_room_for_height`'s array) holding ``points`` (local frame) and
+    their ``height_above_ground`` (float32, m): z less the ``surface`` at x, y."""
+    if out is not points:
+        for name in points.dtype.names:
+            out[name] = points[name]
+    if len(out):
+        out[FIELD] = out["z"] - surface(out["x"], out["y"])
+    return out
+
+
 def with_height_above_ground(points: np.ndarray, surface) -> np.ndarray:
     """``points`` (local frame) with the field ``height_above_ground`` (float32, m) appended, or filled
     in when it is there already."""
-    if FIELD not in points.dtype.names:
-        out = np.empty(len(points), np.dtype(points.dtype.descr + [(FIELD, "<f4")]))
-        for name in points.dtype.names:
-            out[name] = points[name]
-        points = out
-    if len(points):
-        points[FIELD] = points["z"] - surface(points["x"], points["y"])
-    return points
+    return fill_height(points, with_room_for_height(points), surface)

@@ -19,7 +19,7 @@ import numpy as np
 from ..threads import Workers, row_ranges, writer_threads
 from .atomic import naming_errors
 from .copc import CopcStream
-from .ground import ground_surface, with_height_above_ground
+from .ground import fill_height, ground_surface, with_room_for_height
 from .las import LasStream, las_records
 from .pcd import COUNT_DIGITS, pcd_header
 from .output_profiles import PROFILES
@@ -75,22 +75,22 @@ class PointWriter:
     def add(self, points: np.ndarray) -> None:
         """Add a batch of local-frame points (POINT_DTYPE); each file gets ``height_above_ground`` too.
         Returns once it is written (LAZ: once it is compressed or waits for whole chunks)."""
-        points = with_height_above_ground(points, self._ground)
+        batch = with_room_for_height(points)     # the scan's fields and height_above_ground, filled by _part
         if self.dtype is None and self._pcd_file:
-            self._pcd_record = self._pcd_dtype(points.dtype)
+            self._pcd_record = self._pcd_dtype(batch.dtype)
             header = pcd_header(self._pcd_record, 0, COUNT_DIGITS).encode("ascii")
             with naming_errors(self._pcd_file.name):
                 self._pcd_file.write(header)
                 self._pcd_file.flush()       # the records are written at their offsets, past the buffer
             self._pcd_end = len(header)
-        self.dtype = points.dtype
+        self.dtype = batch.dtype
         if len(points) == 0:
             return
         records = [las.reserve(len(points)) for las in self._las]
         tasks = [self._workers.submit(self.top.add, points)]       # in order: a pixel keeps its last highest point
         try:
             for start, stop in row_ranges(len(points), self.threads):
-                tasks.append(self._workers.submit(self._part, points, start, stop, records))
+                tasks.append(self._workers.submit(self._part, points, batch, start, stop, records))
             tallies = self._workers.results(tasks)[1:]
             for las in self._las:
                 las.commit(len(points))
@@ -107,16 +107,17 @@ class PointWriter:
         if self._pcd_file:
             self._pcd_end += len(points) * self._pcd_record.itemsize
         if self._others or self._kept is not None:
-            geo = georeference(points, self.offset)
+            geo = georeference(batch, self.offset)
             for stream in self._others:
                 stream.write(geo)
             if self._kept is not None:
                 self._kept.append(geo)
 
-    def _part(self, batch: np.ndarray, start: int, stop: int, records: list[np.ndarray]) -> tuple:
-        """Rows ``start:stop`` of a batch: written to the PCD, packed into each LAS file's ``records``,
-        and their statistics, returned for :meth:`add` to merge in order."""
-        points = batch[start:stop]
+    def _part(self, scanned: np.ndarray, batch: np.ndarray, start: int, stop: int, records: list[np.ndarray]) -> tuple:
+        """Rows ``start:stop`` of a batch: copied from the ``scanned`` points into ``batch`` with their
+        height above the ground, written to the PCD, packed into each LAS file's ``records``, and their
+        statistics, returned for :meth:`add` to merge in order."""
+        points = fill_height(scanned[start:stop], batch[start:stop], self._ground)
         geo = georeference(points, self.offset)
         if self._pcd_file:
             record = self._pcd_record
