@@ -317,3 +317,15 @@ def test_compound_crs_with_a_metric_projection_is_accepted():
 def test_crs_wkt_is_wkt1_with_the_epsg_authority():
     wkt = crs_wkt("EPSG:7855")
     assert wkt.startswith('PROJCS["GDA2020 / MGA zone 55"') and wkt.endswith('AUTHORITY["EPSG","7855"]]')
+
+
+def test_for_instance_profile_header_dates_as_ours(monkeypatch):
+    """The FOR-instance profile's LAS header takes its creation date as ours (2000-01-01 or
+    SOURCE_DATE_EPOCH's day), not the day of the run."""
+    import datetime
+
+    from mitsuforest.write.output_profiles import for_instance_header
+    monkeypatch.delenv("SOURCE_DATE_EPOCH", raising=False)
+    assert for_instance_header(OFFSET, None).creation_date == datetime.date(2000, 1, 1)
+    monkeypatch.setenv("SOURCE_DATE_EPOCH", "1700000000")
+    assert for_instance_header(OFFSET, None).creation_date == datetime.date(2023, 11, 14)

@@ -105,11 +105,7 @@ def las_header(offset, crs: str | None = None, intensity: IntensityMapping | Non
     ``intensity`` mapping, by default amplitude × 1e6) and, when ``crs`` is given, its WKT VLR (see
     :func:`crs_wkt`, which raises :class:`UserError` for a bad one)."""
     intensity = intensity or IntensityMapping()
-    header = laspy.LasHeader(point_format=6, version="1.4")
-    header.creation_date = creation_date()
-    header.offsets = np.asarray(offset, float)
-    header.scales = np.full(3, COORDINATE_SCALE)
-    header.add_extra_dims([
+    return format6_header(offset, crs, [
         laspy.ExtraBytesParams("label", np.uint8, "mitsuforest class 1-8"),
         laspy.ExtraBytesParams("treeid", np.uint16, "archetype 1-10, deadwood 11"),
         laspy.ExtraBytesParams("instance", np.uint32, "object instance id"),
@@ -118,11 +114,22 @@ def las_header(offset, crs: str | None = None, intensity: IntensityMapping | Non
         laspy.ExtraBytesParams("species", np.uint8, "tree family code, 0 none"),
         laspy.ExtraBytesParams("reflectance", np.float32, "dB: amplitude/white target's"),
         laspy.ExtraBytesParams("height_above_ground", np.float32, "m above the terrain"),
-    ])
-    _without_extra_statistics(header)
-    header.vlrs.append(laspy.VLR("mitsuforest", 1, "intensity and classes", json.dumps(
+    ], laspy.VLR("mitsuforest", 1, "intensity and classes", json.dumps(
         {"intensity": dataclasses.asdict(intensity), "classification": {str(k): v for k, v in ASPRS_CODE.items()},
          "species": {str(v): k for k, v in SPECIES_CODES.items()}, "crs": crs}).encode()))
+
+
+def format6_header(offset, crs: str | None, extra_dims: list, note: laspy.VLR) -> laspy.LasHeader:
+    """A LAS 1.4 point format 6 header: 0.1 mm coordinates from ``offset``, the ``extra_dims``
+    (``laspy.ExtraBytesParams``) without partial statistics, our ``note`` VLR, the WKT VLR of ``crs``
+    when given, and the :func:`creation_date`."""
+    header = laspy.LasHeader(point_format=6, version="1.4")
+    header.creation_date = creation_date()
+    header.offsets = np.asarray(offset, float)
+    header.scales = np.full(3, COORDINATE_SCALE)
+    header.add_extra_dims(extra_dims)
+    _without_extra_statistics(header)
+    header.vlrs.append(note)
     header.global_encoding.wkt = True  # LAS 1.4 requires it for point formats 6-10; PDAL refuses files without
     if crs:
         header.vlrs.append(WktCoordinateSystemVlr(crs_wkt(crs)))

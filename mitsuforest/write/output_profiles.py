@@ -28,13 +28,12 @@ from pathlib import Path
 
 import laspy
 import numpy as np
-from laspy.vlrs.known import WktCoordinateSystemVlr
 
 from ..classes import (BUSH, DEADWOOD, GROUND, GROUND_VEGETATION, ROCK, STUMP, TREE_LEAVES, TREE_WOOD)
 from ..config.types import IntensityMapping
 from ..scan.radiometry import intensity_counts
 from .atomic import atomic_path, naming_errors
-from .las import COORDINATE_SCALE, LAS_MAX_RETURNS, LasStream, _without_extra_statistics, crs_wkt
+from .las import LAS_MAX_RETURNS, LasStream, format6_header
 
 TREE_CLASSES = (TREE_WOOD, TREE_LEAVES)
 
@@ -76,23 +75,15 @@ def for_instance_classes(points: np.ndarray, stems: np.ndarray) -> np.ndarray:
 
 def for_instance_header(offset, crs: str | None) -> laspy.LasHeader:
     """LAS 1.4 point format 6 with the extra dimensions ``treeID`` (int32), ``label`` (our class) and
-    ``height_above_ground``; offsets, scales, the CRS and the intensity scale as in our LAS files."""
-    header = laspy.LasHeader(point_format=6, version="1.4")
-    header.offsets = np.asarray(offset, float)
-    header.scales = np.full(3, COORDINATE_SCALE)
-    header.add_extra_dims([
+    ``height_above_ground``; offsets, scales, the CRS, the creation date and the intensity mapping as in
+    our LAS files."""
+    note = {"profile": "for-instance", "classification": FOR_INSTANCE_NAMES,
+            "intensity": dataclasses.asdict(IntensityMapping())}
+    return format6_header(offset, crs, [
         laspy.ExtraBytesParams("treeID", np.int32, "tree id, 0 for non-tree"),
         laspy.ExtraBytesParams("label", np.uint8, "mitsuforest class 1-8"),
         laspy.ExtraBytesParams("height_above_ground", np.float32, "m above the terrain"),
-    ])
-    _without_extra_statistics(header)
-    note = {"profile": "for-instance", "classification": FOR_INSTANCE_NAMES,
-            "intensity": dataclasses.asdict(IntensityMapping())}
-    header.vlrs.append(laspy.VLR("mitsuforest", 2, "FOR-instance classes", json.dumps(note).encode()))
-    header.global_encoding.wkt = True
-    if crs:
-        header.vlrs.append(WktCoordinateSystemVlr(crs_wkt(crs)))
-    return header
+    ], laspy.VLR("mitsuforest", 2, "FOR-instance classes", json.dumps(note).encode()))
 
 
 def for_instance_points(header: laspy.LasHeader, points: np.ndarray, stems: np.ndarray) -> laspy.ScaleAwarePointRecord:
