@@ -82,13 +82,17 @@ def analyse(scan, settings: detection.DetectionSettings | None = None) -> dict:
             "settings": settings}
 
 
-def make_twin(path, out_dir, species=(), sensor=None, name: str | None = None, log=None) -> dict:
+def make_twin(path, out_dir, species=(), sensor=None, name: str | None = None, log=None, calibrate: int = 0,
+              variant: str | None = None) -> dict:
     """Write the twin of the scan ``path`` into ``out_dir``: ``<name>.yaml``, ``<name>_dem.tif``,
     ``trees.csv`` and ``twin.json``; returns the report (``twin.json``'s content).
 
     :param species: procedural families drawn for the trees in turn (default ``pinus_radiata``).
     :param sensor: a sensor file to use instead of the estimated sensor.
     :param name: the scene's name (default: the file's stem, or ``twin`` where that cannot name files).
+    :param calibrate: render the twin up to this many times, rescaling its crowns' leaf area and width
+        towards the real scan's gap fraction and canopy cover after each (:mod:`.calibrate`); ``variant``
+        is the Mitsuba variant of those renders.
     :raises UserError: one line, before anything is written: an unreadable or empty file, an unknown
         species, a bad name or sensor file, an output folder that cannot be written.
     """
@@ -107,4 +111,11 @@ def make_twin(path, out_dir, species=(), sensor=None, name: str | None = None, l
     scan = read_scan(path)
     stem = Path(path).stem
     name = name or (stem if name_problem(stem) is None else "twin")
-    return write_twin(analyse(scan), scan, Path(out_dir), name, tuple(species), sensor, log)
+    if calibrate < 0:
+        raise UserError(f"--calibrate: must be >= 0, got {calibrate}")
+    analysis = analyse(scan)
+    report = write_twin(analysis, scan, Path(out_dir), name, tuple(species), sensor, log)
+    if calibrate:
+        from .calibrate import calibrate as calibrate_crowns
+        report["calibration"] = calibrate_crowns(scan, analysis, Path(out_dir), name, calibrate, variant, log)
+    return report
