@@ -16,6 +16,10 @@ Each step rescales every tree's crown (pure functions, :func:`lai_scale`, :func:
   the twin's crowns cover as much of the plot as the real ones. A tree's leaf area is its LAI times its
   crown area, so a wider crown carries more leaf at the same LAI.
 
+From the second step on, each exponent (1 for Beer-Lambert, 2 for the crown area) is the one the last
+step showed (:func:`response_exponent`, a secant step): clumped shoots answer more leaf area with less
+shade than random leaves, and overlapping crowns answer a wider radius with less cover than discs apart.
+
 The loop (:func:`calibrate`) stops when both are within tolerance or after ``iterations`` renders; each
 render is the scene as written (same seed, same beam), so the result is deterministic.
 """
@@ -42,19 +46,33 @@ SCALE_LIMITS = (0.25, 4.0)   # one step changes LAI or crown radius by at most t
 MIN_GAP = foliage.MIN_GAP
 
 
-def lai_scale(p_real: float, p_twin: float) -> float:
-    """The factor on leaf area per crown area that moves a Beer-Lambert canopy's gap fraction from
-    ``p_twin`` to ``p_real``: ``ln P_real / ln P_twin`` (both clipped to [MIN_GAP, 1 - MIN_GAP]), kept
-    within :data:`SCALE_LIMITS`."""
+def lai_scale(p_real: float, p_twin: float, exponent: float = 1.0) -> float:
+    """The factor on leaf area per crown area that moves the twin's gap fraction from ``p_twin`` to
+    ``p_real`` where ``-ln P`` goes as ``LAI ** exponent``: ``(ln P_real / ln P_twin) ** (1 / exponent)``
+    (both clipped to [MIN_GAP, 1 - MIN_GAP]), kept within :data:`SCALE_LIMITS`. ``exponent`` 1 is
+    Beer-Lambert; clumped foliage answers less (see :func:`response_exponent`)."""
     lo, hi = MIN_GAP, 1.0 - MIN_GAP
-    k = math.log(min(max(p_real, lo), hi)) / math.log(min(max(p_twin, lo), hi))
-    return float(min(max(k, SCALE_LIMITS[0]), SCALE_LIMITS[1]))
+    k = (math.log(min(max(p_real, lo), hi)) / math.log(min(max(p_twin, lo), hi))) ** (1.0 / exponent)
+    return _bounded(k)
 
 
-def crown_scale(cover_real: float, cover_twin: float) -> float:
-    """The factor on crown radius that moves the twin's canopy cover to the real one, crowns' areas going
-    as their radius squared: ``sqrt(cover_real / cover_twin)``, kept within :data:`SCALE_LIMITS`."""
-    k = math.sqrt(cover_real / max(cover_twin, 1e-6))
+def crown_scale(cover_real: float, cover_twin: float, exponent: float = 2.0) -> float:
+    """The factor on crown radius that moves the twin's canopy cover to the real one where cover goes as
+    ``radius ** exponent`` (2: crowns' areas, apart): ``(cover_real / cover_twin) ** (1 / exponent)``,
+    kept within :data:`SCALE_LIMITS`."""
+    return _bounded((cover_real / max(cover_twin, 1e-6)) ** (1.0 / exponent))
+
+
+def response_exponent(before: float, after: float, factor: float, default: float) -> float:
+    """How a measure answered a step: ``ln(after / before) / ln(factor)``, the exponent of a power law
+    through the two renders (a secant step), within [0.1, 4 · default]; ``default`` where the step or
+    a measure was nil."""
+    if before <= 0 or after <= 0 or abs(math.log(factor)) < 1e-3:
+        return default
+    return float(min(max(math.log(after / before) / math.log(factor), 0.1), 4.0 * default))
+
+
+def _bounded(k: float) -> float:
     return float(min(max(k, SCALE_LIMITS[0]), SCALE_LIMITS[1]))
 
 
@@ -129,8 +147,16 @@ def calibrate(real_scan, analysis: dict, folder: Path, name: str, iterations: in
             log(f"twin: calibration {i + 1}: gap fraction {_f(twin['gap_fraction'])} (real {real['gap_fraction']:.3f}), "
                 f"cover {twin['cover']:.3f} (real {real['cover']:.3f}): within tolerance")
             break
-        k_lai, k_r = lai_scale(real["gap_fraction"], twin["gap_fraction"]), crown_scale(real["cover"], twin["cover"])
-        step.update(lai_factor=k_lai, crown_factor=k_r)
+        if record["steps"]:          # secant: the exponents the last step showed
+            last = record["steps"][-1]
+            lai_exp = response_exponent(-math.log(max(last["gap_fraction"], MIN_GAP)),
+                                        -math.log(max(twin["gap_fraction"], MIN_GAP)), last["lai_factor"], 1.0)
+            cover_exp = response_exponent(last["cover"], twin["cover"], last["crown_factor"], 2.0)
+        else:
+            lai_exp, cover_exp = 1.0, 2.0
+        k_lai = lai_scale(real["gap_fraction"], twin["gap_fraction"], lai_exp)
+        k_r = crown_scale(real["cover"], twin["cover"], cover_exp)
+        step.update(lai_factor=k_lai, crown_factor=k_r, lai_exponent=lai_exp, cover_exponent=cover_exp)
         record["steps"].append(step)
         record["lai_factor"] *= k_lai
         record["crown_factor"] *= k_r
