@@ -65,3 +65,21 @@ def test_rescale_trees_widens_crowns_and_keeps_leaf_area_per_crown_area(tmp_path
     rows = f.read_text().splitlines()
     assert rows[0] == "x,y,height,crown_radius,species,leaf_area"
     assert rows[1] == "1.000,2.000,20.000,3.000,pinus_radiata,226.22"    # 50.27 x 2 x 1.5^2
+
+
+def test_a_secant_step_hits_a_power_law_the_first_step_missed():
+    """Clumped foliage: -ln P = 0.3 LAI^0.4. The Beer-Lambert step falls short; the exponent it shows
+    (0.4) makes the next step land on the target."""
+    from mitsuforest.twin.calibrate import response_exponent
+
+    def gap(lai):
+        return math.exp(-0.3 * lai ** 0.4)
+    target, lai = gap(5.0), 1.0
+    k1 = lai_scale(target, gap(lai))
+    exponent = response_exponent(-math.log(gap(lai)), -math.log(gap(lai * k1)), k1, 1.0)
+    assert exponent == pytest.approx(0.4, rel=1e-9)
+    lai *= k1
+    assert gap(lai) > target * 1.01                        # Beer-Lambert alone falls short
+    lai *= lai_scale(target, gap(lai), exponent)
+    assert gap(lai) == pytest.approx(target, rel=1e-9)
+    assert response_exponent(0.5, 0.7, 1.0, 2.0) == 2.0     # no step: the default
