@@ -71,12 +71,13 @@ def analyse(scan, settings: detection.DetectionSettings | None = None) -> dict:
     gap = foliage.crown_gap_fraction(h[first], chm[row, col] >= settings.min_height)
     angle = float(np.median(np.abs(scan.scan_angle[first]))) if scan.scan_angle is not None else 0.0
     lai = foliage.effective_lai(gap, angle) if gap is not None else None
+    ratio = foliage.crown_ratio(h[first & (h >= detection.DetectionSettings().min_height)], trees.height)
     cells = understory.shrub_cells(scan.x, scan.y, h, cx, cy,
                                    (int(frame.size[1] / understory.CELL), int(frame.size[0] / understory.CELL)))
     estimate = survey.estimate(scan, float(np.mean(dem)))
     pulses = float(np.sum(1.0 / scan.number_of_returns))
     return {"frame": frame, "dem": dem, "dem_origin": (x0, y0), "ground_source": ground_source, "trees": trees,
-            "crown_gap_fraction": gap, "scan_angle": angle, "crown_lai": lai,
+            "crown_gap_fraction": gap, "scan_angle": angle, "crown_lai": lai, "crown_ratio": ratio,
             "bushes": understory.bush_count(cells), "shrub_area_m2": float(cells.sum() * understory.CELL ** 2),
             "survey": estimate, "pulse_density": pulses / (frame.size[0] * frame.size[1]), "notes": notes,
             "settings": settings}

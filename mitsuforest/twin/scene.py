@@ -103,15 +103,17 @@ def survey_plan(analysis: dict, sensor=None) -> tuple[dict, dict | str, dict]:
     return out, sensor_map, report
 
 
-def _dense_archetypes(species: tuple[str, ...]) -> dict:
-    """``forest.archetypes`` for the families in :data:`DENSE_SHOOTS`: their templates with denser shoots."""
+def _dense_archetypes(species: tuple[str, ...], crown_ratio: float | None) -> dict:
+    """``forest.archetypes`` for the families in :data:`DENSE_SHOOTS`: their templates with denser shoots
+    and, where the scan gave one, its conical crowns' ratio (:func:`~.foliage.crown_ratio`)."""
     from ..trees.archetypes import FAMILY_ARCHETYPES
     out = []
     for family in dict.fromkeys(species):
         if family in DENSE_SHOOTS:
             rule = DENSE_SHOOTS[family]
             out += [{"species": family, "base": k, "branches": int(round(a.branches * rule["branches"])),
-                     "children": rule["children"]} for k, a in enumerate(FAMILY_ARCHETYPES[family], 1)]
+                     "children": rule["children"], **({"crown_ratio": round(crown_ratio, 3)} if crown_ratio else {})}
+                    for k, a in enumerate(FAMILY_ARCHETYPES[family], 1)]
     return {"archetypes": out} if out else {}
 
 
@@ -160,7 +162,7 @@ def write_twin(analysis: dict, scan, out: Path, name: str, species: tuple[str, .
         "name": name, "seed": 0, "area": {"size": list(frame.size)},
         "origin": {"offset": list(frame.offset), **({"crs": crs} if crs else {})},
         "terrain": {"type": "dem", "path": f"{name}_dem.tif"},
-        "forest": {"trees_file": "trees.csv", "tilt": 3.0, **_dense_archetypes(species)},
+        "forest": {"trees_file": "trees.csv", "tilt": 3.0, **_dense_archetypes(species, analysis.get("crown_ratio"))},
         "understory": {"bushes": analysis["bushes"], "rocks": 0, "deadwood": 0, "stumps": 0},
         "sensor": sensor_value, "survey": survey,
         "output": {"formats": ["laz"]},
@@ -173,6 +175,7 @@ def write_twin(analysis: dict, scan, out: Path, name: str, species: tuple[str, .
                   "crowns by marker watershed", "settings": dataclasses.asdict(analysis["settings"]),
                   "species": list(species), "crown_gap_fraction": analysis["crown_gap_fraction"],
                   "median_scan_angle": analysis["scan_angle"], "crown_lai": analysis["crown_lai"],
+                  "crown_ratio": analysis.get("crown_ratio"),
                   "leaf_area": "crown LAI (Beer-Lambert, G = 0.5) x crown area" if analysis["crown_lai"] is not None
                   else "the species template's, in proportion to crown volume"},
         "understory": {"bushes": analysis["bushes"], "shrub_area_m2": analysis["shrub_area_m2"],
