@@ -83,3 +83,14 @@ def test_a_secant_step_hits_a_power_law_the_first_step_missed():
     lai *= lai_scale(target, gap(lai), exponent)
     assert gap(lai) == pytest.approx(target, rel=1e-9)
     assert response_exponent(0.5, 0.7, 1.0, 2.0) == 2.0     # no step: the default
+
+
+def test_crown_ratio_recovers_a_cone_s_length_from_its_first_returns_seen_from_above():
+    from mitsuforest.twin.foliage import crown_ratio
+    rng = np.random.default_rng(3)
+    height, ratio = 28.0, 0.3
+    rho = np.sqrt(rng.random(200_001))                   # uniform over the crown's disc, rho / R
+    first = height - ratio * height * rho ** (1 / 0.9)   # where a vertical pulse meets the cone
+    assert crown_ratio(first, [height] * 5) == pytest.approx(ratio, rel=0.01)
+    assert crown_ratio([], [height]) is None
+    assert crown_ratio([27.9], [height]) == 0.2          # within the range
