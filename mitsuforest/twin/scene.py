@@ -32,12 +32,14 @@ DEFAULT_SENSOR = {"name": "twin sensor (RIEGL VUX-1UAV22 optics)", "deflector": 
 DEFAULTS = {"altitude": 30.0, "speed": 2.0, "scan_frequency": 50.0, "field_of_view": 360.0, "line_spacing": 12.0,
             "heading": 0.0}
 MARGIN = 10.0   # m: legs run this far beyond the plot
-# The Pinus radiata templates with twice the whorl branches and 8 side shoots on each (against 4): the
-# built-in templates hang their needles at ~400 shoot tips a tree, so more leaf area piles onto the same
-# clumps and barely shades more (a 28 m tree's vertical gap fraction 0.52 at its template's LAI 2.7, 0.49 at
-# 2.5 times it; 0.27 with these shoots, 0.17 with 2.5 times the leaf and 6 twigs a shoot), while a
-# plantation's crowns pass ~10 % of pulses (UAS_Clip). The twin's calibration scales leaf area on these.
-DENSE_SHOOTS = {"pinus_radiata": {"branches": 2.0, "children": 8}}
+# The Pinus radiata templates with denser, fuller shoots: twice the whorl branches, 8 side shoots on each
+# (against 4) with 4 twigs (against 2), needles along the whole twig (against its outer 60 %), and each
+# "leaf" a 30 x 3 cm shoot silhouette (against a 15 x 1.5 cm one). The built-in templates hang their needles
+# in tight clumps at the twig tips, so more leaf area piles onto the same clumps and barely shades more:
+# a 29 m twin tree's vertical gap fraction within its crown 0.29, and 0.25 at 2.5 times its leaf area, where
+# these shoots give 0.16, and 0.11 at twice the leaf (UAS_Clip's crowns pass 10 % of first returns).
+DENSE_SHOOTS = {"pinus_radiata": {"branches": 2.0, "children": 8, "twigs": 4, "leaf_clumping": 1.0,
+                                   "leaf_length": 0.3, "leaf_width": 0.03}}
 
 
 def survey_plan(analysis: dict, sensor=None) -> tuple[dict, dict | str, dict]:
@@ -111,8 +113,9 @@ def _dense_archetypes(species: tuple[str, ...], crown_ratio: float | None) -> di
     for family in dict.fromkeys(species):
         if family in DENSE_SHOOTS:
             rule = DENSE_SHOOTS[family]
-            out += [{"species": family, "base": k, "branches": int(round(a.branches * rule["branches"])),
-                     "children": rule["children"], **({"crown_ratio": round(crown_ratio, 3)} if crown_ratio else {})}
+            fixed = {k: v for k, v in rule.items() if k != "branches"}
+            out += [{"species": family, "base": k, "branches": int(round(a.branches * rule["branches"])), **fixed,
+                     **({"crown_ratio": round(crown_ratio, 3)} if crown_ratio else {})}
                     for k, a in enumerate(FAMILY_ARCHETYPES[family], 1)]
     return {"archetypes": out} if out else {}
 
