@@ -61,10 +61,12 @@ def test_canopy_state_counts_gap_and_cover_of_a_constructed_cloud():
 def test_rescale_trees_widens_crowns_and_keeps_leaf_area_per_crown_area(tmp_path):
     f = tmp_path / "trees.csv"
     f.write_text("x,y,height,crown_radius,species,leaf_area\n1.000,2.000,20.000,2.000,pinus_radiata,50.27\n")
-    rescale_trees(f, lai_factor=2.0, radius_factor=1.5)
+    assert rescale_trees(f, lai_factor=2.0, radius_factor=1.5) == 0
     rows = f.read_text().splitlines()
     assert rows[0] == "x,y,height,crown_radius,species,leaf_area"
     assert rows[1] == "1.000,2.000,20.000,3.000,pinus_radiata,226.22"    # 50.27 x 2 x 1.5^2
+    assert rescale_trees(f, lai_factor=10.0, radius_factor=1.0) == 1
+    assert f.read_text().splitlines()[1].endswith(",2000.00")              # a tree carries at most 2,000 m²
 
 
 def test_a_secant_step_hits_a_power_law_the_first_step_missed():

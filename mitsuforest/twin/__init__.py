@@ -104,6 +104,8 @@ def make_twin(path, out_dir, species=(), sensor=None, name: str | None = None, l
     for s in species:
         if s not in TREE_SPECIES:
             raise UserError(f"--species: must be one of {', '.join(TREE_SPECIES)}, got {s!r}")
+    if calibrate < 0:
+        raise UserError(f"--calibrate: must be >= 0, got {calibrate}")
     if name is not None and (problem := name_problem(name)):
         raise UserError(f"--name: {problem}")
     if sensor is not None:
@@ -112,8 +114,6 @@ def make_twin(path, out_dir, species=(), sensor=None, name: str | None = None, l
     scan = read_scan(path)
     stem = Path(path).stem
     name = name or (stem if name_problem(stem) is None else "twin")
-    if calibrate < 0:
-        raise UserError(f"--calibrate: must be >= 0, got {calibrate}")
     analysis = analyse(scan)
     report = write_twin(analysis, scan, Path(out_dir), name, tuple(species), sensor, log)
     if calibrate:

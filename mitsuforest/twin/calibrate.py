@@ -36,6 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..trees.archetypes import FIELDS
 from . import detection, foliage, ground
 
 CHM_CELL = 1.0          # m: cover is counted in 1 m cells, as compare's canopy_cover_2m
@@ -44,6 +45,7 @@ GAP_TOLERANCE = 0.2     # |ln P_twin / ln P_real - 1|: the LAI step still to tak
 COVER_TOLERANCE = 0.03  # |cover_twin - cover_real|
 SCALE_LIMITS = (0.25, 4.0)   # one step changes LAI or crown radius by at most this factor
 MIN_GAP = foliage.MIN_GAP
+MAX_LEAF_AREA = FIELDS["leaf_area"].metadata["hi"]   # m²: the most a procedural tree carries
 
 
 def lai_scale(p_real: float, p_twin: float, exponent: float = 1.0) -> float:
@@ -101,20 +103,25 @@ def converged(real: dict, twin: dict) -> bool:
     return lai_step <= GAP_TOLERANCE and abs(twin["cover"] - real["cover"]) <= COVER_TOLERANCE
 
 
-def rescale_trees(path: Path, lai_factor: float, radius_factor: float) -> None:
+def rescale_trees(path: Path, lai_factor: float, radius_factor: float) -> int:
     """Rewrite ``trees.csv``: each crown radius times ``radius_factor``, each leaf area times
-    ``lai_factor · radius_factor²`` (its LAI times the new crown area)."""
+    ``lai_factor · radius_factor²`` (its LAI times the new crown area), at most the
+    :data:`MAX_LEAF_AREA` a tree may carry; returns how many trees are at that cap."""
     with open(path, newline="") as f:
         rows = list(csv.DictReader(f))
     fields = list(rows[0].keys()) if rows else []
+    capped = 0
     for r in rows:
         r["crown_radius"] = f"{float(r['crown_radius']) * radius_factor:.3f}"
         if r.get("leaf_area"):
-            r["leaf_area"] = f"{float(r['leaf_area']) * lai_factor * radius_factor ** 2:.2f}"
+            leaf = float(r["leaf_area"]) * lai_factor * radius_factor ** 2
+            capped += leaf >= MAX_LEAF_AREA
+            r["leaf_area"] = f"{min(leaf, MAX_LEAF_AREA):.2f}"
     with open(path, "w", newline="") as f:
         out = csv.DictWriter(f, fieldnames=fields, lineterminator="\n")
         out.writeheader()
         out.writerows(rows)
+    return capped
 
 
 def calibrate(real_scan, analysis: dict, folder: Path, name: str, iterations: int, variant: str | None = None,
@@ -163,7 +170,10 @@ def calibrate(real_scan, analysis: dict, folder: Path, name: str, iterations: in
         log(f"twin: calibration {i + 1}: gap fraction {twin['gap_fraction']:.3f} (real {real['gap_fraction']:.3f}), "
             f"cover {twin['cover']:.3f} (real {real['cover']:.3f}): leaf area per crown area x{k_lai:.3f}, "
             f"crown radius x{k_r:.3f}")
-        rescale_trees(folder / "trees.csv", k_lai, k_r)
+        step["trees_at_leaf_cap"] = rescale_trees(folder / "trees.csv", k_lai, k_r)
+        if step["trees_at_leaf_cap"]:
+            log(f"twin: calibration {i + 1}: {step['trees_at_leaf_cap']} trees at the {MAX_LEAF_AREA:g} m² leaf area "
+                "a tree may carry")
     report_file = folder / "twin.json"
     report = json.loads(report_file.read_text())
     report["calibration"] = record
