@@ -37,7 +37,8 @@ MARGIN = 10.0   # m: legs run this far beyond the plot
 # "leaf" a 30 x 3 cm shoot silhouette (against a 15 x 1.5 cm one). The built-in templates hang their needles
 # in tight clumps at the twig tips, so more leaf area piles onto the same clumps and barely shades more:
 # a 29 m twin tree's vertical gap fraction within its crown 0.29, and 0.25 at 2.5 times its leaf area, where
-# these shoots give 0.16, and 0.11 at twice the leaf (UAS_Clip's crowns pass 10 % of first returns).
+# these shoots give 0.16, and 0.11 at twice the leaf (leaf blades rasterised from above). Rendered, the
+# twin's crowns still pass far more than UAS_Clip's 10 % (README, "Twins against the real scans").
 DENSE_SHOOTS = {"pinus_radiata": {"branches": 2.0, "children": 8, "twigs": 4, "leaf_clumping": 1.0,
                                    "leaf_length": 0.3, "leaf_width": 0.03}}
 
