@@ -3,6 +3,8 @@ twin rendered and compared with its real scan.
 
     python benchmarks/twin.py                     # twin, render and compare both scans (a GPU helps)
     python benchmarks/twin.py --no-render         # twins and tree detection only (seconds)
+    python benchmarks/twin.py --calibrate 3       # calibrate each twin's crowns in up to 3 renders first
+    python benchmarks/twin.py --scans UAS_Clip.laz   # one scan only
     python benchmarks/twin.py --out DIR           # where twins and renders go (default benchmarks/out/twin)
     python benchmarks/twin.py --real DIR          # the real scans' folder (default ../shared/data/real)
 
@@ -52,6 +54,20 @@ def render_twin(scene_file: Path, out: Path, variant: str | None) -> Path:
     return next(Path(f) for f in result.files if str(f).endswith(".laz"))
 
 
+def clip_to_plot(laz: Path, bounds, out: Path) -> Path:
+    """The twin's points within the plot (x0, y0, x1, y1): its DEM reaches 1 m beyond the plot on each
+    side, and ground hit there would count against the real scan's density over a larger area."""
+    import laspy
+    las = laspy.read(laz)
+    x, y = np.asarray(las.x), np.asarray(las.y)
+    inside = (x >= bounds[0]) & (x <= bounds[2]) & (y >= bounds[1]) & (y <= bounds[3])
+    clipped = laspy.LasData(las.header)
+    clipped.points = las.points[inside]
+    out.parent.mkdir(parents=True, exist_ok=True)
+    clipped.write(out)
+    return out
+
+
 def compare(real: Path, twin: Path, out: Path) -> dict | None:
     try:
         from mitsuforest.compare import compare_files
@@ -78,16 +94,20 @@ def main() -> None:
     p.add_argument("--no-render", action="store_true", help="twins and detection only")
     p.add_argument("--real", type=Path, default=REAL, help="folder of the real scans (default ../shared/data/real)")
     p.add_argument("--variant", help="Mitsuba variant for the renders (default: auto)")
+    p.add_argument("--calibrate", type=int, default=0, metavar="N",
+                   help="calibrate each twin's crowns against its scan in up to N renders (mitsuforest twin --calibrate)")
+    p.add_argument("--scans", nargs="+", default=list(SCANS), metavar="NAME", help="which scans (default: both)")
     args = p.parse_args()
     from mitsuforest.twin import make_twin
-    for name in SCANS:
+    for name in args.scans:
         path = args.real / name
         if not path.is_file():
             print(f"{name}: skipped: {path} is absent (the real scans live in ../shared/data/real)")
             continue
         folder = args.out / path.stem
         start = time.perf_counter()
-        report = make_twin(path, folder, log=lambda msg: print("  " + msg))
+        report = make_twin(path, folder, log=lambda msg: print("  " + msg),
+                           calibrate=0 if args.no_render else args.calibrate, variant=args.variant)
         print(f"{name}: twin with {report['trees']['count']} trees, {report['understory']['bushes']} bushes in "
               f"{time.perf_counter() - start:.1f} s -> {folder}")
         for key, item in report["survey"].items():
@@ -104,7 +124,9 @@ def main() -> None:
         start = time.perf_counter()
         laz = render_twin(folder / f"{path.stem}.yaml", folder / "render", args.variant)
         print(f"  rendered the twin in {time.perf_counter() - start:.1f} s -> {laz}")
-        result = compare(path, laz, folder / "compare")
+        bounds = report["plot"]["offset"][:2] + [o + w for o, w in zip(report["plot"]["offset"], report["plot"]["size"])]
+        clipped = clip_to_plot(laz, bounds, folder / "clipped" / laz.name)
+        result = compare(path, clipped, folder / "compare")
         if result:
             print_comparison(result)
 

@@ -82,6 +82,10 @@ def _parser() -> argparse.ArgumentParser:
                     help="procedural species of the trees, drawn in turn (default: pinus_radiata)")
     tw.add_argument("--sensor", type=Path, help="a sensor file to use instead of the estimated sensor")
     tw.add_argument("--name", help="the scene's name (default: the file's stem)")
+    tw.add_argument("--calibrate", type=int, default=0, metavar="N",
+                    help="render the twin up to N times, rescaling its crowns' leaf area and width towards the "
+                         "real scan's gap fraction and canopy cover after each (default 0: no renders)")
+    tw.add_argument("--variant", help="Mitsuba variant of the calibration renders (default: auto)")
 
     i = sub.add_parser("info", help="summarise a point file", description="Summarise a PCD, LAS or LAZ file.")
     i.add_argument("file", type=Path, help="a .pcd, .las or .laz file")
@@ -236,7 +240,8 @@ def _dataset(args) -> int:
 
 def _twin(args) -> int:
     from .twin import make_twin
-    report = make_twin(args.file, args.output, species=args.species, sensor=args.sensor, name=args.name)
+    report = make_twin(args.file, args.output, species=args.species, sensor=args.sensor, name=args.name,
+                       calibrate=args.calibrate, variant=args.variant)
     print(f"{report['name']}: {report['trees']['count']} trees, {report['understory']['bushes']} bushes, "
           f"plot {report['plot']['size'][0]:g} x {report['plot']['size'][1]:g} m; "
           f"wrote {args.output / (report['name'] + '.yaml')}")

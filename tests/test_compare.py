@@ -81,6 +81,19 @@ def test_the_constructed_forest_measures_as_built():
     assert s["ground"] == {"from": "class 1 (our ground)", "points": 1200} and s["notes"] == []
 
 
+def test_ground_under_canopy_counts_returns_on_the_ground_not_their_class():
+    """A file that leaves its ground under the canopy unclassified (UAS_Clip classifies 1.7 % of its
+    points as ground, though 15 % lie within 0.5 m of its DEM): those last returns still reach the ground."""
+    under_classified = _forest()
+    hidden = (under_classified["return_number"] == 2) & (under_classified["classification"] == 1)
+    under_classified["classification"][hidden] = 0
+    s = compare_clouds(under_classified, under_classified)["a"]
+    assert s["ground_share"] == pytest.approx(800 / 2000)          # by class
+    assert s["near_ground_share"] == pytest.approx(1200 / 2000)    # by height
+    assert s["ground_share_under_canopy"] == 0.5
+    assert compare_clouds(_forest(), under_classified)["distance"]["ground_share"] == 0
+
+
 @pytest.mark.parametrize("d", [0.5, 3.0])
 def test_a_canopy_raised_by_d(d):
     """800 of 2,000 heights move up by d: EMD 0.4 d, KS 0.4 (the CDFs part between 10 and 10 + d)."""

@@ -13,6 +13,7 @@ import numpy as np
 
 CELL_M = 1.0              # covered ground, canopy cover, the ground model's grid
 CANOPY_M = 2.0            # a first return this high above the ground is canopy
+GROUND_REACH_M = 0.2      # a return at most this high above the ground model reached the ground (any class)
 SPACING_QUERIES = 200_000  # nearest-neighbour queries of the spacing: every k-th point beyond this many
 FILTER_CELL_M = 2.0       # the fallback ground filter: lowest point per cell of this size ...
 FILTER_WINDOW = 5         # ... kept when within FILTER_RISE_M of the lowest in this many cells square ...
@@ -231,10 +232,11 @@ def canopy_cover(canopy: np.ndarray) -> float:
 
 def ground_under_canopy(lx: np.ndarray, ly: np.ndarray, last_ground: np.ndarray, origin, cells: np.ndarray,
                         canopy: np.ndarray, cell: float = CELL_M) -> float:
-    """Share of the last returns (l,) in canopy cells that are ground points: how often a pulse that
+    """Share of the last returns (l,) in canopy cells that reach the ground: how often a pulse that
     meets the canopy still reaches the ground. nan when no last return lies under canopy.
 
-    :param last_ground: (l,) bool, the last returns that are ground points.
+    :param last_ground: (l,) bool, the last returns that reach the ground (at most ``GROUND_REACH_M``
+        above the ground model, whatever their class: files under-classify their ground).
     :param cells, canopy: from :func:`canopy_cells` with the same ``origin`` and ``cell``.
     """
     keys = cell_keys(lx, ly, cell, origin)

@@ -41,6 +41,7 @@ def describe(cloud: Cloud) -> Description:
     height = z - model.height(x, y)
     origin = m.grid_origin(x, y)
     cells, canopy = m.canopy_cells(x[first], y[first], height[first], origin)
+    reached = height <= m.GROUND_REACH_M
     edges, profile = m.vertical_profile(height)
     intensity, intensity_summary = _intensity(cloud, first & ground, notes)
     summary = {
@@ -59,7 +60,8 @@ def describe(cloud: Cloud) -> Description:
         "canopy_height_m": m.canopy_heights(height[first]),
         "canopy_cover_2m": m.canopy_cover(canopy),
         "ground_share": float(ground.mean()),
-        "ground_share_under_canopy": m.ground_under_canopy(x[last], y[last], ground[last], origin, cells, canopy),
+        "near_ground_share": float(reached.mean()),
+        "ground_share_under_canopy": m.ground_under_canopy(x[last], y[last], reached[last], origin, cells, canopy),
         "intensity": intensity_summary,
         "scan_angle_deg": None if cloud.scan_angle is None else {
             **m.percentiles(cloud.scan_angle), "max_abs": float(np.max(np.abs(cloud.scan_angle)))},
@@ -201,7 +203,9 @@ def format_table(result: dict) -> str:
          triple(b["canopy_height_m"], ("p50", "p95", "p99")), f"canopy_p95_m {_fmt(d['canopy_p95_m'], '+.2f')}"),
         ("canopy cover at 2 m", _fmt(a["canopy_cover_2m"], ".1%"), _fmt(b["canopy_cover_2m"], ".1%"), ""),
         ("ground share (all points)", _fmt(a["ground_share"], ".1%"), _fmt(b["ground_share"], ".1%"), ""),
-        ("last returns on ground under canopy", _fmt(a["ground_share_under_canopy"], ".1%"),
+        (f"within {m.GROUND_REACH_M:g} m of the ground", _fmt(a["near_ground_share"], ".1%"),
+         _fmt(b["near_ground_share"], ".1%"), ""),
+        (f"last returns ≤ {m.GROUND_REACH_M:g} m under canopy", _fmt(a["ground_share_under_canopy"], ".1%"),
          _fmt(b["ground_share_under_canopy"], ".1%"), f"ground_share {_fmt(d['ground_share'], '+.3f')}"),
         ("intensity / ground median, r1/r2/r3", intensity(a), intensity(b),
          f"intensity_ks {_fmt(d['intensity_ks'], '.3f')}"),

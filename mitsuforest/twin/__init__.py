@@ -71,24 +71,29 @@ def analyse(scan, settings: detection.DetectionSettings | None = None) -> dict:
     gap = foliage.crown_gap_fraction(h[first], chm[row, col] >= settings.min_height)
     angle = float(np.median(np.abs(scan.scan_angle[first]))) if scan.scan_angle is not None else 0.0
     lai = foliage.effective_lai(gap, angle) if gap is not None else None
+    ratio = foliage.crown_ratio(h[first & (h >= detection.DetectionSettings().min_height)], trees.height)
     cells = understory.shrub_cells(scan.x, scan.y, h, cx, cy,
                                    (int(frame.size[1] / understory.CELL), int(frame.size[0] / understory.CELL)))
     estimate = survey.estimate(scan, float(np.mean(dem)))
     pulses = float(np.sum(1.0 / scan.number_of_returns))
     return {"frame": frame, "dem": dem, "dem_origin": (x0, y0), "ground_source": ground_source, "trees": trees,
-            "crown_gap_fraction": gap, "scan_angle": angle, "crown_lai": lai,
+            "crown_gap_fraction": gap, "scan_angle": angle, "crown_lai": lai, "crown_ratio": ratio,
             "bushes": understory.bush_count(cells), "shrub_area_m2": float(cells.sum() * understory.CELL ** 2),
             "survey": estimate, "pulse_density": pulses / (frame.size[0] * frame.size[1]), "notes": notes,
             "settings": settings}
 
 
-def make_twin(path, out_dir, species=(), sensor=None, name: str | None = None, log=None) -> dict:
+def make_twin(path, out_dir, species=(), sensor=None, name: str | None = None, log=None, calibrate: int = 0,
+              variant: str | None = None) -> dict:
     """Write the twin of the scan ``path`` into ``out_dir``: ``<name>.yaml``, ``<name>_dem.tif``,
     ``trees.csv`` and ``twin.json``; returns the report (``twin.json``'s content).
 
     :param species: procedural families drawn for the trees in turn (default ``pinus_radiata``).
     :param sensor: a sensor file to use instead of the estimated sensor.
     :param name: the scene's name (default: the file's stem, or ``twin`` where that cannot name files).
+    :param calibrate: render the twin up to this many times, rescaling its crowns' leaf area and width
+        towards the real scan's gap fraction and canopy cover after each (:mod:`.calibrate`); ``variant``
+        is the Mitsuba variant of those renders.
     :raises UserError: one line, before anything is written: an unreadable or empty file, an unknown
         species, a bad name or sensor file, an output folder that cannot be written.
     """
@@ -99,6 +104,8 @@ def make_twin(path, out_dir, species=(), sensor=None, name: str | None = None, l
     for s in species:
         if s not in TREE_SPECIES:
             raise UserError(f"--species: must be one of {', '.join(TREE_SPECIES)}, got {s!r}")
+    if calibrate < 0:
+        raise UserError(f"--calibrate: must be >= 0, got {calibrate}")
     if name is not None and (problem := name_problem(name)):
         raise UserError(f"--name: {problem}")
     if sensor is not None:
@@ -107,4 +114,9 @@ def make_twin(path, out_dir, species=(), sensor=None, name: str | None = None, l
     scan = read_scan(path)
     stem = Path(path).stem
     name = name or (stem if name_problem(stem) is None else "twin")
-    return write_twin(analyse(scan), scan, Path(out_dir), name, tuple(species), sensor, log)
+    analysis = analyse(scan)
+    report = write_twin(analysis, scan, Path(out_dir), name, tuple(species), sensor, log)
+    if calibrate:
+        from .calibrate import calibrate as calibrate_crowns
+        report["calibration"] = calibrate_crowns(scan, analysis, Path(out_dir), name, calibrate, variant, log)
+    return report

@@ -1,0 +1,98 @@
+"""The twin's calibration: the Beer-Lambert and cover update rules and the canopy measures, on analytic cases."""
+
+import math
+
+import numpy as np
+import pytest
+
+from mitsuforest.twin import TwinFrame
+from mitsuforest.twin.calibrate import canopy_state, converged, crown_scale, lai_scale, rescale_trees
+
+
+@pytest.mark.parametrize("lai_twin, lai_real, zenith", [(1.5, 4.2, 30.0), (6.0, 2.0, 0.0), (3.0, 3.0, 15.0)])
+def test_beer_lambert_rescale_hits_the_target_gap_fraction_in_one_step(lai_twin, lai_real, zenith):
+    def gap(lai):       # random leaves, spherical angles: P = exp(-0.5 LAI / cos theta)
+        return math.exp(-0.5 * lai / math.cos(math.radians(zenith)))
+    k = lai_scale(gap(lai_real), gap(lai_twin))
+    assert k == pytest.approx(lai_real / lai_twin, rel=1e-12)
+    assert gap(lai_twin * k) == pytest.approx(gap(lai_real), rel=1e-12)
+
+
+def test_the_twin_s_measured_34_percent_against_the_real_9_percent_asks_for_2_27_times_the_leaf():
+    assert lai_scale(0.089, 0.345) == pytest.approx(math.log(0.089) / math.log(0.345), rel=1e-12)
+    assert lai_scale(0.089, 0.345) == pytest.approx(2.27, abs=0.01)
+
+
+def test_steps_are_bounded_and_an_opaque_or_empty_canopy_does_not_divide_by_zero():
+    assert lai_scale(0.05, 0.0) == pytest.approx(math.log(0.05) / math.log(0.005))   # P clipped at MIN_GAP
+    assert lai_scale(0.5, 0.0) == 0.25                                               # at most /4 a step
+    assert lai_scale(0.001, 0.999) == 4.0                                           # at most x4 a step
+    assert crown_scale(0.9, 0.0) == 4.0
+
+
+def test_crown_scale_gives_discs_the_target_cover():
+    # n discs of radius r on an area A, not overlapping: cover n pi r^2 / A; the factor on r hits the target
+    n, r, area = 10, 2.0, 1000.0
+    cover = n * math.pi * r ** 2 / area
+    k = crown_scale(0.3, cover)
+    assert n * math.pi * (k * r) ** 2 / area == pytest.approx(0.3, rel=1e-12)
+
+
+def test_canopy_state_counts_gap_and_cover_of_a_constructed_cloud():
+    # 10 x 10 m plot, flat DEM at 100 m; the west 6 m are crowns (a first return at 10 m in each cell),
+    # under which 5 of every 20 first returns reach the ground; the east 4 m is bare ground.
+    frame = TwinFrame((0.0, 0.0, 90.0), (10.0, 10.0))
+    dem = np.full((12, 12), 100.0)
+    xs, ys, zs = [], [], []
+    for i in range(10):
+        for j in range(10):
+            for k in range(20):
+                x, y = i + 0.05 + 0.045 * k, j + 0.5
+                z = 100.0 if (i >= 6 or k < 5) else 110.0
+                xs.append(x), ys.append(y), zs.append(z)
+    state = canopy_state(np.array(xs), np.array(ys), np.array(zs), np.ones(len(xs), int), dem, (-1.0, -1.0), frame)
+    assert state["cover"] == pytest.approx(0.6)
+    assert state["gap_fraction"] == pytest.approx(5 / 20)
+    assert converged(state, state)
+    assert not converged(state, {"gap_fraction": 0.5, "cover": 0.6})
+    assert not converged(state, {"gap_fraction": 0.25, "cover": 0.5})
+
+
+def test_rescale_trees_widens_crowns_and_keeps_leaf_area_per_crown_area(tmp_path):
+    f = tmp_path / "trees.csv"
+    f.write_text("x,y,height,crown_radius,species,leaf_area\n1.000,2.000,20.000,2.000,pinus_radiata,50.27\n")
+    assert rescale_trees(f, lai_factor=2.0, radius_factor=1.5) == 0
+    rows = f.read_text().splitlines()
+    assert rows[0] == "x,y,height,crown_radius,species,leaf_area"
+    assert rows[1] == "1.000,2.000,20.000,3.000,pinus_radiata,226.22"    # 50.27 x 2 x 1.5^2
+    assert rescale_trees(f, lai_factor=10.0, radius_factor=1.0) == 1
+    assert f.read_text().splitlines()[1].endswith(",2000.00")              # a tree carries at most 2,000 m²
+
+
+def test_a_secant_step_hits_a_power_law_the_first_step_missed():
+    """Clumped foliage: -ln P = 0.3 LAI^0.4. The Beer-Lambert step falls short; the exponent it shows
+    (0.4) makes the next step land on the target."""
+    from mitsuforest.twin.calibrate import response_exponent
+
+    def gap(lai):
+        return math.exp(-0.3 * lai ** 0.4)
+    target, lai = gap(5.0), 1.0
+    k1 = lai_scale(target, gap(lai))
+    exponent = response_exponent(-math.log(gap(lai)), -math.log(gap(lai * k1)), k1, 1.0)
+    assert exponent == pytest.approx(0.4, rel=1e-9)
+    lai *= k1
+    assert gap(lai) > target * 1.01                        # Beer-Lambert alone falls short
+    lai *= lai_scale(target, gap(lai), exponent)
+    assert gap(lai) == pytest.approx(target, rel=1e-9)
+    assert response_exponent(0.5, 0.7, 1.0, 2.0) == 2.0     # no step: the default
+
+
+def test_crown_ratio_recovers_a_cone_s_length_from_its_first_returns_seen_from_above():
+    from mitsuforest.twin.foliage import crown_ratio
+    rng = np.random.default_rng(3)
+    height, ratio = 28.0, 0.3
+    rho = np.sqrt(rng.random(200_001))                   # uniform over the crown's disc, rho / R
+    first = height - ratio * height * rho ** (1 / 0.9)   # where a vertical pulse meets the cone
+    assert crown_ratio(first, [height] * 5) == pytest.approx(ratio, rel=0.01)
+    assert crown_ratio([], [height]) is None
+    assert crown_ratio([27.9], [height]) == 0.2          # within the range
