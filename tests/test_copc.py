@@ -106,3 +106,23 @@ def test_without_copclib_copc_is_refused_before_the_scan(tmp_path, monkeypatch):
     with pytest.raises(UserError, match="output.formats: copc needs the copclib package"):
         copc.CopcStream(tmp_path / "t.copc.laz", OFFSET)
     assert not list(tmp_path.iterdir())
+
+
+def test_copc_intensity_follows_the_sensor_mapping(tmp_path):
+    """The COPC's 16-bit intensity is the sensor's mapping of the amplitude, as in the LAS file (it was
+    always the default amplitude × 1e6)."""
+    from mitsuforest.config.types import IntensityMapping
+    from mitsuforest.scan.radiometry import intensity_counts
+    mapping = IntensityMapping(gain=2e5, offset=-10.0, saturation=40000)
+    rng = np.random.default_rng(5)
+    p = np.zeros(2_000, POINT_DTYPE)
+    p["x"], p["y"], p["z"] = (rng.uniform(0, 10, len(p)) + o for o in OFFSET)
+    p["gps_time"], p["return_number"], p["number_of_returns"] = np.arange(len(p)), 1, 1
+    p["intensity"] = rng.uniform(0, 0.3, len(p)).astype(np.float32)
+    stream = copc.CopcStream(tmp_path / "m.copc.laz", OFFSET, intensity=mapping)
+    stream.write(p)
+    stream.close()
+    with laspy.CopcReader.open(str(tmp_path / "m.copc.laz")) as reader:
+        q = _sorted(reader.query())
+    assert np.array_equal(np.asarray(q.intensity), intensity_counts(p["intensity"], None, mapping))
+    assert np.asarray(q.intensity).max() == 40000

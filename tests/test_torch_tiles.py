@@ -10,7 +10,7 @@ torch = pytest.importorskip("torch", reason="torch is the optional extra mitsufo
 from mitsuforest.dataset import files  # noqa: E402
 from mitsuforest.scan import POINT_DTYPE  # noqa: E402
 from mitsuforest.torch import TileDataset  # noqa: E402
-from mitsuforest.write.ground import with_height_above_ground  # noqa: E402
+from mitsuforest.write.ground import fill_height, with_room_for_height  # noqa: E402
 from mitsuforest.write.las import write_las  # noqa: E402
 from mitsuforest.write.pcd import pcd_header  # noqa: E402
 
@@ -24,7 +24,7 @@ def _tile_points(rng, n, x0, y0, label_base):
     p["classification"] = label_base + np.arange(n) % 3
     p["instance"] = np.arange(n)
     p["return_number"] = p["number_of_returns"] = 1
-    return with_height_above_ground(p, lambda x, y: np.full(len(x), 0.5))
+    return fill_height(p, with_room_for_height(p), lambda x, y: np.full(len(x), 0.5))
 
 
 @pytest.fixture(scope="module")

@@ -25,7 +25,7 @@ import numpy as np
 
 from ..errors import UserError
 from .atomic import naming_errors
-from .las import crs_wkt, las_header, las_points
+from .las import crs_wkt, las_header, las_records
 
 GRID = 128                  # sample cells per node side (COPC spacing at the root = cube side / GRID)
 MAX_LEVEL = 14              # the deepest level takes every point left (cells of level 13 are 0.1 mm in a 100 m cube)
@@ -41,7 +41,7 @@ class CopcStream:
     :param path: the output file; its spool is ``path`` + ``.spool`` until close.
     """
 
-    def __init__(self, path, offset, crs: str | None = None):
+    def __init__(self, path, offset, crs: str | None = None, intensity=None):
         try:
             import copclib  # noqa: F401  (here, before a render scans: it is needed only on close)
         except ImportError:
@@ -49,8 +49,9 @@ class CopcStream:
                             "(or mitsuforest[copc])") from None
         self.path = Path(path)
         self.crs = crs
-        self.header = las_header(offset, crs)
-        self.record = None
+        self.intensity = intensity                  # the sensor's mapping, as in the LAS files
+        self.header = las_header(offset, crs, intensity)
+        self.record = self.header.point_format.dtype()
         self.count = 0
         self.returns = np.zeros(15, np.int64)      # points by return number, for the header
         self.lo, self.hi = np.full(3, np.iinfo(np.int64).max), np.full(3, np.iinfo(np.int64).min)
@@ -61,8 +62,7 @@ class CopcStream:
     def write(self, points: np.ndarray) -> None:
         if not len(points):
             return
-        records = las_points(self.header, points).points.array
-        self.record = records.dtype
+        records = las_records(self.header, points, intensity=self.intensity)
         xyz = np.column_stack([records["X"], records["Y"], records["Z"]]).astype(np.int64)
         self.lo, self.hi = np.minimum(self.lo, xyz.min(0)), np.maximum(self.hi, xyz.max(0))
         self.returns += np.bincount(np.asarray(las_return_numbers(records)) - 1, minlength=15)[:15]
@@ -88,9 +88,7 @@ class CopcStream:
 
     def _write_octree(self) -> None:
         import copclib
-        if self.record is None:                      # no point: a header without nodes
-            from ..scan import POINT_DTYPE
-            self.record = las_points(self.header, np.zeros(0, POINT_DTYPE)).points.array.dtype
+        if not self.count:                           # no point: a header without nodes
             self.lo = self.hi = np.zeros(3, np.int64)
         scale, offset = np.asarray(self.header.scales), np.asarray(self.header.offsets)
         lo, hi = self.lo * scale + offset, self.hi * scale + offset

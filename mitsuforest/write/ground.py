@@ -38,8 +38,3 @@ def fill_height(points: np.ndarray, out: np.ndarray, surface) -> np.ndarray:
         out[FIELD] = out["z"] - surface(out["x"], out["y"])
     return out
 
-
-def with_height_above_ground(points: np.ndarray, surface) -> np.ndarray:
-    """``points`` (local frame) with the field ``height_above_ground`` (float32, m) appended, or filled
-    in when it is there already."""
-    return fill_height(points, with_room_for_height(points), surface)

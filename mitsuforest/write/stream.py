@@ -54,7 +54,8 @@ class PointWriter:
         self._workers = Workers(self.threads)
         self._others = []      # written whole batch by batch, after the threaded LAS and PCD records
         if "copc" in formats:                        # spooled, then built into an octree on close
-            self._others.append(CopcStream(staging.file(".copc.laz"), self.offset, scene.origin.crs))
+            self._others.append(CopcStream(staging.file(".copc.laz"), self.offset, scene.origin.crs,
+                                           scene.sensor.intensity))
         profile = PROFILES.get(scene.output.profile) if staging else None     # None: ours only
         if profile:
             self._others.append(profile.stream(staging.file(profile.suffix), self.offset, scene.origin.crs, stems))
