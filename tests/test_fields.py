@@ -145,3 +145,50 @@ def test_each_field_comes_back_from_the_las_file_as_written(tmp_path):
         las = f.read()
     from mitsuforest.write.las import ASPRS_CODE
     assert np.array_equal(las.classification, [ASPRS_CODE[c] for c in points["classification"]])
+
+
+NEW_FIELD = '''    Field("echo_width", "<f4", "ns, the echo's width", las=(extra("echo_width", "<f4", "ns, echo width", 8),)),
+'''
+ADD_A_FIELD = '''
+import importlib.util, json, sys
+spec = importlib.util.spec_from_file_location("mitsuforest.fields", sys.argv[1])
+sys.modules["mitsuforest.fields"] = fields = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(fields)
+import numpy as np
+from pathlib import Path
+from mitsuforest.config import load_scene
+from mitsuforest.write import PointWriter, Staging, read_pcd
+from mitsuforest.write.las import read_las_points
+scene = load_scene(Path("scenes/demo.yaml")).with_({"output.formats": ["pcd", "las"]})
+points = np.zeros(100, fields.POINT_DTYPE)
+points["x"], points["number_of_returns"], points["echo_width"] = 5.0, 1, np.arange(100) / 8
+staging = Staging(Path(sys.argv[2]), "demo")
+writer = PointWriter(staging, scene, threads=1)
+writer.add(points)
+writer.close()
+pcd = read_pcd(staging.path / "demo.pcd")
+las = read_las_points(staging.path / "demo.las")
+print(json.dumps({"pcd": pcd.dtype.names, "las": las.dtype.names,
+                  "pcd_values": pcd["echo_width"].tolist(), "las_values": las["echo_width"].tolist()}))
+'''
+
+
+def test_a_new_field_is_one_entry(tmp_path):
+    """One line added to FIELDS (a scan field with an extra-bytes dimension) and nothing else: the scan's
+    POINT_DTYPE, the PCD, the LAS file and its reader all carry it, with its values."""
+    import json
+    import subprocess
+    import sys
+    source = (ROOT / "mitsuforest" / "fields.py").read_text()
+    anchor = '    Field("height_above_ground"'
+    assert source.count(anchor) == 1
+    patched = tmp_path / "fields.py"
+    patched.write_text(source.replace(anchor, NEW_FIELD + anchor))
+    run = subprocess.run([sys.executable, "-c", ADD_A_FIELD, str(patched), str(tmp_path / "out")], cwd=ROOT,
+                         capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr
+    out = json.loads(run.stdout.splitlines()[-1])
+    names = GOLDEN_PCD["FIELDS"].split()
+    assert out["pcd"] == [*names[:-1], "echo_width", names[-1]]
+    assert out["las"] == [n for n in out["pcd"] if n not in GOLDEN_PCD_ONLY]
+    assert out["pcd_values"] == out["las_values"] == [i / 8 for i in range(100)]
