@@ -169,3 +169,8 @@ def pcd_type(dtype) -> tuple[str, int]:
     """A numpy scalar type's PCD ``(TYPE, SIZE)``: ``U``, ``I`` or ``F`` and its bytes."""
     dtype = np.dtype(dtype)
     return _PCD_TYPE[dtype.kind], dtype.itemsize
+
+
+def numpy_type(kind: str, size: int) -> np.dtype:
+    """The numpy type of a PCD column's ``TYPE`` and ``SIZE`` (:func:`pcd_type` the other way)."""
+    return np.dtype(f"<{kind.lower()}{size}")

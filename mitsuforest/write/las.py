@@ -35,12 +35,13 @@ from laspy.vlrs.known import WktCoordinateSystemVlr
 from ..classes import BUSH, DEADWOOD, GROUND, GROUND_VEGETATION, ROCK, SPECIES_CODES, STUMP, TREE_LEAVES, TREE_WOOD
 from ..config.types import IntensityMapping
 from ..errors import UserError
-from ..fields import COORDINATE_SCALE, LAS_EXTRA_DIMENSIONS, LAS_FIELDS, LAS_FORMAT, LAS_READ_DTYPE, LasDimension
+from ..fields import (COORDINATE_SCALE, LAS_DIMENSION, LAS_EXTRA_DIMENSIONS, LAS_FIELDS, LAS_FORMAT, LAS_READ_DTYPE,
+                      LasDimension)
 from ..scan.radiometry import intensity_counts, reflectance_db
 from .atomic import atomic_path, naming_errors
 
 ASPRS_CODE = {GROUND: 2, TREE_WOOD: 5, TREE_LEAVES: 5, BUSH: 4, GROUND_VEGETATION: 3, DEADWOOD: 64, ROCK: 65, STUMP: 66}
-LAS_MAX_RETURNS = 15     # point format 6 has 4 bits for each return field; the PCD keeps larger counts
+LAS_MAX_RETURNS = (1 << LAS_DIMENSION["return_number"].width) - 1   # 15: 4 bits; the PCD keeps larger counts
 DEFAULT_CREATION_DATE = datetime.date(2000, 1, 1)   # the header's date without SOURCE_DATE_EPOCH (not today)
 
 try:

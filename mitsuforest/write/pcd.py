@@ -6,7 +6,7 @@ import os
 
 import numpy as np
 
-from ..fields import pcd_type
+from ..fields import numpy_type, pcd_type
 
 
 COUNT_DIGITS = 20  # a streamed file's header is written first with its counts padded to this width
@@ -100,8 +100,7 @@ def _pcd_dtype(header: dict) -> np.dtype:
         raise PointFileError("no x, y, z fields: not a point cloud this tool can read")
     if len(set(names)) != len(names):
         raise PointFileError("a field name appears twice in FIELDS")
-    kinds = {"U": "u", "I": "i", "F": "f"}
-    return np.dtype([(n, f"<{kinds[t]}{s}") for n, s, t in zip(names, sizes, types)])
+    return np.dtype([(n, numpy_type(t, int(s))) for n, s, t in zip(names, sizes, types)])
 
 
 def _pcd_count(header: dict) -> int:
