@@ -98,7 +98,8 @@ class Field:
 
 
 FIELDS: tuple[Field, ...] = (
-    Field("treeid", "<u2", "the tree's model: archetype 1-10 (then forest.models), deadwood 11, else 0",
+    Field("treeid", "<u2", "the tree's model number (archetypes from 1, then forest.models); deadwood "
+          "classes.DEADWOOD_TREEID; else 0",
           las=(extra("treeid", "<u2", "archetype 1-10, deadwood 11", 1),)),
     Field("x", "<f8", "m east (local frame; files add origin.offset)", pcd_local="<f4",
           las=(LasDimension("X", "coordinate", COORDINATE_SCALE),)),
@@ -121,7 +122,7 @@ FIELDS: tuple[Field, ...] = (
           las=(LasDimension("intensity", "counts"), extra("amplitude", "<f4", "echo amplitude (white at 1 m=1)", 4)),
           read_from="amplitude"),
     Field("gps_time", "<f8", "s, the pulse's time", las=(LasDimension("gps_time"),)),
-    Field("scan_angle", "<f4", "degrees from nadir, the deflection across track",
+    Field("scan_angle", "<f4", "degrees: the deflector's scan angle",
           las=(LasDimension("scan_angle", "scaled", SCAN_ANGLE_UNIT),)),
     Field("pulse_id", "<u8", "the survey's pulse number"),
     Field("range", "<f4", "m from the sensor to the echo"),
@@ -129,6 +130,7 @@ FIELDS: tuple[Field, ...] = (
           las=(extra("species", "u1", "tree family code, 0 none", 5),)),
     Field("reflectance", "<f4", "dB: the amplitude over a white Lambertian target's at the same range",
           las=(extra("reflectance", "<f4", "dB: amplitude/white target's", 6),), missing=np.nan),
+    # (a LAS writer given points without reflectance derives it from intensity and range: write/las.py)
     Field("point_source_id", "<u2", "the flight line: the leg's number from 1 (0: hand-made pulses)",
           las=(LasDimension("point_source_id"),)),
     Field("height_above_ground", "<f4", "m above the rendered ground at the point's x, y", filled_by=WRITER,
