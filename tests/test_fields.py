@@ -192,3 +192,12 @@ def test_a_new_field_is_one_entry(tmp_path):
     assert out["pcd"] == [*names[:-1], "echo_width", names[-1]]
     assert out["las"] == [n for n in out["pcd"] if n not in GOLDEN_PCD_ONLY]
     assert out["pcd_values"] == out["las_values"] == [i / 8 for i in range(100)]
+
+
+def test_the_schema_imports_no_pipeline_stage():
+    """scan/ builds its points from the schema and write/ reads it: it imports neither (nor any stage)."""
+    import ast
+    tree = ast.parse((ROOT / "mitsuforest" / "fields.py").read_text())
+    imported = {a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
+    imported |= {n.module or "." for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)}
+    assert imported == {"__future__", "dataclasses", "numpy"}
