@@ -39,13 +39,10 @@ except ImportError:      # a commit from before the writer's threads (PYTHONPATH
         return len(os.sched_getaffinity(0))
     THREADED = False
 
-# scan/tracer.py's POINT_DTYPE, spelled out: importing the scan package needs Mitsuba and the tree libraries.
-POINT_DTYPE = np.dtype([
-    ("treeid", "<u2"), ("x", "<f8"), ("y", "<f8"), ("z", "<f8"), ("classification", "u1"),
-    ("instance", "<u4"), ("object_id", "<u4"), ("number_of_returns", "u1"), ("return_number", "u1"),
-    ("intensity", "<f4"), ("gps_time", "<f8"), ("scan_angle", "<f4"), ("pulse_id", "<u8"), ("range", "<f4"),
-    ("species", "u1"), ("reflectance", "<f4"), ("point_source_id", "<u2"),
-])
+try:
+    from mitsuforest.fields import POINT_DTYPE    # numpy only: no Mitsuba or tree libraries
+except ImportError:      # a commit from before the point schema (PYTHONPATH=that checkout): its scan's (needs Mitsuba)
+    from mitsuforest.scan import POINT_DTYPE
 
 
 def scan_lines(count: int, batch: int, side: float = 100.0, seed: int = 0) -> list[np.ndarray]:

@@ -9,10 +9,10 @@ import numpy as np
 
 from ..classes import CLASS_NAMES, GROUND
 from ..errors import UserError
+from ..fields import FIELD, SCAN_ANGLE_UNIT
 
 ASPRS_GROUND = 2
 ASPRS_NOISE = (7, 18)         # low and high noise: left out of a comparison of another tool's file
-LAS_SCAN_ANGLE_UNIT = 0.006   # degrees per count of LAS 1.4's scan_angle (point formats 6-10)
 
 
 @dataclass
@@ -53,11 +53,12 @@ def load_cloud(path) -> Cloud:
     if len(columns["x"]) == 0:
         raise UserError(f"{path}: the file holds no points")
     if "scan_angle" in columns and Path(path).suffix.lower() != ".pcd":   # LAS 1.4 counts; our PCD has degrees
-        columns = {**columns, "scan_angle": columns["scan_angle"] * LAS_SCAN_ANGLE_UNIT}
+        columns = {**columns, "scan_angle": columns["scan_angle"] * SCAN_ANGLE_UNIT}
     elif "scan_angle_rank" in columns:                                     # LAS point formats 0-5: whole degrees
         columns = {**columns, "scan_angle": columns["scan_angle_rank"]}
-    if "amplitude" in columns and class_names is CLASS_NAMES:   # our LAS: the exact amplitude, as our PCD's
-        columns = {**columns, "intensity": columns["amplitude"]}   # intensity (16-bit intensity may clip)
+    amplitude = FIELD["intensity"].read_from              # our LAS: the exact amplitude, as our PCD's
+    if amplitude in columns and class_names is CLASS_NAMES:   # intensity (16-bit intensity may clip)
+        columns = {**columns, "intensity": columns[amplitude]}
     return cloud_from_columns(columns, Path(path).name, "mitsuforest" if class_names is CLASS_NAMES else "ASPRS")
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..fields import POINT_DTYPE
 from ..scene.variant import variant_scope
 from ..threads import row_ranges, shared_workers
 from .beam import beam_cells, beam_pattern
@@ -11,15 +12,6 @@ from .echo_kernel import EchoKernel
 from .pulses import reaching_pulses, upload_pulses
 from .radiometry import reflectance_db, reflectance_table
 from .sampling import key_word
-
-POINT_DTYPE = np.dtype([
-    ("treeid", "<u2"), ("x", "<f8"), ("y", "<f8"), ("z", "<f8"), ("classification", "u1"),
-    ("instance", "<u4"), ("object_id", "<u4"), ("number_of_returns", "u1"), ("return_number", "u1"),
-    ("intensity", "<f4"), ("gps_time", "<f8"), ("scan_angle", "<f4"), ("pulse_id", "<u8"), ("range", "<f4"),
-    ("species", "u1"),   # after the paper's fields: the tree's family code (classes.SPECIES_CODES), 0 elsewhere
-    ("reflectance", "<f4"),   # dB: the amplitude over a white Lambertian target's at the same range (radiometry.py)
-    ("point_source_id", "<u2"),   # the flight line: leg number from 1 (0: hand-made pulses)
-])
 
 
 class PulseTracer:

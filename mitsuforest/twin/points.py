@@ -8,6 +8,7 @@ import numpy as np
 
 from ..classes import CLASS_NAMES, GROUND
 from ..errors import UserError
+from ..fields import SCAN_ANGLE_UNIT
 
 
 @dataclass(frozen=True)
@@ -71,7 +72,7 @@ def _varying(column) -> np.ndarray | None:
 
 def _scan_angle(cols: dict, names: list[str]) -> np.ndarray | None:
     if "scan_angle" in names:                  # LAS 1.4 formats 6-10: 0.006 degree units
-        return _varying(np.asarray(cols["scan_angle"], np.float64) * 0.006)
+        return _varying(np.asarray(cols["scan_angle"], np.float64) * SCAN_ANGLE_UNIT)
     if "scan_angle_rank" in names:             # formats 0-5: whole degrees
         return _varying(np.asarray(cols["scan_angle_rank"], np.float64))
     if "scan_angle" in cols:                   # our PCD: degrees

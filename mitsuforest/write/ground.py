@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..fields import with_writer_fields
+
 FIELD = "height_above_ground"
 
 
@@ -25,7 +27,7 @@ def with_room_for_height(points: np.ndarray) -> np.ndarray:
     their fields and that one, for :func:`fill_height` to fill by row ranges (on several threads)."""
     if FIELD in points.dtype.names:
         return points
-    return np.empty(len(points), np.dtype(points.dtype.descr + [(FIELD, "<f4")]))
+    return np.empty(len(points), with_writer_fields(points.dtype))
 
 
 def fill_height(points: np.ndarray, out: np.ndarray, surface) -> np.ndarray:

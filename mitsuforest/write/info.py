@@ -8,6 +8,7 @@ import numpy as np
 
 from ..classes import CLASS_NAMES
 from ..errors import UserError
+from ..fields import FIELD
 from .pcd import PointFileError, read_pcd
 
 POINT_SUFFIXES = (".pcd", ".las", ".laz")
@@ -72,8 +73,9 @@ def _load_las(path: Path) -> tuple[dict, list[str], dict]:
     names = list(las.point_format.dimension_names)
     cols = {n: np.asarray(las[n]) for n in names}
     cols["x"], cols["y"], cols["z"] = np.asarray(las.x), np.asarray(las.y), np.asarray(las.z)
-    if "label" in cols:
-        cols["classification"] = cols["label"]
+    ours = FIELD["classification"].read_from           # our class, beside the ASPRS classification
+    if ours in cols:
+        cols["classification"] = cols[ours]
         return cols, names, CLASS_NAMES
     return cols, names, {k: f"{v} (ASPRS {k})" for k, v in ASPRS_NAMES.items()}
 

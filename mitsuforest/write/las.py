@@ -1,6 +1,7 @@
 """LAS 1.4 / LAZ (point format 6) through laspy.
 
-Classification uses ASPRS codes where they fit — ground 2, ground vegetation 3 (low vegetation), bush 4
+Every field's dimensions are declared in :mod:`mitsuforest.fields`, from which the header, the records
+and the reader are made. Classification uses ASPRS codes where they fit — ground 2, ground vegetation 3 (low vegetation), bush 4
 (medium vegetation), tree wood and leaves 5 (high vegetation) — and the user range for the rest: deadwood 64, rock 65, stump 66. Our own
 classes (1-8, as in the PCD) are in the extra dimension ``label``; ``treeid``, ``instance``,
 ``object_id``, ``species`` (classes.SPECIES_CODES, also in the VLR) and ``height_above_ground`` (float32 m,
@@ -34,12 +35,13 @@ from laspy.vlrs.known import WktCoordinateSystemVlr
 from ..classes import BUSH, DEADWOOD, GROUND, GROUND_VEGETATION, ROCK, SPECIES_CODES, STUMP, TREE_LEAVES, TREE_WOOD
 from ..config.types import IntensityMapping
 from ..errors import UserError
+from ..fields import (COORDINATE_SCALE, LAS_DIMENSION, LAS_EXTRA_DIMENSIONS, LAS_FIELDS, LAS_FORMAT, LAS_READ_DTYPE,
+                      LasDimension)
 from ..scan.radiometry import intensity_counts, reflectance_db
 from .atomic import atomic_path, naming_errors
 
 ASPRS_CODE = {GROUND: 2, TREE_WOOD: 5, TREE_LEAVES: 5, BUSH: 4, GROUND_VEGETATION: 3, DEADWOOD: 64, ROCK: 65, STUMP: 66}
-COORDINATE_SCALE = 1e-4  # m
-LAS_MAX_RETURNS = 15     # point format 6 has 4 bits for each return field; the PCD keeps larger counts
+LAS_MAX_RETURNS = (1 << LAS_DIMENSION["return_number"].width) - 1   # 15: 4 bits; the PCD keeps larger counts
 DEFAULT_CREATION_DATE = datetime.date(2000, 1, 1)   # the header's date without SOURCE_DATE_EPOCH (not today)
 
 try:
@@ -105,25 +107,22 @@ def las_header(offset, crs: str | None = None, intensity: IntensityMapping | Non
     ``intensity`` mapping, by default amplitude × 1e6) and, when ``crs`` is given, its WKT VLR (see
     :func:`crs_wkt`, which raises :class:`UserError` for a bad one)."""
     intensity = intensity or IntensityMapping()
-    return format6_header(offset, crs, [
-        laspy.ExtraBytesParams("label", np.uint8, "mitsuforest class 1-8"),
-        laspy.ExtraBytesParams("treeid", np.uint16, "archetype 1-10, deadwood 11"),
-        laspy.ExtraBytesParams("instance", np.uint32, "object instance id"),
-        laspy.ExtraBytesParams("object_id", np.uint32, "component id"),
-        laspy.ExtraBytesParams("amplitude", np.float32, "echo amplitude (white at 1 m=1)"),
-        laspy.ExtraBytesParams("species", np.uint8, "tree family code, 0 none"),
-        laspy.ExtraBytesParams("reflectance", np.float32, "dB: amplitude/white target's"),
-        laspy.ExtraBytesParams("height_above_ground", np.float32, "m above the terrain"),
-    ], laspy.VLR("mitsuforest", 1, "intensity and classes", json.dumps(
-        {"intensity": dataclasses.asdict(intensity), "classification": {str(k): v for k, v in ASPRS_CODE.items()},
-         "species": {str(v): k for k, v in SPECIES_CODES.items()}, "crs": crs}).encode()))
+    note = {"intensity": dataclasses.asdict(intensity), "classification": {str(k): v for k, v in ASPRS_CODE.items()},
+            "species": {str(v): k for k, v in SPECIES_CODES.items()}, "crs": crs}
+    return format6_header(offset, crs, [extra_bytes(d) for d in LAS_EXTRA_DIMENSIONS],
+                          laspy.VLR("mitsuforest", 1, "intensity and classes", json.dumps(note).encode()))
+
+
+def extra_bytes(dimension: LasDimension) -> laspy.ExtraBytesParams:
+    """laspy's declaration of an extra-bytes dimension of :mod:`mitsuforest.fields`."""
+    return laspy.ExtraBytesParams(dimension.name, np.dtype(dimension.dtype), dimension.description)
 
 
 def format6_header(offset, crs: str | None, extra_dims: list, note: laspy.VLR) -> laspy.LasHeader:
     """A LAS 1.4 point format 6 header: 0.1 mm coordinates from ``offset``, the ``extra_dims``
     (``laspy.ExtraBytesParams``) without partial statistics, our ``note`` VLR, the WKT VLR of ``crs``
     when given, and the :func:`creation_date`."""
-    header = laspy.LasHeader(point_format=6, version="1.4")
+    header = laspy.LasHeader(point_format=LAS_FORMAT, version="1.4")
     header.creation_date = creation_date()
     header.offsets = np.asarray(offset, float)
     header.scales = np.full(3, COORDINATE_SCALE)
@@ -160,31 +159,50 @@ def las_records(header: laspy.LasHeader, points: np.ndarray, out: np.ndarray | N
     :raises OverflowError: a coordinate that the header's scale and offset cannot hold.
     """
     out = np.empty(len(points), header.point_format.dtype()) if out is None else out
-    for axis, name, scale, offset in zip("xyz", "XYZ", header.scales, header.offsets):
-        coordinate = np.round((points[axis] - offset) / scale)      # laspy's ScaledArrayView arithmetic
+    for name in _unfilled(out.dtype):
+        out[name] = 0
+    names = points.dtype.names
+    reflectance = _reflectance(points)
+    for field in LAS_FIELDS:
+        if field.name == "reflectance":
+            value = reflectance
+        elif field.name in names:
+            value = points[field.name]
+        else:                      # points of an earlier version (no species, point_source_id...)
+            value = np.full(len(points), field.missing, field.dtype)
+        for dimension in field.las:
+            _encode(out, dimension, value, header, reflectance, intensity)
+    return out
+
+
+def _unfilled(record: np.dtype) -> list[str]:
+    """A record's fields that no field fills (classification_flags, user_data) and the bytes that
+    fields are packed into (bit_fields): zeroed first."""
+    filled = {d.name for f in LAS_FIELDS for d in f.las}
+    return [n for n in record.names if n not in filled]
+
+
+def _encode(out: np.ndarray, dimension: LasDimension, value: np.ndarray, header: laspy.LasHeader,
+            reflectance: np.ndarray, intensity: IntensityMapping | None) -> None:
+    """Store one field's ``value`` in ``dimension`` of the records ``out`` (see
+    :class:`~mitsuforest.fields.LasDimension`), as laspy would from the scaled values."""
+    name, encoding = dimension.name, dimension.encoding
+    if encoding == "coordinate":
+        axis = "XYZ".index(name)
+        coordinate = np.round((value - header.offsets[axis]) / header.scales[axis])  # laspy's ScaledArrayView
         if len(coordinate) and (coordinate.max() > _INT32.max or coordinate.min() < _INT32.min):
             raise OverflowError("Values given do not fit after applying offset and scale")
         out[name] = coordinate
-    names = points.dtype.names
-    reflectance = _reflectance(points)
-    out["intensity"] = intensity_counts(points["intensity"], reflectance, intensity or IntensityMapping())
-    out["bit_fields"] = (np.minimum(points["return_number"], LAS_MAX_RETURNS)
-                         | (np.minimum(points["number_of_returns"], LAS_MAX_RETURNS) << 4))
-    out["classification_flags"] = 0
-    out["classification"] = _ASPRS_LOOKUP[points["classification"]]
-    out["user_data"] = 0
-    out["scan_angle"] = np.round(points["scan_angle"] / 0.006).astype(np.int16)
-    out["point_source_id"] = points["point_source_id"] if "point_source_id" in names else 0
-    out["gps_time"] = points["gps_time"]
-    out["label"] = points["classification"]
-    out["treeid"] = points["treeid"]
-    out["instance"] = points["instance"]
-    out["object_id"] = points["object_id"]
-    out["amplitude"] = points["intensity"]
-    out["species"] = points["species"] if "species" in names else 0
-    out["reflectance"] = reflectance
-    out["height_above_ground"] = points["height_above_ground"] if "height_above_ground" in names else np.nan
-    return out
+    elif encoding == "bits":
+        out[dimension.packed] |= np.minimum(value, (1 << dimension.width) - 1) << dimension.shift
+    elif encoding == "asprs":
+        out[name] = _ASPRS_LOOKUP[value]
+    elif encoding == "scaled":
+        out[name] = np.round(value / dimension.scale).astype(out.dtype[name])
+    elif encoding == "counts":
+        out[name] = intensity_counts(value, reflectance, intensity or IntensityMapping())
+    else:                                              # copy, extra
+        out[name] = value
 
 
 def _reflectance(points: np.ndarray) -> np.ndarray:
@@ -338,19 +356,16 @@ def read_las_points(path) -> np.ndarray:
     file of an earlier version lacks reads 0 (``species``) or NaN (``reflectance``,
     ``height_above_ground``)."""
     las = laspy.read(str(path))
-    dtype = [("treeid", "<u2"), ("x", "<f8"), ("y", "<f8"), ("z", "<f8"), ("classification", "u1"),
-             ("instance", "<u4"), ("object_id", "<u4"), ("number_of_returns", "u1"), ("return_number", "u1"),
-             ("intensity", "<f4"), ("gps_time", "<f8"), ("scan_angle", "<f4"), ("species", "u1"),
-             ("reflectance", "<f4"), ("point_source_id", "<u2"), ("height_above_ground", "<f4")]
-    out = np.zeros(len(las.points), dtype)
-    for key, value in (("treeid", las.treeid), ("x", las.x), ("y", las.y), ("z", las.z),
-                       ("classification", las.label), ("instance", las.instance), ("object_id", las.object_id),
-                       ("number_of_returns", las.number_of_returns), ("return_number", las.return_number),
-                       ("intensity", las.amplitude), ("gps_time", las.gps_time),
-                       ("scan_angle", np.asarray(las.scan_angle) * 0.006), ("point_source_id", las.point_source_id)):
-        out[key] = np.asarray(value)
-    extra = set(las.point_format.extra_dimension_names)
-    out["species"] = np.asarray(las.species) if "species" in extra else 0
-    for key in ("reflectance", "height_above_ground"):
-        out[key] = np.asarray(las[key]) if key in extra else np.nan
+    held = set(las.point_format.dimension_names)
+    out = np.zeros(len(las.points), LAS_READ_DTYPE)
+    for field in LAS_FIELDS:
+        dimension = field.read_dimension
+        if dimension.encoding == "coordinate":
+            out[field.name] = np.asarray(getattr(las, field.name))      # scaled and offset by laspy
+        elif dimension.name not in held:
+            out[field.name] = field.missing
+        elif dimension.encoding == "scaled":
+            out[field.name] = np.asarray(las[dimension.name]) * dimension.scale
+        else:
+            out[field.name] = np.asarray(las[dimension.name])
     return out

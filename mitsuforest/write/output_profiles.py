@@ -31,9 +31,10 @@ import numpy as np
 
 from ..classes import (BUSH, DEADWOOD, GROUND, GROUND_VEGETATION, ROCK, STUMP, TREE_LEAVES, TREE_WOOD)
 from ..config.types import IntensityMapping
+from ..fields import LAS_DIMENSION, SCAN_ANGLE_UNIT
 from ..scan.radiometry import intensity_counts
 from .atomic import atomic_path, naming_errors
-from .las import LAS_MAX_RETURNS, LasStream, format6_header
+from .las import LAS_MAX_RETURNS, LasStream, extra_bytes, format6_header
 
 TREE_CLASSES = (TREE_WOOD, TREE_LEAVES)
 
@@ -81,8 +82,8 @@ def for_instance_header(offset, crs: str | None) -> laspy.LasHeader:
             "intensity": dataclasses.asdict(IntensityMapping())}
     return format6_header(offset, crs, [
         laspy.ExtraBytesParams("treeID", np.int32, "tree id, 0 for non-tree"),
-        laspy.ExtraBytesParams("label", np.uint8, "mitsuforest class 1-8"),
-        laspy.ExtraBytesParams("height_above_ground", np.float32, "m above the terrain"),
+        extra_bytes(LAS_DIMENSION["label"]),                      # as in our own LAS files
+        extra_bytes(LAS_DIMENSION["height_above_ground"]),
     ], laspy.VLR("mitsuforest", 2, "FOR-instance classes", json.dumps(note).encode()))
 
 
@@ -95,7 +96,7 @@ def for_instance_points(header: laspy.LasHeader, points: np.ndarray, stems: np.n
     las.number_of_returns = np.minimum(points["number_of_returns"], LAS_MAX_RETURNS)
     las.intensity = default_intensity(points)
     las.gps_time = points["gps_time"]
-    las.scan_angle = np.round(points["scan_angle"] / 0.006).astype(np.int16)
+    las.scan_angle = np.round(points["scan_angle"] / SCAN_ANGLE_UNIT).astype(np.int16)
     las.treeID = tree_ids(points)
     las.label = points["classification"]
     las.height_above_ground = points["height_above_ground"]

@@ -6,8 +6,7 @@ import os
 
 import numpy as np
 
-
-_KIND = {"u": "U", "i": "I", "f": "F"}
+from ..fields import numpy_type, pcd_type
 
 
 COUNT_DIGITS = 20  # a streamed file's header is written first with its counts padded to this width
@@ -16,16 +15,17 @@ COUNT_DIGITS = 20  # a streamed file's header is written first with its counts p
 def pcd_header(dtype: np.dtype, count: int, digits: int = 0) -> str:
     """The header of a binary PCD of ``count`` points; ``digits`` zero-pads the counts, so that a
     header written before the count is known can be overwritten in place (readers parse them as
-    integers: PCL, Open3D and pypcd4 accept the leading zeros)."""
+    integers: PCL, Open3D and pypcd4 accept the leading zeros). Our points' fields and their types are
+    :data:`mitsuforest.fields.FIELDS`'s (see :func:`mitsuforest.fields.pcd_dtype`)."""
     names = dtype.names
-    fields = [dtype[n] for n in names]
+    columns = [pcd_type(dtype[n]) for n in names]
     return "\n".join([
         "# .PCD v0.7 - Point Cloud Data file format",
         "VERSION 0.7",
         "FIELDS " + " ".join(names),
-        "SIZE " + " ".join(str(f.itemsize) for f in fields),
-        "TYPE " + " ".join(_KIND[f.kind] for f in fields),
-        "COUNT " + " ".join("1" for _ in fields),
+        "SIZE " + " ".join(str(size) for _, size in columns),
+        "TYPE " + " ".join(kind for kind, _ in columns),
+        "COUNT " + " ".join("1" for _ in columns),
         f"WIDTH {count:0{digits}d}",
         "HEIGHT 1",
         "VIEWPOINT 0 0 0 1 0 0 0",
@@ -100,8 +100,7 @@ def _pcd_dtype(header: dict) -> np.dtype:
         raise PointFileError("no x, y, z fields: not a point cloud this tool can read")
     if len(set(names)) != len(names):
         raise PointFileError("a field name appears twice in FIELDS")
-    kinds = {"U": "u", "I": "i", "F": "f"}
-    return np.dtype([(n, f"<{kinds[t]}{s}") for n, s, t in zip(names, sizes, types)])
+    return np.dtype([(n, numpy_type(t, int(s))) for n, s, t in zip(names, sizes, types)])
 
 
 def _pcd_count(header: dict) -> int:

@@ -16,6 +16,7 @@ import os
 
 import numpy as np
 
+from ..fields import POINT_DTYPE, pcd_dtype
 from ..threads import Workers, row_ranges, writer_threads
 from .atomic import naming_errors
 from .copc import CopcStream
@@ -78,7 +79,7 @@ class PointWriter:
         Returns once it is written (LAZ: once it is compressed or waits for whole chunks)."""
         batch = with_room_for_height(points)     # the scan's fields and height_above_ground, filled by _part
         if self.dtype is None and self._pcd_file:
-            self._pcd_record = self._pcd_dtype(batch.dtype)
+            self._pcd_record = pcd_dtype(batch.dtype, local=not np.any(self.offset))
             header = pcd_header(self._pcd_record, 0, COUNT_DIGITS).encode("ascii")
             with naming_errors(self._pcd_file.name):
                 self._pcd_file.write(header)
@@ -144,14 +145,6 @@ class PointWriter:
             tiles.append(np.column_stack([x[rows], y[rows], points["z"][rows]]))
         return tiles
 
-    def _pcd_dtype(self, dtype: np.dtype) -> np.dtype:
-        """The PCD's point record: x, y, z as float32 (``F 4``, which every PCD reader, Open3D's legacy
-        one included, takes as positions) in the local frame; float64 (``F 8``) only with an
-        ``origin.offset``, whose georeferenced coordinates float32 cannot hold to the millimetre."""
-        if np.any(self.offset):
-            return dtype
-        return np.dtype([(n, "<f4" if n in ("x", "y", "z") else dtype[n]) for n in dtype.names])
-
     def close(self) -> None:
         """Finish the files: the PCD header is written once the point count is known."""
         self._workers.close()
@@ -159,7 +152,6 @@ class PointWriter:
             las.close()
         if self._pcd_file:
             if self.dtype is None:
-                from ..scan import POINT_DTYPE
                 self.add(np.zeros(0, POINT_DTYPE))
             with naming_errors(self._pcd_file.name):
                 self._pcd_file.seek(0)                 # the counts, now known, in the header's padded fields
