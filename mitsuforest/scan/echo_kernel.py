@@ -35,12 +35,15 @@ class EchoKernel(RayCaster):
     :param point_position: ``beam_axis`` (an echo's point on its pulse's beam axis at the echo's range)
         or ``surface`` (the energy-weighted mean of its sub-rays' hit points); see
         :class:`~mitsuforest.scan.tracer.PulseTracer`.
+    :param record: also bring back each pulse's sub-ray returns and each echo's chain energy
+        (:meth:`echoes_and_returns`, for waveforms); off, the kernels are those without it.
     """
 
     def __init__(self, mi_scene, *, weights, table, reflectance, sensor, seed: int, point_position: str = "beam_axis",
-                 **beam):
+                 record: bool = False, **beam):
         super().__init__(mi_scene, **beam)
         self.on_surface = point_position == "surface"
+        self.record = record
         mi = self.mi
         self.table = DeviceHitTable(table)
         self.weights = mi.Float(np.asarray(weights, np.float32))
@@ -65,12 +68,33 @@ class EchoKernel(RayCaster):
             ranging noise) with the echo's ranging noise; ``amplitude``; and the labels of its
             strongest sub-ray.
         """
+        return self.echoes_and_returns(pulses)[0]
+
+    def echoes_and_returns(self, pulses) -> tuple[dict, dict | None]:
+        """:meth:`echoes`, and with ``record`` each pulse's sub-ray returns (else None).
+
+        :returns: the echoes (with ``record``, also ``energy`` (E,): the power summed over the echo's
+            chain); and ``range``, ``power`` (P, S) float32: each sub-ray's range (``inf`` without a
+            valid return) and received power, with the pulses' ``pulse_id``, ``gps_time``,
+            ``scan_angle`` (P,) and ``origin``, ``direction`` (P, 3) (local frame).
+        """
         n = pulses.count
         if n == 0:
-            return _no_echoes()
+            return _no_echoes(self.record), (_no_returns(self.samples) if self.record else None)
         lane, hit_id = self._sub_ray_returns(pulses)
         flat, returns = self._ranked_echoes(lane, n)
-        return self._echo_records(flat, returns, hit_id, pulses)
+        echoes = self._echo_records(flat, returns, hit_id, pulses)
+        return echoes, (self._returns(lane, pulses) if self.record else None)
+
+    def _returns(self, lane: dict, pulses) -> dict:
+        """The sub-ray returns and pulse data of a batch in numpy (see :meth:`echoes_and_returns`)."""
+        S = self.samples
+        out = {"range": np.array(lane["t"]).reshape(-1, S), "power": np.array(lane["power"]).reshape(-1, S),
+               "pulse_id": np.array(pulses.pulse_id), "gps_time": np.array(pulses.time),
+               "scan_angle": np.array(pulses.scan_angle)}
+        for key, value in (("origin", pulses.origin), ("direction", pulses.direction)):
+            out[key] = np.column_stack([np.array(value[k]) for k in range(3)])
+        return out
 
     def _sub_ray_returns(self, pulses):
         """Trace, label and weigh every sub-ray (lane = pulse*S + sub-ray): its range (``inf`` when it
@@ -109,6 +133,8 @@ class EchoKernel(RayCaster):
         flat = {k: dr.zeros(mi.Float, n * S) for k in ("range", "amplitude", *("xyz" if self.on_surface else ""))}
         flat["dominant"] = dr.zeros(mi.UInt32, n * S)
         flat["kept"] = dr.zeros(mi.UInt32, n * S)
+        if self.record:
+            flat["energy"] = dr.zeros(mi.Float, n * S)
         pulse = dr.arange(mi.UInt32, n)
         one, slot = single_chain(dr, *self._per_sample(lane, pulse), self.resolving, self.threshold)
         self._scatter(flat, [slot], pulse * S, one)
@@ -136,7 +162,8 @@ class EchoKernel(RayCaster):
         for slot in slots:
             at, kept = base + slot["rank"], slot["kept"] & active
             offset = zip("xyz", slot["offset"]) if slot["offset"] is not None else ()
-            for key, value in (("range", slot["range"]), ("amplitude", slot["amplitude"]), *offset,
+            energy = (("energy", slot["energy"]),) if "energy" in flat else ()
+            for key, value in (("range", slot["range"]), ("amplitude", slot["amplitude"]), *offset, *energy,
                                ("dominant", slot["dominant"]), ("kept", mi.UInt32(1))):
                 dr.scatter(flat[key], value, at, kept)
 
@@ -146,7 +173,7 @@ class EchoKernel(RayCaster):
         dr, mi, S = self.dr, self.mi, self.samples
         idx = dr.compress(flat["kept"] > 0)
         if dr.width(idx) == 0:
-            return _no_echoes()
+            return _no_echoes(self.record)
         echo_pulse = idx // S
         return_number = idx - echo_pulse * S + 1
         strongest = echo_pulse * S + dr.gather(mi.UInt32, flat["dominant"], idx)
@@ -178,6 +205,8 @@ class EchoKernel(RayCaster):
             **dict(zip("xyz", point)),
             **ids,
         }
+        if self.record:
+            out["energy"] = dr.gather(mi.Float, flat["energy"], idx)
         dr.eval(out)
         return {k: np.array(v) for k, v in out.items()}
 
@@ -192,5 +221,14 @@ class EchoKernel(RayCaster):
                            self.sensor)
 
 
-def _no_echoes() -> dict:
-    return {k: np.zeros(0, dtype) for k, dtype in ECHO_FIELDS.items()}
+def _no_echoes(energy: bool = False) -> dict:
+    out = {k: np.zeros(0, dtype) for k, dtype in ECHO_FIELDS.items()}
+    if energy:
+        out["energy"] = np.zeros(0, np.float32)
+    return out
+
+
+def _no_returns(samples: int) -> dict:
+    return {"range": np.zeros((0, samples), np.float32), "power": np.zeros((0, samples), np.float32),
+            "pulse_id": np.zeros(0, np.uint64), "gps_time": np.zeros(0), "scan_angle": np.zeros(0, np.float32),
+            "origin": np.zeros((0, 3), np.float32), "direction": np.zeros((0, 3), np.float32)}
