@@ -172,3 +172,15 @@ def test_bad_waveform_keys_give_one_line_and_exit_2(tmp_path, monkeypatch, capsy
     err = capsys.readouterr().err.strip()
     assert err == f"mitsuforest: {message}"
     assert not (tmp_path / "out").exists()
+
+
+def test_a_dataset_cannot_split_plots_that_write_waveforms(tmp_path):
+    from mitsuforest.config import ConfigError
+    from mitsuforest.dataset.spec import load_dataset
+    base = scene_file(tmp_path, output={"dir": str(tmp_path / "out"), "waveforms": True})
+    (tmp_path / "set.yaml").write_text(f"base: {base}\nplots: 1\nlegs_per_task: 1\n")
+    with pytest.raises(ConfigError, match="set.yaml: legs_per_task: cannot split plots whose scene asks for "
+                                          "output.waveforms"):
+        load_dataset(tmp_path / "set.yaml")
+    (tmp_path / "set.yaml").write_text(f"base: {base}\nplots: 1\n")
+    assert load_dataset(tmp_path / "set.yaml").plots[0].scene.output.waveforms

@@ -37,7 +37,7 @@ from scipy.special import erf
 from .echoes import FWHM_PER_SIGMA
 
 REACH_SIGMAS = 5.0          # a return's shape is summed over ± this many σ; the window starts this far before the first
-CHUNK_RETURNS = 1 << 18     # returns sampled at once (bounds the (returns, bins) temporaries)
+CHUNK_RETURNS = 1 << 17     # sub-rays sampled at once (bounds the (returns, bins) temporaries to ~20 MB)
 
 
 def pulse_sigma(resolving: float) -> float:
@@ -76,22 +76,29 @@ def sample_waveforms(ranges: np.ndarray, powers: np.ndarray, sigma: float, bin_r
         raise ValueError("every pulse needs a return to anchor its window")
     first_bin = np.floor(np.maximum(nearest - reach, 0.0) / bin_range).astype(np.int64)
     complete = farthest + reach <= (first_bin + samples) * bin_range
+    out = np.zeros((n, samples), np.float32)
+    block = max(1, CHUNK_RETURNS // max(ranges.shape[1], 1))               # pulses sampled at once
+    for lo in range(0, n, block):
+        rows = slice(lo, lo + block)
+        out[rows] = _bin_means(ranges[rows], powers[rows], valid[rows], first_bin[rows], sigma, bin_range, samples)
+    return first_bin, out, complete
+
+
+def _bin_means(ranges, powers, valid, first_bin, sigma: float, bin_range: float, samples: int) -> np.ndarray:
+    """(P, B) float64 bin means of W for a block of pulses (see :func:`sample_waveforms`)."""
+    n = len(ranges)
+    reach = REACH_SIGMAS * sigma
     pulse, sub = np.nonzero(valid)
     r, p = ranges[pulse, sub], powers[pulse, sub]
-    span = int(math.ceil(2 * reach / bin_range)) + 1         # bins one return's shape can touch
-    total = np.zeros(n * samples, np.float64)
-    scale = sigma * math.sqrt(2.0)
-    for lo in range(0, len(r), CHUNK_RETURNS):
-        rows = slice(lo, lo + CHUNK_RETURNS)
-        low = np.floor((r[rows] - reach) / bin_range).astype(np.int64)         # absolute bin of the shape's start
-        edges = (low[:, None] + np.arange(span + 1)) * bin_range               # (R, span+1) bin edges (m)
-        cdf = erf((edges - r[rows, None]) / scale)
-        part = (p[rows, None] * (sigma * math.sqrt(math.pi / 2) / bin_range)) * np.diff(cdf, axis=1)
-        local = low[:, None] + np.arange(span) - first_bin[pulse[rows], None]  # bin within the window
-        inside = (local >= 0) & (local < samples)
-        flat = pulse[rows, None] * samples + local
-        total += np.bincount(flat[inside], part[inside], minlength=n * samples)
-    return first_bin, total.reshape(n, samples).astype(np.float32), complete
+    span = int(math.ceil(2 * reach / bin_range)) + 1                       # bins one return's shape can touch
+    low = np.floor((r - reach) / bin_range).astype(np.int64)               # absolute bin of the shape's start
+    edges = (low[:, None] + np.arange(span + 1)) * bin_range               # (R, span+1) bin edges (m)
+    cdf = erf((edges - r[:, None]) / (sigma * math.sqrt(2.0)))
+    part = (p[:, None] * (sigma * math.sqrt(math.pi / 2) / bin_range)) * np.diff(cdf, axis=1)
+    local = low[:, None] + np.arange(span) - first_bin[pulse, None]       # bin within the window
+    inside = (local >= 0) & (local < samples)
+    flat = (pulse[:, None] * samples + local)[inside]
+    return np.bincount(flat, part[inside], minlength=n * samples).reshape(n, samples)
 
 
 @dataclass
