@@ -15,6 +15,7 @@ import numpy as np
 from ..labels.device import DeviceHitTable
 from .echoes import pulse_echoes, single_chain
 from .kernel import RayCaster
+from .waveform import device_waveforms, pulse_sigma
 from .noise import noise_key, range_sigma, speckle_gain, speckle_key, standard_normal, varies
 
 ECHO_FIELDS = {"pulse_id": np.uint64, "gps_time": np.float64, "scan_angle": np.float32, "return_number": np.uint32,
@@ -74,26 +75,37 @@ class EchoKernel(RayCaster):
         """:meth:`echoes`, and with ``record`` each pulse's sub-ray returns (else None).
 
         :returns: the echoes (with ``record``, also ``energy`` (E,): the power summed over the echo's
-            chain); and ``range``, ``power`` (P, S) float32: each sub-ray's range (``inf`` without a
-            valid return) and received power, with the pulses' ``pulse_id``, ``gps_time``,
-            ``scan_angle`` (P,) and ``origin``, ``direction`` (P, 3) (local frame).
+            chain); and, for the M pulses with at least one sub-ray return, their sampled waveforms
+            (:func:`~mitsuforest.scan.waveform.device_waveforms`): ``samples`` (M, B) float32,
+            ``first_bin`` (M,) uint32, ``complete`` (M,) bool, with the pulses' ``pulse_id``,
+            ``gps_time``, ``scan_angle`` (rad) (M,) and ``origin``, ``direction`` (M, 3) (local frame).
         """
         n = pulses.count
         if n == 0:
-            return _no_echoes(self.record), (_no_returns(self.samples) if self.record else None)
+            return _no_echoes(self.record), (_no_returns(self.sensor.waveform.samples) if self.record else None)
         lane, hit_id = self._sub_ray_returns(pulses)
         flat, returns = self._ranked_echoes(lane, n)
         echoes = self._echo_records(flat, returns, hit_id, pulses)
         return echoes, (self._returns(lane, pulses) if self.record else None)
 
     def _returns(self, lane: dict, pulses) -> dict:
-        """The sub-ray returns and pulse data of a batch in numpy (see :meth:`echoes_and_returns`)."""
-        S = self.samples
-        out = {"range": np.array(lane["t"]).reshape(-1, S), "power": np.array(lane["power"]).reshape(-1, S),
-               "pulse_id": np.array(pulses.pulse_id), "gps_time": np.array(pulses.time),
-               "scan_angle": np.array(pulses.scan_angle)}
-        for key, value in (("origin", pulses.origin), ("direction", pulses.direction)):
-            out[key] = np.column_stack([np.array(value[k]) for k in range(3)])
+        """The sampled waveforms of a batch's pulses with a return, and their pulse data, in numpy (see
+        :meth:`echoes_and_returns`)."""
+        dr, mi = self.dr, self.mi
+        sampling = self.sensor.waveform
+        made = device_waveforms(dr, lane["t"], lane["power"], self.samples, pulse_sigma(self.resolving),
+                                sampling.bin_range, sampling.samples)
+        rows = made["rows"]
+        out = {"pulse_id": dr.gather(mi.UInt64, pulses.pulse_id, rows), "gps_time": dr.gather(mi.Float64, pulses.time, rows),
+               "scan_angle": dr.gather(mi.Float, pulses.scan_angle, rows),
+               **{f"{key}_{a}": dr.gather(mi.Float, value[a], rows)
+                  for key, value in (("origin", pulses.origin), ("direction", pulses.direction)) for a in range(3)}}
+        dr.eval(out)
+        out = {k: np.array(v) for k, v in out.items()}
+        for key in ("origin", "direction"):
+            out[key] = np.column_stack([out.pop(f"{key}_{a}") for a in range(3)])
+        out["first_bin"], out["complete"] = np.array(made["first_bin"]), np.array(made["complete"])
+        out["samples"] = np.array(made["waveform"]).reshape(-1, sampling.samples)
         return out
 
     def _sub_ray_returns(self, pulses):
@@ -229,6 +241,6 @@ def _no_echoes(energy: bool = False) -> dict:
 
 
 def _no_returns(samples: int) -> dict:
-    return {"range": np.zeros((0, samples), np.float32), "power": np.zeros((0, samples), np.float32),
-            "pulse_id": np.zeros(0, np.uint64), "gps_time": np.zeros(0), "scan_angle": np.zeros(0, np.float32),
+    return {"samples": np.zeros((0, samples), np.float32), "first_bin": np.zeros(0, np.uint32),
+            "complete": np.zeros(0, bool), "pulse_id": np.zeros(0, np.uint64), "gps_time": np.zeros(0), "scan_angle": np.zeros(0, np.float32),
             "origin": np.zeros((0, 3), np.float32), "direction": np.zeros((0, 3), np.float32)}

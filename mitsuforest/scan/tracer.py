@@ -139,7 +139,9 @@ class PulseTracer:
         with variant_scope(self.variant):
             echoes, returns = self.caster.echoes_and_returns(upload_pulses(pulses, first_id))
             points = self._points(echoes, self.table)
-        fired = {k: returns[k] for k in ("pulse_id", "gps_time", "scan_angle", "origin", "direction")}
+        fired = {"pulse_id": np.asarray(pulses.index, np.uint64) + np.uint64(first_id),
+                 "gps_time": np.asarray(pulses.time, np.float64), "scan_angle": np.asarray(pulses.scan_angle, np.float32),
+                 "origin": np.asarray(pulses.origin, np.float32), "direction": np.asarray(pulses.direction, np.float32)}
         kept = ("pulse_id", "return_number", "range", "amplitude", "energy")
         return points, PulseBatch(returns, {k: echoes[k] for k in kept}, fired, 0)
 

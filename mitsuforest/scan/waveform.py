@@ -19,6 +19,10 @@ of W over the window for any pulse length, however short against the bin. A retu
 summed over ``r_i ± 5σ`` (it leaves out 6e-7 of its integral); a pulse is ``complete`` when its
 farthest return's ``r_i + 5σ`` lies inside the window.
 
+On the device. A render samples on the device (:func:`device_waveforms`, one lane per return and
+bin it touches, added into its pulse's window with ``scatter_reduce``, float32); :func:`sample_waveforms`
+is its numpy twin (float64) and the tests' reference.
+
 Echo energy. An echo's energy is the integral of its own chain's part of W:
 ``E = σ·√(2π)·Σ_(i in chain) p_i`` (amplitude × m). So a complete waveform's integral equals the
 sum of its echoes' energies when every chain of the pulse is an echo (none below
@@ -101,13 +105,60 @@ def _bin_means(ranges, powers, valid, first_bin, sigma: float, bin_range: float,
     return np.bincount(flat, part[inside], minlength=n * samples).reshape(n, samples)
 
 
+def device_waveforms(dr, t, power, samples_per_pulse: int, sigma: float, bin_range: float, samples: int) -> dict:
+    """:func:`sample_waveforms` on the device, for the P pulses of a batch, of which M have a return.
+
+    :param t, power: Float (P·S,) each sub-ray's range (``inf`` without a valid return) and power,
+        lane = pulse·S + sub-ray (the echo kernel's layout).
+    :param samples_per_pulse: S.
+    :returns: ``rows`` UInt32 (M,), the pulses with a return; ``first_bin`` UInt32 (M,); ``waveform``
+        Float (M·B,), row-major (M, B); ``complete`` Bool (M,). Evaluated.
+    """
+    Float = type(t)
+    UInt32 = dr.uint32_array_t(Float)
+    S, B = samples_per_pulse, samples
+    reach = REACH_SIGMAS * sigma
+    base = dr.arange(UInt32, dr.width(t) // S) * S
+    nearest, farthest = dr.full(Float, dr.inf, dr.width(base)), dr.full(Float, -dr.inf, dr.width(base))
+    for k in range(S):
+        tk = dr.gather(Float, t, base + k)
+        nearest = dr.minimum(nearest, tk)
+        farthest = dr.maximum(farthest, dr.select(dr.isfinite(tk), tk, -dr.inf))
+    dr.eval(nearest, farthest)
+    rows = dr.compress(dr.isfinite(nearest))
+    m = dr.width(rows)
+    first = dr.floor(dr.maximum(dr.gather(Float, nearest, rows) - reach, 0.0) / bin_range)
+    complete = dr.gather(Float, farthest, rows) + reach <= (first + B) * bin_range
+    first_bin = UInt32(first)
+    waveform = dr.zeros(Float, m * B)
+    span = int(math.ceil(2 * reach / bin_range)) + 1
+    if m:
+        lane = dr.arange(UInt32, m * S * span)
+        ret, j = lane // span, lane % span
+        row = ret // S
+        sub = dr.gather(UInt32, rows, row) * S + (ret - row * S)
+        r, p = dr.gather(Float, t, sub), dr.gather(Float, power, sub)
+        valid = dr.isfinite(r)
+        r = dr.select(valid, r, 0.0)
+        k = dr.floor((r - reach) / bin_range) + Float(j)        # the bin's absolute index
+        scale = 1.0 / (sigma * math.sqrt(2.0))
+        part = p * (sigma * math.sqrt(math.pi / 2) / bin_range) * (dr.erf(((k + 1) * bin_range - r) * scale)
+                                                                   - dr.erf((k * bin_range - r) * scale))
+        local = k - dr.gather(Float, first, row)
+        inside = valid & (local >= 0) & (local < B)
+        dr.scatter_reduce(dr.ReduceOp.Add, waveform, part, row * B + UInt32(dr.maximum(local, 0.0)), inside)
+    dr.eval(rows, first_bin, waveform, complete)
+    return {"rows": rows, "first_bin": first_bin, "waveform": waveform, "complete": complete}
+
+
 @dataclass
 class PulseBatch:
     """One scan batch's pulse records for ``output.waveforms`` and ``output.pulses`` (local frame).
 
-    ``cast``: the pulses cast (P rows): ``pulse_id``, ``gps_time``, ``scan_angle`` (rad), ``origin``
-    (P, 3), ``direction`` (P, 3) unit beam axis, ``range`` and ``power`` (P, S) of each sub-ray's
-    return (``inf``, 0 without one). ``echoes``: the kernel's echoes (E rows, in pulse then range
+    ``cast``: the cast pulses with at least one sub-ray return (M rows): ``pulse_id``, ``gps_time``,
+    ``scan_angle`` (rad), ``origin`` (M, 3), ``direction`` (M, 3) unit beam axis, and their sampled
+    waveforms ``samples`` (M, B), ``first_bin`` and ``complete`` (M,) (:func:`device_waveforms`); None
+    without ``output.waveforms``. ``echoes``: the kernel's echoes (E rows, in pulse then range
     order): ``pulse_id``, ``return_number``, ``range`` (with ranging noise, as the points),
     ``amplitude`` (with speckle, as the points' intensity), ``energy`` (Σ p of the echo's chain).
     ``fired``: every pulse fired (F rows: ``pulse_id``, ``gps_time``, ``scan_angle``, ``origin``,

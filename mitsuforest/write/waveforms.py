@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from ..config.types import SPEED_OF_LIGHT
-from ..scan.waveform import echo_energy, pulse_sigma, sample_waveforms
+from ..scan.waveform import echo_energy, pulse_sigma
 from .atomic import naming_errors
 
 COPY_BLOCK = 1 << 24        # bytes copied from a spool at a time
@@ -138,12 +138,8 @@ class PulseRecordWriter:
                 "origin": np.asarray(pulses["origin"], np.float64) + self.offset, "direction": pulses["direction"]}
 
     def _add_waveforms(self, batch) -> None:
-        cast = batch.cast
-        has_return = np.isfinite(cast["range"]).any(axis=1)
-        rows = np.flatnonzero(has_return)
-        pulses = {k: v[rows] for k, v in cast.items()}
-        first_bin, samples, complete = sample_waveforms(pulses["range"], pulses["power"], self.sigma,
-                                                        self.sampling.bin_range, self.sampling.samples)
+        pulses = batch.cast
+        first_bin, samples, complete = pulses["first_bin"], pulses["samples"], pulses["complete"]
         echoes = batch.echoes
         self.waveforms.append(**self._beam(pulses, batch.source_id), echoes=batch.echo_counts(pulses["pulse_id"]),
                               first_bin=first_bin, complete=complete, samples=samples)
@@ -151,7 +147,7 @@ class PulseRecordWriter:
         self.waveforms.append(echo_pulse=row, echo_return_number=np.minimum(echoes["return_number"], 255),
                               echo_range=echoes["range"], echo_time=2.0 * echoes["range"].astype(np.float64) / SPEED_OF_LIGHT,
                               echo_amplitude=echoes["amplitude"], echo_energy=echo_energy(echoes["energy"], self.sigma))
-        self.rows += len(rows)
+        self.rows += len(samples)
         self.incomplete += int(np.count_nonzero(~complete))
 
     def close(self) -> None:
