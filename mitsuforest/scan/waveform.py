@@ -127,26 +127,27 @@ def device_waveforms(dr, t, power, samples_per_pulse: int, sigma: float, bin_ran
     dr.eval(nearest, farthest)
     rows = dr.compress(dr.isfinite(nearest))
     m = dr.width(rows)
+    if m == 0:
+        return {"rows": rows, "first_bin": UInt32(), "waveform": Float(), "complete": dr.mask_t(Float)()}
     first = dr.floor(dr.maximum(dr.gather(Float, nearest, rows) - reach, 0.0) / bin_range)
     complete = dr.gather(Float, farthest, rows) + reach <= (first + B) * bin_range
     first_bin = UInt32(first)
     waveform = dr.zeros(Float, m * B)
     span = int(math.ceil(2 * reach / bin_range)) + 1
-    if m:
-        lane = dr.arange(UInt32, m * S * span)
-        ret, j = lane // span, lane % span
-        row = ret // S
-        sub = dr.gather(UInt32, rows, row) * S + (ret - row * S)
-        r, p = dr.gather(Float, t, sub), dr.gather(Float, power, sub)
-        valid = dr.isfinite(r)
-        r = dr.select(valid, r, 0.0)
-        k = dr.floor((r - reach) / bin_range) + Float(j)        # the bin's absolute index
-        scale = 1.0 / (sigma * math.sqrt(2.0))
-        part = p * (sigma * math.sqrt(math.pi / 2) / bin_range) * (dr.erf(((k + 1) * bin_range - r) * scale)
-                                                                   - dr.erf((k * bin_range - r) * scale))
-        local = k - dr.gather(Float, first, row)
-        inside = valid & (local >= 0) & (local < B)
-        dr.scatter_reduce(dr.ReduceOp.Add, waveform, part, row * B + UInt32(dr.maximum(local, 0.0)), inside)
+    lane = dr.arange(UInt32, m * S * span)
+    ret, j = lane // span, lane % span
+    row = ret // S
+    sub = dr.gather(UInt32, rows, row) * S + (ret - row * S)
+    r, p = dr.gather(Float, t, sub), dr.gather(Float, power, sub)
+    valid = dr.isfinite(r)
+    r = dr.select(valid, r, 0.0)
+    k = dr.floor((r - reach) / bin_range) + Float(j)        # the bin's absolute index
+    scale = 1.0 / (sigma * math.sqrt(2.0))
+    part = p * (sigma * math.sqrt(math.pi / 2) / bin_range) * (dr.erf(((k + 1) * bin_range - r) * scale)
+                                                               - dr.erf((k * bin_range - r) * scale))
+    local = k - dr.gather(Float, first, row)
+    inside = valid & (local >= 0) & (local < B)
+    dr.scatter_reduce(dr.ReduceOp.Add, waveform, part, row * B + UInt32(dr.maximum(local, 0.0)), inside)
     dr.eval(rows, first_bin, waveform, complete)
     return {"rows": rows, "first_bin": first_bin, "waveform": waveform, "complete": complete}
 
