@@ -215,3 +215,27 @@ def test_a_dataset_cannot_split_plots_that_write_waveforms(tmp_path):
         load_dataset(tmp_path / "set.yaml")
     (tmp_path / "set.yaml").write_text(f"base: {base}\nplots: 1\n")
     assert load_dataset(tmp_path / "set.yaml").plots[0].scene.output.waveforms
+
+
+def test_a_full_disk_while_spooling_waveforms_names_the_file_and_leaves_nothing(tmp_path, monkeypatch, capsys):
+    """A write of the waveform spool that fails (a full disk): one line naming the waveform file, exit 1,
+    no staging folder and no spool left."""
+    import errno
+
+    from mitsuforest.write import waveforms
+
+    class FullDisk:
+        def write(self, data):
+            raise OSError(errno.ENOSPC, "No space left on device")
+
+        def close(self):
+            pass
+    monkeypatch.setattr(waveforms, "open", lambda *a, **k: FullDisk(), raising=False)
+    path = scene_file(tmp_path, survey={"altitude": 30, "pulse_frequency": 100000, "scan_frequency": 50,
+                                        "lines": [[[20, 19], [20, 21]]]}, output={"waveforms": True})
+    out = tmp_path / "out"
+    code = main(["render", str(path), "-o", str(out), "--quiet"])
+    err = capsys.readouterr().err.strip()
+    assert code == 1 and err.count("\n") == 0, err
+    assert err.startswith(f"mitsuforest: {out / 'test_waveforms.npz'}: ") and "No space left on device" in err
+    assert list(out.iterdir()) == []

@@ -52,7 +52,7 @@ class NpzStream:
             value = np.ascontiguousarray(value, dtype)
             if value.shape[1:] != shape:
                 raise ValueError(f"{key}: rows of shape {value.shape[1:]}, expected {shape}")
-            with naming_errors(self._spool_path(key)):
+            with naming_errors(self.path):      # a failing write names no file: name the one it is for
                 self._spools[key].write(value.tobytes())
             self.rows[key] += len(value)
 
