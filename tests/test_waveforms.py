@@ -174,15 +174,21 @@ def test_off_by_default_no_files(tmp_path, variant):
     names = {p.name for p in (tmp_path / "out").iterdir()}
     assert "test.pcd" in names and not names & {"test_waveforms.npz", "test_pulses.npz"}
     assert "waveforms" not in result.manifest and "pulse_records" not in result.manifest
+    # the pulse records alone: no waveform file, and the same points
+    alone = _bare_render(tmp_path / "pulses", variant, pulses=True)
+    names = {p.name for p in (tmp_path / "pulses" / "out").iterdir()}
+    assert "test_pulses.npz" in names and "test_waveforms.npz" not in names
+    assert alone.manifest["pulse_records"]["fired"] == result.manifest["pulses"]["fired"]
+    assert (tmp_path / "pulses" / "out" / "test.pcd").read_bytes() == (tmp_path / "out" / "test.pcd").read_bytes()
 
 
-GOOD = f"""
+GOOD = """
 name: t
-area: {{size: [10, 10]}}
-forest: {{trees: 1}}
-understory: {{bushes: 0, rocks: 0, deadwood: 0, stumps: 0}}
+area: {size: [10, 10]}
+forest: {trees: 1}
+understory: {bushes: 0, rocks: 0, deadwood: 0, stumps: 0}
 sensor: SENSOR
-survey: {{altitude: 30, pulse_frequency: 200000}}
+survey: {altitude: 30, pulse_frequency: 200000}
 """
 
 
