@@ -133,10 +133,10 @@ def _bare_render(tmp_path, variant, **output):
 
 
 def test_render_writes_waveforms_and_every_fired_pulse(tmp_path, variant):
-    """Flat ground, the ideal 360° scanner along a 2 m leg: half its pulses go up and have no echo, those within 30° of
-    nadir one each (the plot is 40 m wide); every
-    fired pulse is in ``_pulses.npz`` with its echo count, every pulse with a return has a waveform
-    whose integral is its echo's energy, and the echo table joins the points."""
+    """Flat ground, the ideal 360° scanner along a 2 m leg: half its pulses go up and have no echo, those
+    within 31° of nadir one each (the ground is 40 m wide: 33.7° at 30 m); every fired pulse is in
+    ``_pulses.npz`` with its echo count, every pulse with a return has a waveform whose integral is its
+    echo's energy, and the echo table joins the points."""
     result = _bare_render(tmp_path, variant, waveforms=True, pulses=True)
     out = tmp_path / "out"
     assert sorted(p.name for p in out.iterdir() if "spool" in p.name or p.name.startswith(".")) == []

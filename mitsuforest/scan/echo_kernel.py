@@ -36,8 +36,9 @@ class EchoKernel(RayCaster):
     :param point_position: ``beam_axis`` (an echo's point on its pulse's beam axis at the echo's range)
         or ``surface`` (the energy-weighted mean of its sub-rays' hit points); see
         :class:`~mitsuforest.scan.tracer.PulseTracer`.
-    :param record: also bring back each pulse's sub-ray returns and each echo's chain energy
-        (:meth:`echoes_and_returns`, for waveforms); off, the kernels are those without it.
+    :param record: also sample each pulse's received waveform on the device and bring it back with
+        each echo's chain energy (:meth:`echoes_and_waveforms`, ``output.waveforms``); off, the kernels
+        are those without it.
     """
 
     def __init__(self, mi_scene, *, weights, table, reflectance, sensor, seed: int, point_position: str = "beam_axis",
@@ -69,10 +70,10 @@ class EchoKernel(RayCaster):
             ranging noise) with the echo's ranging noise; ``amplitude``; and the labels of its
             strongest sub-ray.
         """
-        return self.echoes_and_returns(pulses)[0]
+        return self.echoes_and_waveforms(pulses)[0]
 
-    def echoes_and_returns(self, pulses) -> tuple[dict, dict | None]:
-        """:meth:`echoes`, and with ``record`` each pulse's sub-ray returns (else None).
+    def echoes_and_waveforms(self, pulses) -> tuple[dict, dict | None]:
+        """:meth:`echoes`, and with ``record`` the batch's sampled waveforms (else None).
 
         :returns: the echoes (with ``record``, also ``energy`` (E,): the power summed over the echo's
             chain); and, for the M pulses with at least one sub-ray return, their sampled waveforms
@@ -82,21 +83,22 @@ class EchoKernel(RayCaster):
         """
         n = pulses.count
         if n == 0:
-            return _no_echoes(self.record), (_no_returns(self.sensor.waveform.samples) if self.record else None)
+            return _no_echoes(self.record), (_no_waveforms(self.sensor.waveform.samples) if self.record else None)
         lane, hit_id = self._sub_ray_returns(pulses)
         flat, returns = self._ranked_echoes(lane, n)
         echoes = self._echo_records(flat, returns, hit_id, pulses)
-        return echoes, (self._returns(lane, pulses) if self.record else None)
+        return echoes, (self._waveforms(lane, pulses) if self.record else None)
 
-    def _returns(self, lane: dict, pulses) -> dict:
+    def _waveforms(self, lane: dict, pulses) -> dict:
         """The sampled waveforms of a batch's pulses with a return, and their pulse data, in numpy (see
-        :meth:`echoes_and_returns`)."""
+        :meth:`echoes_and_waveforms`)."""
         dr, mi = self.dr, self.mi
         sampling = self.sensor.waveform
         made = device_waveforms(dr, lane["t"], lane["power"], self.samples, pulse_sigma(self.resolving),
                                 sampling.bin_range, sampling.samples)
         rows = made["rows"]
-        out = {"pulse_id": dr.gather(mi.UInt64, pulses.pulse_id, rows), "gps_time": dr.gather(mi.Float64, pulses.time, rows),
+        out = {"pulse_id": dr.gather(mi.UInt64, pulses.pulse_id, rows),
+               "gps_time": dr.gather(mi.Float64, pulses.time, rows),
                "scan_angle": dr.gather(mi.Float, pulses.scan_angle, rows),
                **{f"{key}_{a}": dr.gather(mi.Float, value[a], rows)
                   for key, value in (("origin", pulses.origin), ("direction", pulses.direction)) for a in range(3)}}
@@ -240,7 +242,8 @@ def _no_echoes(energy: bool = False) -> dict:
     return out
 
 
-def _no_returns(samples: int) -> dict:
+def _no_waveforms(samples: int) -> dict:
     return {"samples": np.zeros((0, samples), np.float32), "first_bin": np.zeros(0, np.uint32),
-            "complete": np.zeros(0, bool), "pulse_id": np.zeros(0, np.uint64), "gps_time": np.zeros(0), "scan_angle": np.zeros(0, np.float32),
-            "origin": np.zeros((0, 3), np.float32), "direction": np.zeros((0, 3), np.float32)}
+            "complete": np.zeros(0, bool), "pulse_id": np.zeros(0, np.uint64), "gps_time": np.zeros(0),
+            "scan_angle": np.zeros(0, np.float32), "origin": np.zeros((0, 3), np.float32),
+            "direction": np.zeros((0, 3), np.float32)}

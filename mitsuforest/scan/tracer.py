@@ -51,7 +51,7 @@ class PulseTracer:
     :param navigation: a :class:`~mitsuforest.scan.navigation.NavigationModel`: the points are placed
         with its believed trajectory (None: with the true one).
     :param waveforms, pulse_records: make each batch's :class:`~mitsuforest.scan.waveform.PulseBatch`
-        with the cast pulses' sub-ray returns and echo energies (``output.waveforms``) and with every
+        with the cast pulses' sampled waveforms and echo energies (``output.waveforms``) and with every
         fired pulse (``output.pulses``); :meth:`trace_slots` then returns it as a fourth item.
     """
 
@@ -107,7 +107,7 @@ class PulseTracer:
                                    first_id, self._device_table(pose), keep_fired=self.pulse_records)
             pulses, fired = made[:2]
             if records:
-                echoes, returns = self.caster.echoes_and_returns(pulses)
+                echoes, returns = self.caster.echoes_and_waveforms(pulses)
             else:
                 echoes = self.caster.echoes(pulses)
             points = self._points(echoes, self.table)
@@ -137,10 +137,11 @@ class PulseTracer:
         """Points of hand-made pulses and their :class:`~mitsuforest.scan.waveform.PulseBatch` (needs
         ``waveforms``): every hand-made pulse counts as fired and cast."""
         with variant_scope(self.variant):
-            echoes, returns = self.caster.echoes_and_returns(upload_pulses(pulses, first_id))
+            echoes, returns = self.caster.echoes_and_waveforms(upload_pulses(pulses, first_id))
             points = self._points(echoes, self.table)
         fired = {"pulse_id": np.asarray(pulses.index, np.uint64) + np.uint64(first_id),
-                 "gps_time": np.asarray(pulses.time, np.float64), "scan_angle": np.asarray(pulses.scan_angle, np.float32),
+                 "gps_time": np.asarray(pulses.time, np.float64),
+                 "scan_angle": np.asarray(pulses.scan_angle, np.float32),
                  "origin": np.asarray(pulses.origin, np.float32), "direction": np.asarray(pulses.direction, np.float32)}
         kept = ("pulse_id", "return_number", "range", "amplitude", "energy")
         return points, PulseBatch(returns, {k: echoes[k] for k in kept}, fired, 0)

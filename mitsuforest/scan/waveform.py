@@ -40,7 +40,7 @@ from scipy.special import erf
 
 from .echoes import FWHM_PER_SIGMA
 
-REACH_SIGMAS = 5.0          # a return's shape is summed over ± this many σ; the window starts this far before the first
+REACH_SIGMAS = 5.0          # a return's shape is summed over ± this many σ; windows start this far before the first
 CHUNK_RETURNS = 1 << 17     # sub-rays sampled at once (bounds the (returns, bins) temporaries to ~20 MB)
 
 

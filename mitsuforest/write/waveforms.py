@@ -145,7 +145,8 @@ class PulseRecordWriter:
                               first_bin=first_bin, complete=complete, samples=samples)
         row = np.searchsorted(pulses["pulse_id"], echoes["pulse_id"]) + self.rows
         self.waveforms.append(echo_pulse=row, echo_return_number=np.minimum(echoes["return_number"], 255),
-                              echo_range=echoes["range"], echo_time=2.0 * echoes["range"].astype(np.float64) / SPEED_OF_LIGHT,
+                              echo_range=echoes["range"],
+                              echo_time=2.0 * echoes["range"].astype(np.float64) / SPEED_OF_LIGHT,
                               echo_amplitude=echoes["amplitude"], echo_energy=echo_energy(echoes["energy"], self.sigma))
         self.rows += len(samples)
         self.incomplete += int(np.count_nonzero(~complete))
