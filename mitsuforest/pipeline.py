@@ -31,6 +31,7 @@ from .write import (PointWriter, Staging, check_output_folder, earlier_results, 
                     write_render_outputs)
 from .write.background import Background
 from .write.output_profiles import stem_ids
+from .write.waveforms import PulseRecordWriter
 
 DEPENDENCIES = ("mitsuba", "drjit", "numpy", "trimesh", "manifold3d", "laspy", "scipy", "pyyaml", "pyproj", "rasterio",
                 "matplotlib")
@@ -68,6 +69,10 @@ def render(scene, *, output_dir=None, seed=None, variant=None, overwrite=False, 
     name, out = scene.name, Path(scene.output.dir)
     if scan_source is None:
         scene_variant(scene)    # before any work, naming the scene file
+    elif scene.output.waveforms or scene.output.pulses:
+        key = "output.waveforms" if scene.output.waveforms else "output.pulses"
+        raise UserError(f"{scene.file or '<scene>'}: {key}: needs the scan in this process (not a plot split "
+                        "by legs across workers)")
     writer_threads()            # likewise a bad MITSUFOREST_WRITER_THREADS
     if write:
         check_output_folder(out)
@@ -89,8 +94,8 @@ def render(scene, *, output_dir=None, seed=None, variant=None, overwrite=False, 
         f"{scan_scene.triangles:,} distinct triangles, variant {scan_scene.variant}")
     with output_lock(out, name) if write else nullcontext():
         staging = Staging(out, name) if write else None
-        run_scan = scan_source or (lambda on_points: scan(scene, plan, scan_scene, progress=progress,
-                                                          on_points=on_points))
+        run_scan = scan_source or (lambda on_points, on_pulses=None: scan(
+            scene, plan, scan_scene, progress=progress, on_points=on_points, on_pulses=on_pulses))
         result, manifest, writer, files = _scan_and_write(scene, plan, models, scan_scene, timings, run_scan,
                                                           keep_points, staging, overwrite)
     log(f"scan: {result.pulses_cast:,} pulses cast in {result.seconds:.1f} s "
@@ -122,17 +127,28 @@ def _refuse_existing(out: Path, name: str, overwrite: bool) -> None:
 def _scan_and_write(scene, plan, models, scan_scene, timings, run_scan, keep_points, staging, overwrite):
     """Scan, streaming points to the writer, then write every file into ``staging`` and move them into
     place; on any failure or interrupt the staging folder is removed."""
-    writer = None
+    writer = records = None
     try:
         writer = PointWriter(staging, scene, keep=keep_points, terrain=plan.terrain, stems=stem_ids(plan, models))
+        if staging and (scene.output.waveforms or scene.output.pulses):
+            records = PulseRecordWriter(staging, scene)
         sink = Background(writer.add)
+        pulse_sink = Background(records.add) if records else None
         try:
-            result = run_scan(sink)
+            result = run_scan(sink, pulse_sink) if pulse_sink else run_scan(sink)
         finally:
-            sink.close()
+            try:
+                sink.close()
+            finally:
+                if pulse_sink:
+                    pulse_sink.close()
         writer.close()
+        if records:
+            records.close()
         timings.lap("scan")
         manifest = _manifest(scene, plan, scan_scene, result, writer.statistics(), timings)
+        if records:
+            manifest.update(records.statistics())
         manifest["imported_trees"] = import_report(plan, models)
         manifest["realism"] = realism_table(plan, models, writer.classes, writer.counts)
         files = []
@@ -151,6 +167,8 @@ def _scan_and_write(scene, plan, models, scan_scene, timings, run_scan, keep_poi
     except BaseException as e:
         if writer:
             writer.abort()
+        if records:
+            records.abort()
         if staging:
             staging.discard()
             if isinstance(e, OSError):

@@ -43,7 +43,8 @@ def test_all_files_written(rendered):
     from mitsuforest.write.output_profiles import PROFILES
     names = sorted(p.name for p in (rendered / "a").iterdir())
     profiles = tuple(p.suffix for p in PROFILES.values())      # written only with an output.profile
-    assert names == sorted(f for f in output_files("test") if not f.endswith((".laz", *profiles)))
+    optional = (".laz", *profiles, "_waveforms.npz", "_pulses.npz")   # and with output.waveforms, output.pulses
+    assert names == sorted(f for f in output_files("test") if not f.endswith(optional))
 
 
 def test_pcd_header_and_independent_reader(rendered):

@@ -21,7 +21,7 @@ from ..errors import ConfigError, UserError
 from ..trees.archetypes import (DEFAULT_ARCHETYPES, FAMILY_ARCHETYPES, FIELDS as ARCHETYPE_FIELDS, MAX_UNIQUE, Archetype,
                                  UniqueTrees)
 from ..trees.sources import DEFAULT_LEAF_PATTERNS, REPAIR_MODES, UNITS, UP_AXES, MeshTree, QsmTree
-from .schema import REQUIRED, Context, Custom, FilePath, ListOf, Number, Text, Vector, name_problem, parse_mapping
+from .schema import REQUIRED, Context, Custom, FilePath, Flag, ListOf, Number, Text, Vector, name_problem, parse_mapping
 from .types import (BEAM_PATTERNS, FOREST_BANDS, INTENSITY_SOURCES, OUTPUT_PROFILES, POINT_POSITIONS, Scene, Sensor, display_path,
                     from_mapping, to_mapping)
 
@@ -31,6 +31,7 @@ __all__ = ["load_scene", "load_sensor", "scene_from_mapping", "read_yaml", "vali
 MAX_SPECKLE_LOOKS = 64  # scan/noise.py draws one uniform per look for each echo
 MAX_BEAM_SAMPLES = 61   # the speed-against-error benchmark stops here; compile time grows faster than linearly
 MAX_PLOT_SIDE = 2000.0  # m: the 0.25 m cover raster of a 2 km plot is 64 MB (a 1000 km one would be 14.6 TiB)
+MAX_WAVEFORM_SAMPLES = 4096   # a batch's waveforms are 4 bytes x samples x pulses: 1.7 GB at 105,263 pulses
 MIN_BATCH = 1000        # time slots per launch: fewer spend their time launching kernels
 RSA_JAMMING = 0.547     # random sequential adsorption of discs fills at most this share of a plane
 SENSOR_SPEC = {
@@ -62,6 +63,10 @@ SENSOR_SPEC = {
     "risley": {
         "prism_rates": Vector(2, Number(), [121.6, -77.7]),
         "prism_deflection": Vector(2, Number(ge=0), [17.6, 17.6]),
+    },
+    "waveform": {   # scan/waveform.py: samples x pulses per batch x 4 bytes are held per batch
+        "bin_size": Number(1.0e-9, gt=0, le=1.0e-6),
+        "samples": Number(256, integer=True, ge=1, le=MAX_WAVEFORM_SAMPLES),
     },
     "mount": {   # plan/trajectory.py: body frame x forward, y right, z down
         "lever_arm": Vector(3, Number(), [0.0, 0.0, 0.0]),
@@ -288,6 +293,8 @@ SCENE_SPEC = {
         "dir": FilePath(None, nullable=True, must_exist=False),
         "formats": ListOf(Text(choices=("pcd", "las", "laz", "copc")), ["pcd", "laz"], min_length=1),
         "profile": Text("ours", choices=OUTPUT_PROFILES),
+        "waveforms": Flag(False),
+        "pulses": Flag(False),
     },
 }
 

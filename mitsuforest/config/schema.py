@@ -89,6 +89,18 @@ class Text:
 
 
 @dataclass
+class Flag:
+    """``true`` or ``false`` (YAML's other spellings of them, ``yes``/``no``, are read as these by PyYAML)."""
+
+    default: Any = REQUIRED
+
+    def parse(self, value, ctx: Context, key: str):
+        if not isinstance(value, bool):
+            ctx.fail(key, f"must be true or false, got {value!r}")
+        return value
+
+
+@dataclass
 class FilePath(Text):
     """A path, resolved against the folder of the file that names it."""
 

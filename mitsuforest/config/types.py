@@ -62,6 +62,19 @@ class IntensityMapping:
 
 
 @dataclass(frozen=True)
+class WaveformSampling:
+    """How a sensor digitises its received waveform (scan/waveform.py; written with ``output.waveforms``)."""
+
+    bin_size: float = 1.0e-9                  # s of two-way time per sample (1 ns: 0.15 m of range)
+    samples: int = 256                        # samples per pulse: the window (256 ns, 38.4 m of range)
+
+    @property
+    def bin_range(self) -> float:
+        """One bin on the range axis (m): ``c·bin_size/2``."""
+        return SPEED_OF_LIGHT * self.bin_size / 2
+
+
+@dataclass(frozen=True)
 class Mount:
     """How the sensor sits on the platform (plan/trajectory.py has the frames)."""
 
@@ -100,6 +113,7 @@ class Sensor:
     speckle_looks: int = 0                    # L: amplitude × Gamma(L, 1/L); 0: no speckle
     intensity: IntensityMapping = IntensityMapping()
     mount: Mount = Mount()                    # lever arm and boresight (a sensor file's or an inline sensor's)
+    waveform: WaveformSampling = WaveformSampling()   # bin size and window of the sampled waveform
 
     @property
     def detection_threshold(self) -> float:
@@ -269,6 +283,8 @@ class Output:
     dir: str
     formats: tuple[str, ...]
     profile: str = "ours"                     # one of OUTPUT_PROFILES
+    waveforms: bool = False                   # NAME_waveforms.npz: each pulse's sampled waveform and its echoes
+    pulses: bool = False                      # NAME_pulses.npz: every fired pulse with its echo count (0: none)
 
 
 @dataclass(frozen=True)
@@ -345,7 +361,7 @@ class Scene:
         return d
 
 
-SECTIONS = (Wave, Attitude, NavigationErrors, Mount, Risley, IntensityMapping, Sensor, Area, Origin, TerrainSettings, Forest, Grass, Litter, Understory, Survey, Simulation, Output, Scene)
+SECTIONS = (Wave, Attitude, NavigationErrors, WaveformSampling, Mount, Risley, IntensityMapping, Sensor, Area, Origin, TerrainSettings, Forest, Grass, Litter, Understory, Survey, Simulation, Output, Scene)
 
 
 def _as_value(value):

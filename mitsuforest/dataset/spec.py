@@ -115,6 +115,9 @@ def load_dataset(path) -> Dataset:
         values.setdefault("seed", int(rng.integers(0, 2**31 - 1)))
         name_i = f"plot_{i:0{width}d}"
         plots.append(PlotSpec(name_i, values, _plot_scene(base, {**values, "name": name_i}, ctx, i)))
+    if parsed["legs_per_task"] and any(p.scene.output.waveforms or p.scene.output.pulses for p in plots):
+        ctx.fail("legs_per_task", "cannot split plots whose scene asks for output.waveforms or output.pulses "
+                 "(their records are written by the process that scans the whole plot)")
     resolved = {**parsed, "name": name, "plots": count, "tiles": tiles and vars(tiles)}
     return Dataset(name, parsed["seed"], str(ctx.file.resolve()), base, tuple(plots),
                    tuple([*choices, *ranges]), tiles, dict(parsed["splits"]), parsed["legs_per_task"], resolved)

@@ -49,7 +49,8 @@ class ScanResult:
     seconds: float = 0.0
 
 
-def scan(scene, plan, scan_scene, progress: bool = True, on_points=None, legs: range | None = None) -> ScanResult:
+def scan(scene, plan, scan_scene, progress: bool = True, on_points=None, legs: range | None = None,
+         on_pulses=None) -> ScanResult:
     """Simulate the whole survey of ``plan`` over ``scan_scene`` (see module docstring).
 
     :param scene: the :class:`~mitsuforest.config.types.Scene` (sensor, survey, simulation, seed).
@@ -58,12 +59,16 @@ def scan(scene, plan, scan_scene, progress: bool = True, on_points=None, legs: r
     :param legs: only these legs (indices into ``plan.legs``), with the same batches and pulse ids
         as in the whole survey: the batches of consecutive leg ranges, concatenated in order, are
         those of the whole survey.
+    :param on_pulses: called with each batch's :class:`~mitsuforest.scan.waveform.PulseBatch` when the
+        scene asks for ``output.waveforms`` or ``output.pulses`` (after ``on_points`` of the batch).
     """
     sim = scene.simulation
     batch = sim.pulses_per_batch or default_batch(scan_scene.variant, sim.beam_samples)
     platform = Platform(scene)
     tracer = PulseTracer(scan_scene, scene.sensor, sim.beam_samples, scene.seed, sim.beam_pattern,
-                         sim.point_position, platform=platform, navigation=navigation_model(scene, plan, platform))
+                         sim.point_position, platform=platform, navigation=navigation_model(scene, plan, platform),
+                         waveforms=scene.output.waveforms and on_pulses is not None,
+                         pulse_records=scene.output.pulses and on_pulses is not None)
     result = ScanResult()
     chunks = []
     counts = [leg.pulse_count(scene.pulse_frequency) for leg in plan.legs]
@@ -76,8 +81,8 @@ def scan(scene, plan, scan_scene, progress: bool = True, on_points=None, legs: r
         bar = _bar(progress, total, f"leg {leg_no + 1}/{len(plan.legs)}")
         for first in range(0, total, batch):
             count = min(batch, total - first)
-            points, fired, cast = tracer.trace_slots(leg, scene.pulse_frequency, scene.scan_frequency, first, count,
-                                                     first_id, leg_no + 1, pose)
+            points, fired, cast, *records = tracer.trace_slots(leg, scene.pulse_frequency, scene.scan_frequency,
+                                                               first, count, first_id, leg_no + 1, pose)
             result.pulses_fired += fired
             result.pulses_cast += cast
             result.rays += cast * tracer.samples
@@ -85,6 +90,8 @@ def scan(scene, plan, scan_scene, progress: bool = True, on_points=None, legs: r
                 chunks.append(points)
             else:
                 on_points(points)
+            if records:
+                on_pulses(records[0])
             if bar:
                 bar.update(count)
         if bar:

@@ -15,6 +15,7 @@ import numpy as np
 from ..labels.device import DeviceHitTable
 from .echoes import pulse_echoes, single_chain
 from .kernel import RayCaster
+from .waveform import device_waveforms, pulse_sigma
 from .noise import noise_key, range_sigma, speckle_gain, speckle_key, standard_normal, varies
 
 ECHO_FIELDS = {"pulse_id": np.uint64, "gps_time": np.float64, "scan_angle": np.float32, "return_number": np.uint32,
@@ -35,12 +36,16 @@ class EchoKernel(RayCaster):
     :param point_position: ``beam_axis`` (an echo's point on its pulse's beam axis at the echo's range)
         or ``surface`` (the energy-weighted mean of its sub-rays' hit points); see
         :class:`~mitsuforest.scan.tracer.PulseTracer`.
+    :param record: also sample each pulse's received waveform on the device and bring it back with
+        each echo's chain energy (:meth:`echoes_and_waveforms`, ``output.waveforms``); off, the kernels
+        are those without it.
     """
 
     def __init__(self, mi_scene, *, weights, table, reflectance, sensor, seed: int, point_position: str = "beam_axis",
-                 **beam):
+                 record: bool = False, **beam):
         super().__init__(mi_scene, **beam)
         self.on_surface = point_position == "surface"
+        self.record = record
         mi = self.mi
         self.table = DeviceHitTable(table)
         self.weights = mi.Float(np.asarray(weights, np.float32))
@@ -65,12 +70,45 @@ class EchoKernel(RayCaster):
             ranging noise) with the echo's ranging noise; ``amplitude``; and the labels of its
             strongest sub-ray.
         """
+        return self.echoes_and_waveforms(pulses)[0]
+
+    def echoes_and_waveforms(self, pulses) -> tuple[dict, dict | None]:
+        """:meth:`echoes`, and with ``record`` the batch's sampled waveforms (else None).
+
+        :returns: the echoes (with ``record``, also ``energy`` (E,): the power summed over the echo's
+            chain); and, for the M pulses with at least one sub-ray return, their sampled waveforms
+            (:func:`~mitsuforest.scan.waveform.device_waveforms`): ``samples`` (M, B) float32,
+            ``first_bin`` (M,) uint32, ``complete`` (M,) bool, with the pulses' ``pulse_id``,
+            ``gps_time``, ``scan_angle`` (rad) (M,) and ``origin``, ``direction`` (M, 3) (local frame).
+        """
         n = pulses.count
         if n == 0:
-            return _no_echoes()
+            return _no_echoes(self.record), (_no_waveforms(self.sensor.waveform.samples) if self.record else None)
         lane, hit_id = self._sub_ray_returns(pulses)
         flat, returns = self._ranked_echoes(lane, n)
-        return self._echo_records(flat, returns, hit_id, pulses)
+        echoes = self._echo_records(flat, returns, hit_id, pulses)
+        return echoes, (self._waveforms(lane, pulses) if self.record else None)
+
+    def _waveforms(self, lane: dict, pulses) -> dict:
+        """The sampled waveforms of a batch's pulses with a return, and their pulse data, in numpy (see
+        :meth:`echoes_and_waveforms`)."""
+        dr, mi = self.dr, self.mi
+        sampling = self.sensor.waveform
+        made = device_waveforms(dr, lane["t"], lane["power"], self.samples, pulse_sigma(self.resolving),
+                                sampling.bin_range, sampling.samples)
+        rows = made["rows"]
+        out = {"pulse_id": dr.gather(mi.UInt64, pulses.pulse_id, rows),
+               "gps_time": dr.gather(mi.Float64, pulses.time, rows),
+               "scan_angle": dr.gather(mi.Float, pulses.scan_angle, rows),
+               **{f"{key}_{a}": dr.gather(mi.Float, value[a], rows)
+                  for key, value in (("origin", pulses.origin), ("direction", pulses.direction)) for a in range(3)}}
+        dr.eval(out)
+        out = {k: np.array(v) for k, v in out.items()}
+        for key in ("origin", "direction"):
+            out[key] = np.column_stack([out.pop(f"{key}_{a}") for a in range(3)])
+        out["first_bin"], out["complete"] = np.array(made["first_bin"]), np.array(made["complete"])
+        out["samples"] = np.array(made["waveform"]).reshape(-1, sampling.samples)
+        return out
 
     def _sub_ray_returns(self, pulses):
         """Trace, label and weigh every sub-ray (lane = pulse*S + sub-ray): its range (``inf`` when it
@@ -109,6 +147,8 @@ class EchoKernel(RayCaster):
         flat = {k: dr.zeros(mi.Float, n * S) for k in ("range", "amplitude", *("xyz" if self.on_surface else ""))}
         flat["dominant"] = dr.zeros(mi.UInt32, n * S)
         flat["kept"] = dr.zeros(mi.UInt32, n * S)
+        if self.record:
+            flat["energy"] = dr.zeros(mi.Float, n * S)
         pulse = dr.arange(mi.UInt32, n)
         one, slot = single_chain(dr, *self._per_sample(lane, pulse), self.resolving, self.threshold)
         self._scatter(flat, [slot], pulse * S, one)
@@ -136,7 +176,8 @@ class EchoKernel(RayCaster):
         for slot in slots:
             at, kept = base + slot["rank"], slot["kept"] & active
             offset = zip("xyz", slot["offset"]) if slot["offset"] is not None else ()
-            for key, value in (("range", slot["range"]), ("amplitude", slot["amplitude"]), *offset,
+            energy = (("energy", slot["energy"]),) if "energy" in flat else ()
+            for key, value in (("range", slot["range"]), ("amplitude", slot["amplitude"]), *offset, *energy,
                                ("dominant", slot["dominant"]), ("kept", mi.UInt32(1))):
                 dr.scatter(flat[key], value, at, kept)
 
@@ -146,7 +187,7 @@ class EchoKernel(RayCaster):
         dr, mi, S = self.dr, self.mi, self.samples
         idx = dr.compress(flat["kept"] > 0)
         if dr.width(idx) == 0:
-            return _no_echoes()
+            return _no_echoes(self.record)
         echo_pulse = idx // S
         return_number = idx - echo_pulse * S + 1
         strongest = echo_pulse * S + dr.gather(mi.UInt32, flat["dominant"], idx)
@@ -178,6 +219,8 @@ class EchoKernel(RayCaster):
             **dict(zip("xyz", point)),
             **ids,
         }
+        if self.record:
+            out["energy"] = dr.gather(mi.Float, flat["energy"], idx)
         dr.eval(out)
         return {k: np.array(v) for k, v in out.items()}
 
@@ -192,5 +235,15 @@ class EchoKernel(RayCaster):
                            self.sensor)
 
 
-def _no_echoes() -> dict:
-    return {k: np.zeros(0, dtype) for k, dtype in ECHO_FIELDS.items()}
+def _no_echoes(energy: bool = False) -> dict:
+    out = {k: np.zeros(0, dtype) for k, dtype in ECHO_FIELDS.items()}
+    if energy:
+        out["energy"] = np.zeros(0, np.float32)
+    return out
+
+
+def _no_waveforms(samples: int) -> dict:
+    return {"samples": np.zeros((0, samples), np.float32), "first_bin": np.zeros(0, np.uint32),
+            "complete": np.zeros(0, bool), "pulse_id": np.zeros(0, np.uint64), "gps_time": np.zeros(0),
+            "scan_angle": np.zeros(0, np.float32), "origin": np.zeros((0, 3), np.float32),
+            "direction": np.zeros((0, 3), np.float32)}

@@ -55,8 +55,8 @@ def pulse_echoes(dr, t: list, power: list, offset: list, resolving: float, thres
         when the echoes' points are not wanted on the surface (``point_position: beam_axis``).
     :returns: ``slots``, S ranked echo candidates, each a dict with ``kept`` (Bool), ``range``,
         ``amplitude``, ``offset`` (3 arrays: energy-weighted hit point minus origin; ``None`` without
-        ``offset``) and ``dominant``
-        (the sub-ray index of its strongest return); and ``returns`` (P,) UInt32, the number of
+        ``offset``), ``dominant`` (the sub-ray index of its strongest return) and ``energy`` (its
+        chain's summed power, for waveforms); and ``returns`` (P,) UInt32, the number of
         echoes of each pulse after ``max_returns``.
     """
     rows = _sorted_by_range(dr, t, power, offset)
@@ -106,7 +106,7 @@ def single_chain(dr, t: list, power: list, offset: list, resolving: float, thres
         amplitude = amplitude + dr.select(valid[k], power[k] * _pulse_shape(dr, t[k], mean, sigma), 0.0)
     kept = any_return & (amplitude > 0) & (amplitude >= threshold)
     slot = {"kept": kept, "rank": UInt32(0), "range": mean, "amplitude": amplitude,
-            "offset": _chain_offset(dr, total), "dominant": dominant}
+            "offset": _chain_offset(dr, total), "dominant": dominant, "energy": total["energy"]}
     return one, slot
 
 
@@ -207,7 +207,7 @@ def _ranked(dr, totals, mean, amplitude, detected, max_returns: int):
         offset = _chain_offset(dr, total)
         kept = detected[k] & ((rank < max_returns) if max_returns else True)
         slots.append({"kept": kept, "rank": rank, "range": mean[k], "amplitude": amplitude[k],
-                      "offset": offset, "dominant": total["dominant"]})
+                      "offset": offset, "dominant": total["dominant"], "energy": total["energy"]})
         rank = rank + dr.select(detected[k], 1, 0)
     returns = dr.minimum(rank, max_returns) if max_returns else rank
     return slots, returns

@@ -47,7 +47,7 @@ def reaches_box(dr, origin, direction, box, range_max: float):
 
 
 def reaching_pulses(leg, sensor, pulse_frequency: float, scan_frequency: float, first: int, count: int,
-                    box: np.ndarray, first_id: int = 0, table=None) -> tuple[DevicePulses, int]:
+                    box: np.ndarray, first_id: int = 0, table=None, keep_fired: bool = False):
     """The fired pulses among time slots ``first .. first+count-1`` of a leg that can reach ``box``
     (2, 3) within the sensor's ``range_max``; call under the scene's Mitsuba variant.
 
@@ -55,7 +55,10 @@ def reaching_pulses(leg, sensor, pulse_frequency: float, scan_frequency: float, 
     :param first_id: the survey's pulse number of the leg's first time slot.
     :param table: the leg's :class:`~mitsuforest.scan.platform.DeviceTable` (attitude, mount, a flown
         trajectory), or ``None``: level flight along the leg's straight line.
-    :returns: the pulses, and how many were fired.
+    :param keep_fired: also return every fired pulse, cast or not, in numpy (``output.pulses``).
+    :returns: the pulses, and how many were fired; with ``keep_fired`` a third item, a dict of the
+        fired pulses' ``pulse_id``, ``gps_time``, ``scan_angle`` (rad) (F,), ``origin`` and ``direction``
+        (F, 3) (local frame).
     """
     import drjit as dr
     import mitsuba as mi
@@ -83,9 +86,11 @@ def reaching_pulses(leg, sensor, pulse_frequency: float, scan_frequency: float, 
     reach = fired & reaches_box(dr, origin, direction, box, sensor.range_max)
     dr.eval(fired, reach)                      # one kernel for both masks, then the count and compaction
     n_fired = int(dr.count(fired)[0])
+    all_fired = _fired_table(dr, mi, fired, slot, t, angle, origin, direction, first_id) if keep_fired else None
     keep = dr.compress(reach)
     if dr.width(keep) == 0:
-        return DevicePulses(mi.UInt64(), Float64(), mi.Float(), mi.Point3f(), mi.Vector3f(), mi.Vector3f()), n_fired
+        none = DevicePulses(mi.UInt64(), Float64(), mi.Float(), mi.Point3f(), mi.Vector3f(), mi.Vector3f())
+        return (none, n_fired, all_fired) if keep_fired else (none, n_fired)
     direction = mi.Vector3f(*(mi.Float(dr.gather(Float64, c, keep)) for c in direction))
     origin = mi.Point3f(*(mi.Float(dr.gather(Float64, c, keep)) for c in origin))
     if table is None:
@@ -97,8 +102,20 @@ def reaching_pulses(leg, sensor, pulse_frequency: float, scan_frequency: float, 
     norm = dr.norm(across)
     across = dr.select(norm > 1e-9, across / dr.select(norm > 1e-9, norm, 1.0), fallback)
     pulse_id = leg_value(first_id, mi.UInt64) + mi.UInt64(dr.gather(mi.UInt32, slot, keep))
-    return DevicePulses(pulse_id, dr.gather(Float64, t, keep), mi.Float(dr.gather(Float64, angle, keep)),
-                        origin, direction, across), n_fired
+    cast = DevicePulses(pulse_id, dr.gather(Float64, t, keep), mi.Float(dr.gather(Float64, angle, keep)),
+                        origin, direction, across)
+    return (cast, n_fired, all_fired) if keep_fired else (cast, n_fired)
+
+
+def _fired_table(dr, mi, fired, slot, t, angle, origin, direction, first_id: int) -> dict:
+    """Every fired pulse of a batch in numpy (see :func:`reaching_pulses`' ``keep_fired``)."""
+    keep = dr.compress(fired)
+    out = {"pulse_id": np.uint64(first_id) + np.array(dr.gather(mi.UInt32, slot, keep)).astype(np.uint64),
+           "gps_time": np.array(dr.gather(mi.Float64, t, keep)),
+           "scan_angle": np.array(dr.gather(mi.Float64, angle, keep)).astype(np.float32)}
+    for key, value, dtype in (("origin", origin, np.float32), ("direction", direction, np.float32)):
+        out[key] = np.column_stack([np.array(dr.gather(mi.Float64, value[k], keep)) for k in range(3)]).astype(dtype)
+    return out
 
 
 def _turned(d_sensor, frame) -> list:

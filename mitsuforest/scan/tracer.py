@@ -12,6 +12,7 @@ from .echo_kernel import EchoKernel
 from .pulses import reaching_pulses, upload_pulses
 from .radiometry import reflectance_db, reflectance_table
 from .sampling import key_word
+from .waveform import PulseBatch
 
 
 class PulseTracer:
@@ -41,12 +42,17 @@ class PulseTracer:
         by :meth:`trace_slots` with a pose table.
     :param navigation: a :class:`~mitsuforest.scan.navigation.NavigationModel`: the points are placed
         with its believed trajectory (None: with the true one).
+    :param waveforms, pulse_records: make each batch's :class:`~mitsuforest.scan.waveform.PulseBatch`
+        with the cast pulses' sampled waveforms and echo energies (``output.waveforms``) and with every
+        fired pulse (``output.pulses``); :meth:`trace_slots` then returns it as a fourth item.
     """
 
     def __init__(self, scan_scene, sensor, beam_samples: int, seed: int = 0, pattern: str = "fixed",
-                 point_position: str = "beam_axis", platform=None, navigation=None):
+                 point_position: str = "beam_axis", platform=None, navigation=None, waveforms: bool = False,
+                 pulse_records: bool = False):
         self.sensor, self.variant, self.table = sensor, scan_scene.variant, scan_scene.table
         self.point_position = point_position
+        self.waveforms, self.pulse_records = waveforms, pulse_records
         self.platform, self.navigation, self._uploaded = platform, navigation, (None, None)
         half = np.asarray(sensor.beam_divergence, float) / 2
         if pattern == "stratified":
@@ -66,7 +72,7 @@ class PulseTracer:
         with variant_scope(self.variant):
             self.caster = EchoKernel(scan_scene.mitsuba, weights=self.weights, table=self.table,
                                      reflectance=self.reflectance, sensor=sensor, seed=seed,
-                                     point_position=point_position, **beam)
+                                     point_position=point_position, record=waveforms, **beam)
 
     @property
     def samples(self) -> int:
@@ -84,16 +90,27 @@ class PulseTracer:
         :param pose: the leg's :class:`~mitsuforest.plan.trajectory.PoseTable` (``Platform.table``), or
             None: level flight along its straight line.
         :returns: the points (POINT_DTYPE, local frame, in pulse then range order), the number of
-            pulses fired and the number cast.
+            pulses fired and the number cast; with ``waveforms`` or ``pulse_records``, also the batch's
+            :class:`~mitsuforest.scan.waveform.PulseBatch`.
         """
+        records = self.waveforms or self.pulse_records
         with variant_scope(self.variant):
-            pulses, fired = reaching_pulses(leg, self.sensor, pulse_frequency, scan_frequency, first, count,
-                                            self.box, first_id, self._device_table(pose))
-            points = self._points(self.caster.echoes(pulses), self.table)
+            made = reaching_pulses(leg, self.sensor, pulse_frequency, scan_frequency, first, count, self.box,
+                                   first_id, self._device_table(pose), keep_fired=self.pulse_records)
+            pulses, fired = made[:2]
+            if records:
+                echoes, returns = self.caster.echoes_and_waveforms(pulses)
+            else:
+                echoes = self.caster.echoes(pulses)
+            points = self._points(echoes, self.table)
         points["point_source_id"] = source_id
         if self.navigation is not None:
             self.navigation.place(points, leg, pose)
-        return points, fired, pulses.count
+        if not records:
+            return points, fired, pulses.count
+        kept = ("pulse_id", "return_number", "range", "amplitude", *(("energy",) if self.waveforms else ()))
+        batch = PulseBatch(returns, {k: echoes[k] for k in kept}, made[2] if self.pulse_records else None, source_id)
+        return points, fired, pulses.count, batch
 
     def _device_table(self, pose):
         """``pose`` on the device, uploaded once per leg."""
@@ -107,6 +124,19 @@ class PulseTracer:
         """Points of hand-made pulses (:class:`~mitsuforest.scan.reference.pulses.Pulses`, numpy)."""
         with variant_scope(self.variant):
             return self._points(self.caster.echoes(upload_pulses(pulses, first_id)), self.table)
+
+    def trace_pulse_records(self, pulses, first_id: int = 0) -> tuple[np.ndarray, PulseBatch]:
+        """Points of hand-made pulses and their :class:`~mitsuforest.scan.waveform.PulseBatch` (needs
+        ``waveforms``): every hand-made pulse counts as fired and cast."""
+        with variant_scope(self.variant):
+            echoes, returns = self.caster.echoes_and_waveforms(upload_pulses(pulses, first_id))
+            points = self._points(echoes, self.table)
+        fired = {"pulse_id": np.asarray(pulses.index, np.uint64) + np.uint64(first_id),
+                 "gps_time": np.asarray(pulses.time, np.float64),
+                 "scan_angle": np.asarray(pulses.scan_angle, np.float32),
+                 "origin": np.asarray(pulses.origin, np.float32), "direction": np.asarray(pulses.direction, np.float32)}
+        kept = ("pulse_id", "return_number", "range", "amplitude", "energy")
+        return points, PulseBatch(returns, {k: echoes[k] for k in kept}, fired, 0)
 
     def cast(self, pulses, first_id: int = 0) -> dict:
         """The first hits of every sub-ray of hand-made pulses (see :meth:`RayCaster.cast`)."""

@@ -33,7 +33,8 @@ __all__ = ["Staging", "check_output_folder", "output_lock", "PointWriter", "geor
 
 PLAN, MANIFEST = "_plan.json", "_manifest.json"
 SUFFIXES = (".pcd", ".las", ".laz", ".copc.laz", "_volumes.csv", "_ids.csv", PLAN, "_trajectory.csv",
-            MANIFEST, "_top.png", "_side.png", "_profile.png", "_returns.png", *PROFILE_SUFFIXES)
+            MANIFEST, "_top.png", "_side.png", "_profile.png", "_returns.png", *PROFILE_SUFFIXES, "_waveforms.npz",
+            "_pulses.npz")
 
 
 def output_files(name: str) -> list[str]:
