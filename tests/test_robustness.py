@@ -36,6 +36,7 @@ class Builds:
 def model_cache(tmp_path, monkeypatch):
     monkeypatch.setenv("MITSUFOREST_CACHE", str(tmp_path / "cache"))
     monkeypatch.setattr(cache, "_write_failed", False)
+    monkeypatch.setattr(cache, "_in_memory", type(cache._in_memory)())
     return tmp_path / "cache" / "models"
 
 
@@ -140,7 +141,44 @@ def test_unreadable_entry_is_rebuilt(model_cache, monkeypatch):
     def denied(*_):
         raise PermissionError(13, "Permission denied")
     monkeypatch.setattr(cache.np, "load", denied)
+    cache._in_memory.clear()   # as another process would
     assert cache.cached("rock", {"seed": 3}, build).parts and build.calls == 2
+
+
+def test_a_process_reads_an_entry_once_and_hands_out_copies(model_cache, monkeypatch):
+    """A dataset worker renders plot after plot of the same models: after the first, they come from
+    memory (np.load is not called again), each caller gets its own Model over read-only arrays, and an
+    entry replaced on disk is read again."""
+    build = Builds()
+    first = cache.cached("rock", {"seed": 3}, build)
+    loads = []
+    real_load = cache.np.load
+    monkeypatch.setattr(cache.np, "load", lambda *a, **k: loads.append(a) or real_load(*a, **k))
+    second = cache.cached("rock", {"seed": 3}, build)
+    assert loads == [] and build.calls == 1
+    assert second is not first and second.parts is not first.parts
+    assert second.parts[0].vertices is first.parts[0].vertices and not second.parts[0].vertices.flags.writeable
+    second.name = "renamed"
+    assert first.name != "renamed"
+    np.testing.assert_array_equal(second.hull_corners(), first.hull_corners())
+    [entry] = model_cache.glob("rock-*.npz")
+    entry.write_bytes(entry.read_bytes())   # the same bytes, a new modification time
+    os.utime(entry, ns=(1, 1))
+    cache.cached("rock", {"seed": 3}, build)
+    assert len(loads) == 1 and build.calls == 1
+
+
+def test_a_stored_entry_holds_its_hull(model_cache):
+    """The scene culls placed copies by their model's hull corners: stored with the entry, read back."""
+    model = cache.cached("rock", {"seed": 3}, Builds())
+    cache._in_memory.clear()
+    [entry] = model_cache.glob("rock-*.npz")
+    with np.load(entry) as data:
+        stored = data["hull"]
+    from scipy.spatial import ConvexHull
+    v = model.vertices()
+    np.testing.assert_array_equal(stored, v[ConvexHull(v).vertices])
+    np.testing.assert_array_equal(cache.cached("rock", {"seed": 3}, Builds()).hull, stored)
 
 
 @pytest.fixture

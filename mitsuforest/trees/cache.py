@@ -11,7 +11,10 @@ folder) costs one warning per process and the time of building models anew.
 
 from __future__ import annotations
 
+import collections
 import contextlib
+import copy
+import dataclasses
 import functools
 import hashlib
 import importlib.metadata
@@ -35,6 +38,8 @@ GENERATOR_LIBRARIES = ("numpy", "trimesh", "manifold3d", "pymeshfix", "scipy")
 LOAD_ERRORS = (OSError, EOFError, ValueError, KeyError, TypeError, zipfile.BadZipFile)
 
 _write_failed = False   # set once a write failed, so the warning is given once per process
+MEMORY_ENTRIES = 64     # models kept in memory per process (see :func:`cached`)
+_in_memory: collections.OrderedDict[tuple, Model] = collections.OrderedDict()
 
 
 def cache_dir() -> Path:
@@ -62,16 +67,53 @@ def cache_key(kind: str, params: dict) -> str:
 
 
 def cached(kind: str, params: dict, build) -> Model:
-    """Load the model for ``(kind, params)`` from the cache, or ``build()`` it and try to store it."""
+    """Load the model for ``(kind, params)`` from the cache, or ``build()`` it and try to store it.
+
+    A process keeps the last :data:`MEMORY_ENTRIES` models it loaded or built (their arrays read-only)
+    and hands out copies sharing them: a dataset worker renders plot after plot of the same
+    archetypes without reading them again."""
     path = cache_dir() / (cache_key(kind, params) + ".npz")
-    with contextlib.suppress(*LOAD_ERRORS):  # no entry yet, or an unreadable or damaged one: build it
-        return _load(path)
-    model = build()
+    model = _in_memory.get(_entry_state(path))
+    if model is None:
+        with contextlib.suppress(*LOAD_ERRORS):  # no entry yet, or an unreadable or damaged one: build it
+            model = _load(path)
+    if model is None:
+        model = build()
+        model.hull_corners()
+        try:
+            _save(model, path)
+        except OSError as e:
+            _warn_write_failed(path.parent, e)
+    _remember(_entry_state(path), model)
+    return _copy(model)
+
+
+def _entry_state(path: Path) -> tuple | None:
+    """The entry's path, modification time and size (a replaced or damaged file is read again), or
+    None when there is no readable entry."""
     try:
-        _save(model, path)
-    except OSError as e:
-        _warn_write_failed(path.parent, e)
-    return model
+        stat = path.stat()
+    except OSError:
+        return None
+    return str(path), stat.st_mtime_ns, stat.st_size
+
+
+def _remember(key: tuple | None, model: Model) -> None:
+    if key is None:
+        return
+    for part in model.parts:
+        for array in (part.vertices, part.faces, part.component):
+            array.flags.writeable = False
+    _in_memory[key] = model
+    _in_memory.move_to_end(key)
+    while len(_in_memory) > MEMORY_ENTRIES:
+        _in_memory.popitem(last=False)
+
+
+def _copy(model: Model) -> Model:
+    """A model of its own (name, lists, meta) over the same read-only arrays."""
+    return dataclasses.replace(model, parts=list(model.parts), components=list(model.components),
+                               meta=copy.deepcopy(model.meta))
 
 
 def _warn_write_failed(folder: Path, error: OSError) -> None:
@@ -87,6 +129,7 @@ def _save(model: Model, path: Path):
     arrays = {}
     for i, p in enumerate(model.parts):
         arrays[f"v{i}"], arrays[f"f{i}"], arrays[f"c{i}"] = p.vertices, p.faces, p.component
+    arrays["hull"] = model.hull_corners()
     header = {"name": model.name, "parts": [p.name for p in model.parts],
               "components": [[c.kind, c.classification] for c in model.components],
               "volume": model.volume.as_dict() if model.volume else None,
@@ -104,6 +147,7 @@ def _load(path: Path) -> Model:
     with np.load(path) as data:
         h = json.loads(str(data["header"]))
         parts = [Part(name, data[f"v{i}"], data[f"f{i}"], data[f"c{i}"]) for i, name in enumerate(h["parts"])]
+        hull = data["hull"] if "hull" in data.files else None
     volume = WoodVolume(**h["volume"]) if h["volume"] else None
     return Model(h["name"], parts, [Component(k, c) for k, c in h["components"]], volume,
-                 h["meta"])
+                 h["meta"], hull)

@@ -40,6 +40,7 @@ class Model:
     components: list[Component]
     volume: WoodVolume | None = None
     meta: dict = field(default_factory=dict)
+    hull: np.ndarray | None = field(default=None, repr=False, compare=False)   # hull_corners(), once known
 
     @property
     def triangles(self) -> int:
@@ -51,12 +52,17 @@ class Model:
     def hull_corners(self) -> np.ndarray:
         """(k, 3) the corners of the model's convex hull (all its vertices when it is flat or tiny): a
         rotated and moved copy has the bounds of its moved corners."""
-        from scipy.spatial import ConvexHull, QhullError
-        v = self.vertices()
-        try:
-            return v[ConvexHull(v).vertices]
-        except (QhullError, ValueError):
-            return v
+        if self.hull is None:
+            self.hull = _hull_corners(self.vertices())
+        return self.hull
+
+
+def _hull_corners(v: np.ndarray) -> np.ndarray:
+    from scipy.spatial import ConvexHull, QhullError
+    try:
+        return v[ConvexHull(v).vertices]
+    except (QhullError, ValueError):
+        return v
 
 
 def merge(meshes, components) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
