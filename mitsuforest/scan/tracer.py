@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from .. import seeds
 from ..scene.variant import variant_scope
 from ..threads import row_ranges, shared_workers
 from .beam import beam_cells, beam_pattern
 from .echo_kernel import EchoKernel
 from .pulses import reaching_pulses, upload_pulses
 from .radiometry import reflectance_db, reflectance_table
-from .sampling import key_word
 
 POINT_DTYPE = np.dtype([
     ("treeid", "<u2"), ("x", "<f8"), ("y", "<f8"), ("z", "<f8"), ("classification", "u1"),
@@ -60,7 +60,7 @@ class PulseTracer:
         if pattern == "stratified":
             cells = beam_cells(beam_samples)
             self.weights, beam = cells.weight, {"cells": cells, "half_divergence": half,
-                                                "key": key_word(seed, "beam")}
+                                                "key": seeds.key(seed, "beam")}
         else:
             offsets, self.weights = beam_pattern(beam_samples)
             beam = {"sample_tangents": np.tan(offsets * half)}
