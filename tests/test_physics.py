@@ -11,9 +11,9 @@ from mitsuforest.config import load_sensor
 from mitsuforest.plan import Leg
 from mitsuforest.scan.beam import beam_pattern, footprint_radius, ring_counts
 from mitsuforest.scan.radiometry import received_power
-from mitsuforest.scan.reference.deflector import oscillating, risley, rotating
-from mitsuforest.scan.reference.echoes import pulse_echoes as detect_echoes
-from mitsuforest.scan.reference.pulses import reaching_pulses, reaches_box
+from mitsuforest.testing.reference.deflector import oscillating, risley, rotating
+from mitsuforest.testing.reference.echoes import pulse_echoes as detect_echoes
+from mitsuforest.testing.reference.pulses import reaching_pulses, reaches_box
 from mitsuforest.scene.variant import variant_scope
 
 IDEAL = load_sensor(SENSORS / "ideal.yaml")

@@ -11,7 +11,7 @@ from mitsuforest.classes import GROUND, ROCK
 from mitsuforest.pipeline import render
 from mitsuforest.scan import PulseTracer, scan
 from mitsuforest.scan.radiometry import reflectance_table
-from mitsuforest.scan.reference import reaching_pulses, trace_reference
+from mitsuforest.testing.reference import reaching_pulses, trace_reference
 
 RNG = np.random.default_rng(0)
 

@@ -36,7 +36,7 @@ class PulseTracer:
 
     :meth:`trace_slots` is what a render runs; :meth:`trace_pulses` traces hand-made pulses the same
     way. Both run on the device and return finished points. The numpy twin of the echo stage is
-    :func:`mitsuforest.scan.reference.trace_reference`.
+    :func:`mitsuforest.testing.reference.trace_reference`.
 
     :param sensor: a :class:`~mitsuforest.config.types.Sensor`.
     :param seed: the scene's seed (keys the ranging noise and the stratified beam).
@@ -112,7 +112,7 @@ class PulseTracer:
         return self._uploaded[1]
 
     def trace_pulses(self, pulses, first_id: int = 0) -> np.ndarray:
-        """Points of hand-made pulses (:class:`~mitsuforest.scan.reference.pulses.Pulses`, numpy)."""
+        """Points of hand-made pulses (:class:`~mitsuforest.testing.reference.pulses.Pulses`, numpy)."""
         with variant_scope(self.variant):
             return self._points(self.caster.echoes(upload_pulses(pulses, first_id)), self.table)
 
