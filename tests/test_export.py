@@ -164,6 +164,7 @@ def test_a_folder_helios_cannot_name_is_refused_before_anything_is_written(tmp_p
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_two_scenes_exported_into_one_folder_keep_their_own_meshes(tmp_path):
     """Both scenes have a deadwood001 (drawn from the scene's seed) and a ground: each survey must
     fly its own, so each scene's meshes go into its own folder."""

@@ -123,7 +123,7 @@ def test_echo_amplitude_and_dominant_subray():
     assert e.weighted_mean(np.array([[0.0], [1.0], [2.0]]))[0, 0] == pytest.approx((0.5 + 0.4) / 0.8)
 
 
-@pytest.mark.parametrize("samples", [1, 7, 19])
+@pytest.mark.parametrize("samples", [1, 7, pytest.param(19, marks=pytest.mark.slow)])
 def test_device_waveform_matches_the_numpy_reference(samples, variant):
     """echoes.py (Dr.Jit, one lane per pulse) against its numpy twin on returns built to be hard: ties,
     chains across several sub-rays, misses, zero-power (grazing) returns, more echoes than max_returns."""
