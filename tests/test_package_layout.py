@@ -26,7 +26,8 @@ def test_no_module_of_the_package_imports_the_testing_code():
     found = {str(p.relative_to(ROOT)): sorted(n for n in _imported(p) if n.startswith("mitsuforest.testing"))
              for p in outside}
     assert {k: v for k, v in found.items() if v} == {}
-    assert "mitsuforest.testing.reference.pulses" in _imported(PACKAGE / "testing" / "analytic.py")  # the check sees imports
+    # the check sees the package's relative imports
+    assert "mitsuforest.testing.reference.pulses" in _imported(PACKAGE / "testing" / "analytic.py")
 
 
 def test_the_seeding_module_imports_no_part_of_the_package():
