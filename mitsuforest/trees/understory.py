@@ -72,7 +72,8 @@ def shrub_skeleton(form: ShrubForm, rng) -> tuple[list[tuple[np.ndarray, np.ndar
     Stems leave the root collar at up to ``spread`` from vertical and bend upward; side shoots leave
     the outer two thirds of each stem. The whole is then spread or drawn in horizontally to a crown
     diameter drawn from ``form.crown`` (less 0.2 m: the leaves reach past the shoots), at most
-    :data:`MAX_SHRUB_REACH` from the base.
+    :data:`MAX_SHRUB_REACH` from the base, and stretched vertically to the height drawn from
+    ``form.height`` (the stems' drawn lengths and bends alone would leave it outside the form's range).
     """
     height = rng.uniform(*form.height)
     crown = rng.uniform(*form.crown)
@@ -96,9 +97,11 @@ def shrub_skeleton(form: ShrubForm, rng) -> tuple[list[tuple[np.ndarray, np.ndar
             sr = max(radii[i] * 0.5, 0.0015)
             pieces.append(_curve(base, sd, sl, sr, 0.0015, 3, np.deg2rad(15), rng, 0.1))
     reach = max(float(np.hypot(p[:, 0], p[:, 1]).max()) for p, _ in pieces)
+    top = max(float(p[:, 2].max()) for p, _ in pieces)
     target = min(crown / 2 - 0.1, MAX_SHRUB_REACH - 0.1)   # leaves add up to a leaf length and a clump beyond the shoots
     for p, _ in pieces:
         p[:, :2] *= target / reach
+        p[:, 2] *= height / top
     return pieces, stems
 
 
