@@ -48,6 +48,7 @@ def _rotation(axis, degrees):
             "z": np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])}[axis]
 
 
+@pytest.mark.slow
 def test_every_part_is_one_component_in_place_with_its_object_id(exported):
     folder, scene, plan, models = exported
     doc = ET.parse(folder / "demo_helios_scene.xml").getroot()
