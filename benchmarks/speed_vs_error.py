@@ -41,8 +41,8 @@ from mitsuforest.plan import make_plan
 from mitsuforest.scan import PulseTracer
 from mitsuforest.scan.kernel import RayCaster
 from mitsuforest.scan.pulses import upload_pulses
-from mitsuforest.scan.reference import reaching_pulses, sub_ray_returns, trace_reference
-from mitsuforest.scan.reference.echoes import pulse_echoes, waveform_maxima
+from mitsuforest.testing.reference import reaching_pulses, sub_ray_returns, trace_reference
+from mitsuforest.testing.reference.echoes import pulse_echoes, waveform_maxima
 from mitsuforest.scene import build_scene, variant_scope
 from mitsuforest.trees import build_models
 
@@ -98,7 +98,7 @@ def surface_samples(scene, scan_scene, pulses, samples, batch):
 
 
 def chain_rule_bias(scene, scan_scene, pulses, samples, pattern, count=5000):
-    """How often the waveform's chain rule (scan/reference/echoes.py) finds another number of echoes
+    """How often the waveform's chain rule (testing/reference/echoes.py) finds another number of echoes
     than the summed waveform has maxima, over ``count`` pulses of the leg that return something:
     (share differing, share with more chains, share with fewer)."""
     tracer = PulseTracer(scan_scene, scene.sensor, samples, scene.seed, pattern)

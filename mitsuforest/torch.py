@@ -22,6 +22,7 @@ import numpy as np
 import torch
 import yaml
 
+from . import seeds
 from .write.las import read_las_points
 from .write.pcd import read_pcd
 
@@ -44,7 +45,7 @@ class TileDataset(torch.utils.data.Dataset):
     :param points: the sample size: drawn without replacement from a larger tile, with replacement
         (every point at least once) from a smaller one; ``None`` keeps every point in file order.
     :param transform: called with each item (the dict, tensors already made), returns the item.
-    :param seed: makes item ``i``'s sample the same on every call (``[seed, i]`` seeds it); ``None``
+    :param seed: makes item ``i``'s sample the same on every call (``seeds.rng(seed, "sample", i)``); ``None``
         draws a new sample on every call (new on every epoch, different in each DataLoader worker).
     :raises ValueError: an unknown split, or a field the tiles do not have (on first read).
     """
@@ -99,7 +100,7 @@ class TileDataset(torch.utils.data.Dataset):
     def _sample(self, i: int, count: int) -> np.ndarray:
         if self.size is None:
             return np.arange(count)
-        rng = np.random.default_rng(None if self.seed is None else [self.seed, i])
+        rng = seeds.rng(self.seed, "sample", i)
         if count >= self.size:
             return np.sort(rng.choice(count, self.size, replace=False))
         if count == 0:

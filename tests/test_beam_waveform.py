@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 
 from mitsuforest.scan.beam import beam_pattern, ring_counts
-from mitsuforest.scan.reference.deflector import risley as risley_half_fov
-from mitsuforest.scan.reference.echoes import FWHM_PER_SIGMA, two_maxima_ratio, waveform_maxima
-from mitsuforest.scan.reference.echoes import pulse_echoes as detect_echoes
+from mitsuforest.testing.reference.deflector import risley as risley_half_fov
+from mitsuforest.testing.reference.echoes import FWHM_PER_SIGMA, two_maxima_ratio, waveform_maxima
+from mitsuforest.testing.reference.echoes import pulse_echoes as detect_echoes
 
 DR = 299_792_458.0 * 4e-9 / 2          # ΔR = c·τ/2 = 0.5996 m
 SIGMA = DR / FWHM_PER_SIGMA
@@ -118,7 +118,7 @@ def test_two_maxima_ratio_is_the_waveforms_threshold(separation):
 
 
 def test_two_maxima_ratio_table():
-    """The table in the docstring of scan/reference/echoes.py."""
+    """The table in the docstring of testing/reference/echoes.py."""
     d = np.array([0.85, 0.9, 1.0, 1.03, 1.1, 1.25, 1.5, 2.0]) * DR
     assert np.allclose(two_maxima_ratio(d, DR), [1, 0.946, 0.749, 0.683, 0.532, 0.271, 0.061, 0.0009],
                        atol=6e-4, rtol=0)

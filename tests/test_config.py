@@ -62,7 +62,7 @@ CASES = {
     "offset beyond any map": (GOOD + "origin: {offset: [0, -1e300, 0]}\n",
                               "origin.offset[1]: -1e+300 m is no map coordinate: projected CRSs stay within ±1e+09 m"),
     "ground above the flight": (GOOD + "terrain: {type: noise, amplitude: 80}\n",
-                                "terrain.amplitude: the ground rises 27.1 m above its mean height, higher than the flight at "
+                                "terrain.amplitude: the ground rises 53.9 m above its mean height, higher than the flight at "
                                 "survey.altitude 30 m less the sensor's minimum range 3 m"),
     "nested 1,000 deep": (GOOD + "deep: " + "[" * 1000 + "]" * 1000 + "\n",
                           "scene.yaml: line 8, column 106: nested deeper than 100 levels"),

@@ -238,6 +238,7 @@ def test_copc_benchmark_small():
     assert "200,000 points: spool" in stdout and "after the octree" in stdout
 
 
+@pytest.mark.slow
 def test_readme_python_block_runs():
     """README's "From Python" block, run as written (from the repository root), gives the values its
     comments state and points with labels."""
@@ -248,6 +249,7 @@ def test_readme_python_block_runs():
     _run(["-c", script], ROOT)
 
 
+@pytest.mark.slow
 def test_learning_curve_benchmark_smallest():
     """Two training plots and one test plot per condition: the table has its rows, and the classifier
     tells wood from leaves on trees it never saw far better than chance (0.5)."""

@@ -48,6 +48,7 @@ def _rotation(axis, degrees):
             "z": np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])}[axis]
 
 
+@pytest.mark.slow
 def test_every_part_is_one_component_in_place_with_its_object_id(exported):
     folder, scene, plan, models = exported
     doc = ET.parse(folder / "demo_helios_scene.xml").getroot()
@@ -164,6 +165,7 @@ def test_a_folder_helios_cannot_name_is_refused_before_anything_is_written(tmp_p
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_two_scenes_exported_into_one_folder_keep_their_own_meshes(tmp_path):
     """Both scenes have a deadwood001 (drawn from the scene's seed) and a ground: each survey must
     fly its own, so each scene's meshes go into its own folder."""

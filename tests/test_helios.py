@@ -23,6 +23,7 @@ from mitsuforest.write.export import export_scene
 QUIET = {"write": False, "progress": False, "log": lambda *_: None}
 
 
+@pytest.mark.slow
 def test_exported_survey_flown_here_gives_the_demo_points(tmp_path, demo_result, variant):
     """``mitsuforest render EXPORT/demo_helios_survey.xml`` against the demo's own render (one leg),
     with the sensor's ranging noise constant (HELIOS++ takes one accuracy; the export says so)."""

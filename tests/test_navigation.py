@@ -265,7 +265,7 @@ def test_device_pulses_with_a_pose_table_match_the_numpy_reference(tmp_path, var
     """scan/pulses.py on a pose table (attitude, mount) against its numpy twin: same pulses, rays within float32."""
     from mitsuforest.scan import Platform
     from mitsuforest.scan import pulses as device
-    from mitsuforest.scan.reference.pulses import reaching_pulses
+    from mitsuforest.testing.reference.pulses import reaching_pulses
     from mitsuforest.scene.variant import variant_scope
     sensor = {**NARROW, "field_of_view": 100, "mount": {"lever_arm": [0.3, -0.2, 0.1], "boresight": [1.0, -2.0, 3.0]}}
     path = scene_file(tmp_path, sensor=sensor, variant=variant, survey={

@@ -11,9 +11,9 @@ from mitsuforest.config import load_sensor
 from mitsuforest.plan import Leg
 from mitsuforest.scan.beam import beam_pattern, footprint_radius, ring_counts
 from mitsuforest.scan.radiometry import received_power
-from mitsuforest.scan.reference.deflector import oscillating, risley, rotating
-from mitsuforest.scan.reference.echoes import pulse_echoes as detect_echoes
-from mitsuforest.scan.reference.pulses import reaching_pulses, reaches_box
+from mitsuforest.testing.reference.deflector import oscillating, risley, rotating
+from mitsuforest.testing.reference.echoes import pulse_echoes as detect_echoes
+from mitsuforest.testing.reference.pulses import reaching_pulses, reaches_box
 from mitsuforest.scene.variant import variant_scope
 
 IDEAL = load_sensor(SENSORS / "ideal.yaml")
@@ -123,7 +123,7 @@ def test_echo_amplitude_and_dominant_subray():
     assert e.weighted_mean(np.array([[0.0], [1.0], [2.0]]))[0, 0] == pytest.approx((0.5 + 0.4) / 0.8)
 
 
-@pytest.mark.parametrize("samples", [1, 7, 19])
+@pytest.mark.parametrize("samples", [1, 7, pytest.param(19, marks=pytest.mark.slow)])
 def test_device_waveform_matches_the_numpy_reference(samples, variant):
     """echoes.py (Dr.Jit, one lane per pulse) against its numpy twin on returns built to be hard: ties,
     chains across several sub-rays, misses, zero-power (grazing) returns, more echoes than max_returns."""

@@ -86,6 +86,7 @@ def test_key_follows_the_generator_code(model_cache, monkeypatch):
 
 
 @pytest.mark.parametrize("edited, counts", [("skeleton.py", True), ("understory.py", True), ("classes.py", True),
+                                             ("seeds.py", True),
                                              ("gallery.py", False), ("cache.py", False)])
 def test_code_hash_changes_with_the_generators_source(monkeypatch, edited, counts):
     read = Path.read_bytes

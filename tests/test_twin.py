@@ -11,7 +11,7 @@ import yaml
 
 from conftest import ROOT, _demo_scene
 
-LEGS = [[[4.0, -5.0], [4.0, 25.0]], [[16.0, 25.0], [16.0, -5.0]]]   # 12 m apart, 30 m above the flat ground
+LEGS = [[[4.0, 0.0], [4.0, 20.0]], [[16.0, 20.0], [16.0, 0.0]]]    # 12 m apart, 30 m above the flat ground
 
 
 PINES = [{"species": "pinus_radiata", "base": k} for k in (1, 2, 3)]

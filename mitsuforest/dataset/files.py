@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from .. import seeds
 from ..classes import CLASS_NAMES, DEADWOOD, TREE_LEAVES, TREE_WOOD
 from ..config.types import to_mapping
 from ..write.atomic import atomic_path, write_json, write_text
@@ -260,15 +261,15 @@ def assign_splits(names: list[str], ratios: dict, seed: int) -> dict:
     Plots are taken in blocks of :data:`SPLIT_BLOCK`. Each block's quota per split is what brings the
     running counts to the ratios times the plots so far (:func:`split_quotas`), so after every whole
     block each split is within one plot of its ratio. Inside a block the j-th of a split's q places
-    falls at ``(j + u) / q`` of the block, u uniform from ``[seed, 1, block]``: each split is spread
-    evenly through the block, so a partial block (a dataset of 3 plots) stays close to the ratios too,
+    falls at ``(j + u) / q`` of the block, u uniform from ``seeds.rng(seed, "splits", block)``: each split is
+    spread evenly through the block, so a partial block (a dataset of 3 plots) stays close to the ratios too,
     yet no split follows a period of the plot list (a grid's combinations repeat along it)."""
     out = {key: [] for key in ratios}
     keys = list(ratios)
     for block, quota in enumerate(split_quotas(ratios, -(-len(names) // SPLIT_BLOCK))):
         split = np.repeat(np.arange(len(keys)), quota)
         place = np.concatenate([np.arange(q) for q in quota])
-        u = np.random.default_rng([seed, 1, block]).random(len(split))
+        u = seeds.rng(seed, "splits", block).random(len(split))
         order = split[np.argsort((place + u) / quota[split], kind="stable")]
         for name, k in zip(names[block * SPLIT_BLOCK:(block + 1) * SPLIT_BLOCK], order):
             out[keys[k]].append(name)

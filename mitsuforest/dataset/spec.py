@@ -3,7 +3,7 @@
 >>> dataset = load_dataset("examples/dataset.yaml")        # doctest: +SKIP
 >>> [p.name for p in dataset.plots], dataset.plots[0].scene.forest.trees    # doctest: +SKIP
 
-Plot *i* draws its variations from ``numpy.random.default_rng([seed, i])``, so plot *i* is the same
+Plot *i* draws its variations from ``seeds.rng(seed, "dataset-plot", i)``, so plot *i* is the same
 whatever ``plots`` is: raising ``plots`` extends a dataset without changing the plots it has. Every
 plot's scene is validated before any work; a problem is reported as ``FILE: key: reason``.
 """
@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import seeds
 from ..config import SCENE_SPEC, load_scene, read_yaml
 from ..config.schema import REQUIRED, Context, Custom, FilePath, Number, Text, name_problem, parse_mapping
 from ..config.types import Scene
@@ -110,7 +111,7 @@ def load_dataset(path) -> Dataset:
     plots = []
     for i in range(count):
         values = dict(zip(choices, combos[i % len(combos)]))
-        rng = np.random.default_rng([parsed["seed"], i])
+        rng = seeds.rng(parsed["seed"], "dataset-plot", i)
         values.update({key: variation.draw(rng) for key, variation in ranges.items()})
         values.setdefault("seed", int(rng.integers(0, 2**31 - 1)))
         name_i = f"plot_{i:0{width}d}"

@@ -14,6 +14,7 @@ from functools import lru_cache
 
 import numpy as np
 
+from .. import seeds
 from ..classes import DEADWOOD_TREEID, GROUND_OBJECT_ID
 from ..config import RSA_JAMMING, scene_error
 from ..errors import UserError
@@ -60,7 +61,7 @@ def make_plan(scene) -> Plan:
 
 
 def _plan(scene) -> Plan:
-    rng = np.random.default_rng(scene.seed)
+    rng = seeds.rng(scene.seed, "trees")
     size = scene.area.size
     try:
         terrain = make_terrain(scene.terrain, size, scene.seed, origin=scene.origin)
@@ -76,7 +77,8 @@ def _plan(scene) -> Plan:
         trees, cover = _place_trees(scene.forest, size, crowns, terrain, rng)
     else:
         trees, cover = _place_listed_trees(listed, size, crowns, terrain, scene.forest.tilt, rng)
-    understory, understory_models = _place_understory(scene, size, trees, terrain, rng,
+    understory, understory_models = _place_understory(scene, size, trees, terrain,
+                                                      seeds.rng(scene.seed, "understory"),
                                                       deadwood_treeid=_deadwood_treeid(len(models)))
     models.update(understory_models)
     ground_layer, ground_layer_models = place_ground_layer(scene.understory, size, terrain, scene.seed)
@@ -192,7 +194,8 @@ def _listed_tree_models(scene, listed) -> dict[str, tuple[np.ndarray, ModelSpec]
     out = {}
     for i, t in enumerate(listed):
         template = nearest_template(t.species or default_species, t.height, archetypes)
-        a = grown_to(template, t.height, 2 * t.crown_radius, seed=int(scene.seed) * 100_003 + i + 1,
+        a = grown_to(template, t.height, 2 * t.crown_radius,
+                     seed=seeds.key(scene.seed, "listed-tree", i, bits=31),
                      leaf_area=t.leaf_area)
         crown, components = _summarise(a)
         out[f"tree{i + 1:02d}"] = crown, ModelSpec("tree", components, archetype=a)
@@ -293,7 +296,8 @@ def _place_understory(scene: dict, size, trees, terrain, rng, deadwood_treeid: i
     taken = _Occupied([_Footprint(np.array(t.position[:2]), 0.0, 0.0, STEM_CLEARANCE) for t in trees])
     objects, models = [], {}
     for i in range(BUSH_MODELS if counts.bushes else 0):   # every shrub form, in turn
-        models[f"bush{i + 1:02d}"] = ModelSpec("bush", UNDERSTORY_COMPONENTS, seed=int(scene.seed) * 1000 + i,
+        models[f"bush{i + 1:02d}"] = ModelSpec("bush", UNDERSTORY_COMPONENTS,
+                                               seed=seeds.key(scene.seed, "bush-model", i, bits=31),
                                                form=i % len(SHRUB_FORMS))
     for kind, key in UNDERSTORY_KEYS.items():
         for i in range(getattr(counts, key)):

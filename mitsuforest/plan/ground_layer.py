@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .. import seeds
 from ..trees.ground_layer import PATCH_MODELS, PATCH_SIZE
 from .types import ModelSpec, PlacedObject
 
@@ -70,13 +71,13 @@ def place_ground_layer(understory, size, terrain, seed: int) -> tuple[list[Place
     if not grass + litter:
         return [], {}
     cells = ground_cells(size)
-    rng = np.random.default_rng([int(seed), 23])
+    rng = seeds.rng(seed, "ground-layer")
     chosen = cells[rng.permutation(len(cells))[:grass + litter]]
     kinds = ["grass"] * grass + ["litter"] * litter
     tops = np.array([GRASS_TOP * understory.grass.height if k == "grass" else LITTER_TOP for k in kinds])
     planes = terrain_planes(terrain, chosen)
     tilt_x, tilt_y = _within_plot(*slope_tilts(planes[:, 1], planes[:, 2]), tops, chosen, size)
-    models = {f"{kind}{i + 1:02d}": ModelSpec(kind, 1, seed=int(seed) * 1000 + 500 + 10 * (kind == "litter") + i,
+    models = {f"{kind}{i + 1:02d}": ModelSpec(kind, 1, seed=seeds.key(seed, f"{kind}-model", i, bits=31),
                                                height=understory.grass.height if kind == "grass" else None)
               for kind, n in (("grass", grass), ("litter", litter)) if n for i in range(PATCH_MODELS)}
     which = rng.integers(0, PATCH_MODELS, len(kinds))

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 
+from .. import seeds
 from ..errors import UserError
 
 
@@ -100,7 +101,7 @@ def dem_terrain(x, y, z, size) -> Terrain:
 
 def _relief(x, y, amplitude, wavelength, seed):
     """Smooth relief: a few random plane waves around ``wavelength``, scaled to peak-to-peak ``amplitude``."""
-    rng = np.random.default_rng([seed, 17])
+    rng = seeds.rng(seed, "terrain")
     gx, gy = np.meshgrid(x, y)
     z = np.zeros_like(gx)
     for _ in range(6):

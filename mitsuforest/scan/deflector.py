@@ -1,7 +1,7 @@
 """Beam deflection patterns in Dr.Jit: where each pulse points in the sensor frame, and whether it fires.
 
 Sensor frame: x across track (right of the flight direction), y along track, z up. Angles in
-radians, times in float64. The numpy twin, :mod:`mitsuforest.scan.reference.deflector`, is the
+radians, times in float64. The numpy twin, :mod:`mitsuforest.testing.reference.deflector`, is the
 tests' reference.
 """
 

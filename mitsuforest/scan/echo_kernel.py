@@ -3,9 +3,9 @@
 Only echoes come back to numpy, each complete (position with its ranging noise, GPS time, scan
 angle, pulse id, return numbers, intensity with its speckle, labels), so the per-sub-ray and per-echo work (hundreds of
 millions of returns in a 1 ha scan) runs vectorised on every core, or on the GPU. The stages are
-those of the numpy reference (:func:`mitsuforest.scan.reference.trace_reference`):
+those of the numpy reference (:func:`mitsuforest.testing.reference.trace_reference`):
 :func:`~mitsuforest.labels.label_hits`, :func:`~mitsuforest.scan.radiometry.received_power` and
-:func:`~mitsuforest.scan.reference.echoes.pulse_echoes`.
+:func:`~mitsuforest.testing.reference.echoes.pulse_echoes`.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The waveform model (see :mod:`mitsuforest.scan.reference.echoes`, its numpy twin, for the model) run
+"""The waveform model (see :mod:`mitsuforest.testing.reference.echoes`, its numpy twin, for the model) run
 on the device: one Dr.Jit lane per pulse.
 
 The rule, as in its numpy twin: a pulse's returns sorted by range are chained while consecutive ranges
@@ -7,7 +7,7 @@ are within ΔR, and each chain is one echo at its energy-weighted mean range ``m
 ≥ the detection threshold. Chains are not the maxima of the summed waveform W: two chains more than
 ΔR apart with power ratio below ``a_min(d)`` (0.75 at d = ΔR, 0.27 at 1.25 ΔR, 0.06 at 1.5 ΔR) are
 one maximum of W but two echoes, and returns 0.85 ΔR < d ≤ ΔR apart of similar power are two maxima
-of W but one echo; ``scan/reference/echoes.py`` derives ``a_min`` and tabulates it.
+of W but one echo; ``testing/reference/echoes.py`` derives ``a_min`` and tabulates it.
 
 A pulse's S sub-ray returns are held in registers (Python lists of S arrays), sorted by range with a
 sorting network, then chained, summed and detected in unrolled passes, so no sub-ray data leaves

@@ -17,16 +17,16 @@ The errors are series at ``rate_hz`` epochs over the whole survey, linear betwee
 error is white noise of σ ``gnss_sigma_m`` per axis (east, north, up) plus a random walk whose
 increments over ``Δt`` have σ ``gnss_random_walk_m_per_sqrt_s·√Δt`` (zero at the survey's first
 epoch); the IMU error is white noise of σ ``imu_sigma_deg`` (roll, pitch, yaw). They are drawn from
-the scene's seed alone (keyed like the ranging noise, sampling.key_word), so a point's error does not
-depend on batches, legs scanned apart or the backend.
+the scene's seed alone (its own stream, ``seeds.rng(seed, "navigation-errors")``), so a point's error
+does not depend on batches, legs scanned apart or the backend.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from .. import seeds
 from ..plan.trajectory import ENU_FROM_NED, euler_matrix, matrix_euler
-from .sampling import key_word
 
 
 class NavigationModel:
@@ -41,7 +41,7 @@ class NavigationModel:
         self.step = 1.0 / errors.rate_hz
         self.t0 = float(span[0])
         count = int(np.ceil((span[1] - self.t0) / self.step)) + 2
-        rng = np.random.default_rng(key_word(seed, "navigation-errors"))
+        rng = seeds.rng(seed, "navigation-errors")
         white, steps, imu = (rng.standard_normal((count, 3)) for _ in range(3))   # always all three: one σ
         steps[0] = 0.0                                                           # leaves the others' draws
         walk = np.cumsum(steps * np.asarray(errors.gnss_random_walk_m_per_sqrt_s) * np.sqrt(self.step), axis=0)

@@ -23,17 +23,18 @@ variance 1/L), the intensity of fully developed speckle averaged over L independ
 
 from __future__ import annotations
 
-from .sampling import TWO_PI, key_word, uniform_pair
+from .. import seeds
+from .sampling import TWO_PI, uniform_pair
 
 MIN_COS = 0.1          # |cos θ| floor in the footprint term: tan θ <= 9.95
 
 
 def noise_key(seed: int) -> int:
-    return key_word(seed, "ranging-noise")
+    return seeds.key(seed, "ranging-noise")
 
 
 def speckle_key(seed: int) -> int:
-    return key_word(seed, "speckle")
+    return seeds.key(seed, "speckle")
 
 
 def standard_normal(dr, mi, key: int, pulse_id, return_number):

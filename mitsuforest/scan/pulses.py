@@ -1,7 +1,7 @@
 """Pulses in Dr.Jit: the pulses of a batch of time slots that fire and can reach the scene.
 
 A batch's time slots never pass through numpy: times and angles are float64, rays float32. The
-numpy twin, :mod:`mitsuforest.scan.reference.pulses`, is the tests' reference.
+numpy twin, :mod:`mitsuforest.testing.reference.pulses`, is the tests' reference.
 """
 
 from __future__ import annotations
@@ -124,7 +124,7 @@ def _turned(d_sensor, frame) -> list:
 
 
 def upload_pulses(pulses, first_id: int = 0) -> DevicePulses:
-    """Hand-made numpy pulses (:class:`~mitsuforest.scan.reference.pulses.Pulses`) on the device."""
+    """Hand-made numpy pulses (:class:`~mitsuforest.testing.reference.pulses.Pulses`) on the device."""
     import mitsuba as mi
     cols = [mi.Float(aligned(a[:, k].astype(np.float32)))
             for a in (pulses.origin, pulses.direction, pulses.across) for k in range(3)]

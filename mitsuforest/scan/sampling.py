@@ -4,12 +4,12 @@ A draw is a function of (key, pulse id, stream) alone: the Tiny Encryption Algor
 (``mi.sample_tea_32``, 8 rounds) turns that triple into two 32-bit words. So a render's bytes do not
 depend on ``pulses_per_batch``, and llvm and cuda draw the same numbers (the float32 functions
 applied to them may differ in the last bits). Uses: ranging noise (noise.py) and the stratified beam
-(:func:`stratified_offsets`, the twin of :func:`mitsuforest.scan.beam.stratified_offsets`).
+(:func:`stratified_offsets`, the twin of :func:`mitsuforest.scan.beam.stratified_offsets`), each with
+its own key ``seeds.key(seed, purpose)`` (mitsuforest/seeds.py).
 """
 
 from __future__ import annotations
 
-import hashlib
 import math
 
 import numpy as np
@@ -17,11 +17,6 @@ import numpy as np
 TEA_ROUNDS = 8
 TWO_PI = 2 * math.pi
 RING_STREAM = 1 << 16          # streams of ring rotations start here (sub-ray streams are 0 .. S-1)
-
-
-def key_word(seed: int, purpose: str) -> int:
-    """A 32-bit key of a scene seed of any size, one per purpose (noise, beam, ...)."""
-    return int.from_bytes(hashlib.sha256(f"{purpose}:{seed}".encode()).digest()[:4], "little")
 
 
 def uniform_pair(mi, key: int, pulse_id, stream):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .. import seeds
 from ..fields import POINT_DTYPE
 from ..scene.variant import variant_scope
 from ..threads import row_ranges, shared_workers
@@ -11,7 +12,6 @@ from .beam import beam_cells, beam_pattern
 from .echo_kernel import EchoKernel
 from .pulses import reaching_pulses, upload_pulses
 from .radiometry import reflectance_db, reflectance_table
-from .sampling import key_word
 from .waveform import PulseBatch
 
 
@@ -29,7 +29,7 @@ class PulseTracer:
 
     :meth:`trace_slots` is what a render runs; :meth:`trace_pulses` traces hand-made pulses the same
     way. Both run on the device and return finished points. The numpy twin of the echo stage is
-    :func:`mitsuforest.scan.reference.trace_reference`.
+    :func:`mitsuforest.testing.reference.trace_reference`.
 
     :param sensor: a :class:`~mitsuforest.config.types.Sensor`.
     :param seed: the scene's seed (keys the ranging noise and the stratified beam).
@@ -58,7 +58,7 @@ class PulseTracer:
         if pattern == "stratified":
             cells = beam_cells(beam_samples)
             self.weights, beam = cells.weight, {"cells": cells, "half_divergence": half,
-                                                "key": key_word(seed, "beam")}
+                                                "key": seeds.key(seed, "beam")}
         else:
             offsets, self.weights = beam_pattern(beam_samples)
             beam = {"sample_tangents": np.tan(offsets * half)}
@@ -121,7 +121,7 @@ class PulseTracer:
         return self._uploaded[1]
 
     def trace_pulses(self, pulses, first_id: int = 0) -> np.ndarray:
-        """Points of hand-made pulses (:class:`~mitsuforest.scan.reference.pulses.Pulses`, numpy)."""
+        """Points of hand-made pulses (:class:`~mitsuforest.testing.reference.pulses.Pulses`, numpy)."""
         with variant_scope(self.variant):
             return self._points(self.caster.echoes(upload_pulses(pulses, first_id)), self.table)
 

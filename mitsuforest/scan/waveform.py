@@ -2,7 +2,7 @@
 ``output.pulses``).
 
 Model. The received waveform of a pulse whose sub-rays return powers ``p_i`` at ranges ``r_i`` is the
-echo model's (:mod:`mitsuforest.scan.reference.echoes`)
+echo model's (:mod:`mitsuforest.testing.reference.echoes`)
 
     W(x) = Σ_i p_i exp(-½ ((x - r_i) / σ)²),   σ = ΔR / 2.3548,
 

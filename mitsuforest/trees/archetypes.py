@@ -10,8 +10,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass, field
 
-import numpy as np
-
+from .. import seeds
 from ..classes import TREE_SPECIES
 
 
@@ -144,7 +143,6 @@ class UniqueTrees:
 
 
 MAX_UNIQUE = 1000        # trees per unique entry: each is its own model in memory (5-11 MB of mesh arrays for the built-in archetypes)
-UNIQUE_STREAM = 29       # the plan's random streams: the scene seed with a number per purpose
 
 # How a unique tree departs from its template (one of its family's built-in archetypes, drawn at random):
 # a factor or an offset ``sd · z`` with z a standard normal truncated to [-2, 2], then clipped to the
@@ -181,9 +179,9 @@ def drawn_archetype(species: str, rng, weight: float = 1.0) -> Archetype:
 
 def unique_archetypes(entry: UniqueTrees, seed: int, index: int) -> tuple[Archetype, ...]:
     """The ``entry.unique`` trees of the ``index``-th ``forest.archetypes`` entry in a plot of scene seed
-    ``seed``; tree i from ``default_rng([seed, UNIQUE_STREAM, index, i])``, so the same scene gives
+    ``seed``; tree i from ``seeds.rng(seed, "unique-tree", index, i)``, so the same scene gives
     the same trees and raising ``unique`` keeps the first ones. Each weighs ``entry.weight / unique``."""
-    return tuple(drawn_archetype(entry.species, np.random.default_rng([int(seed), UNIQUE_STREAM, index, i]),
+    return tuple(drawn_archetype(entry.species, seeds.rng(seed, "unique-tree", index, i),
                                  weight=entry.weight / entry.unique) for i in range(entry.unique))
 
 

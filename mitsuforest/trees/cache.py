@@ -32,6 +32,9 @@ from .volume import WoodVolume
 log = logging.getLogger(__name__)
 
 NOT_GENERATORS = ("cache.py", "gallery.py")                   # trees/ modules that make no geometry
+# Package modules outside trees/ whose source decides a model's bytes: the component classes stored with
+# each model, and the seeding (a model's random streams come from seeds.rng).
+GENERATOR_MODULES = ("classes.py", "seeds.py")
 # Libraries whose results a model's bytes hold, so their versions are in the key: pymeshfix repairs imported
 # wood (trees/repair.py), scipy finds the loose parts for trimesh (trimesh.graph.connected_components).
 GENERATOR_LIBRARIES = ("numpy", "trimesh", "manifold3d", "pymeshfix", "scipy")
@@ -49,12 +52,12 @@ def cache_dir() -> Path:
 @functools.cache
 def code_hash() -> str:
     """A hash of everything besides the parameters that decides a model's geometry: the source of
-    ``mitsuforest/trees/*.py`` (less :data:`NOT_GENERATORS`) and ``classes.py`` (the component
-    classes stored with each model), and the versions of :data:`GENERATOR_LIBRARIES`."""
+    ``mitsuforest/trees/*.py`` (less :data:`NOT_GENERATORS`) and of :data:`GENERATOR_MODULES`, and the
+    versions of :data:`GENERATOR_LIBRARIES`."""
     trees = Path(__file__).parent
     sources = [p for p in sorted(trees.glob("*.py")) if p.name not in NOT_GENERATORS]
     digest = hashlib.sha256()
-    for path in [*sources, trees.parent / "classes.py"]:
+    for path in [*sources, *(trees.parent / name for name in GENERATOR_MODULES)]:
         digest.update(f"{path.name}\0".encode() + path.read_bytes() + b"\0")
     for dist in GENERATOR_LIBRARIES:
         digest.update(f"{dist}={importlib.metadata.version(dist)}\0".encode())

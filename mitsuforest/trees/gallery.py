@@ -9,6 +9,7 @@ import numpy as np
 import trimesh
 from PIL import Image
 
+from .. import seeds
 from ..write.atomic import atomic_path, write_text
 from ..write.tables import csv_text
 from ..plan.types import ModelSpec
@@ -72,7 +73,7 @@ def _cell(x):
 
 def _side_picture(model, pixels_per_m=14, samples=250_000):
     """Surface samples of wood (brown) and leaves (green), seen from the side, as an RGB image."""
-    rng = np.random.default_rng(0)
+    rng = seeds.rng(0, "gallery")
     layers = []
     for part, colour in zip(model.parts, ([110, 70, 40], [70, 150, 60])):
         mesh = trimesh.Trimesh(part.vertices, part.faces, process=False)

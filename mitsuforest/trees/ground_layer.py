@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .. import seeds
 from ..classes import GROUND_VEGETATION
 from .models import Model
 from .understory import single_part_model
@@ -65,7 +66,7 @@ def grass_patch_model(seed: int, name: str, height: float = 0.3) -> Model:
     """A :data:`PATCH_SIZE` m grass patch: :data:`TUFTS` tussocks of narrow blades (mean blade length
     ``height`` m), each blade leaning out 5-40° and drooping toward its tip; every vertex within the
     square (|x|, |y| ≤ PATCH_SIZE/2): a blade that would lean out of it is drawn in toward its root."""
-    rng = np.random.default_rng(seed)
+    rng = seeds.rng(seed, "grass")
     counts = rng.integers(BLADES[0], BLADES[1] + 1, TUFTS)
     k = int(counts.sum())
     centres = rng.uniform(-PATCH_SIZE / 2 + 0.03, PATCH_SIZE / 2 - 0.03, (TUFTS, 2))
@@ -95,7 +96,7 @@ def litter_patch_model(seed: int, name: str) -> Model:
     """A :data:`PATCH_SIZE` m patch of leaf litter: :data:`LITTER_LEAVES` flat lanceolate leaves (two
     triangles each) lying :data:`LITTER_HEIGHT` above the ground, tilted at most 5°, each wholly
     inside the square."""
-    rng = np.random.default_rng(seed)
+    rng = seeds.rng(seed, "litter")
     k = LITTER_LEAVES
     length, width = rng.uniform(*LITTER_LENGTH, k), rng.uniform(*LITTER_WIDTH, k)
     az = rng.uniform(0, 2 * np.pi, k)

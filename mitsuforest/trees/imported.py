@@ -15,6 +15,7 @@ import math
 
 import numpy as np
 
+from .. import seeds
 from ..classes import TREE_LEAVES, TREE_WOOD
 from ..errors import display_path
 from .cache import cached
@@ -164,7 +165,7 @@ def _qsm_leaves(entry: QsmTree, cyl):
         twigs = [np.array([cyl.start[i], cyl.end[i]]) for i in terminal]
     else:
         twigs = [lines[b] for b in terminal]
-    rng = np.random.default_rng(entry.seed + 10_000)
+    rng = seeds.rng(entry.seed, "leaves")
     return leaves_on_twigs(twigs, entry.leaf_area, entry.leaf_length, entry.leaf_width, entry.leaf_inclination,
                            entry.leaf_clumping, rng)
 

@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .. import seeds
 from ..classes import TREE_LEAVES, TREE_WOOD
 from .archetypes import Archetype
 from .leaves import leaf_count, leaves_on_twigs
@@ -90,7 +91,7 @@ def bears_leaves(a: Archetype, branches) -> bool:
 
 def tree_model(archetype: Archetype, name: str) -> Model:
     """Mesh one archetype: a wood part (one closed tube per branch) and a leaf part, with volumes."""
-    rng = np.random.default_rng(archetype.seed + 10_000)
+    rng = seeds.rng(archetype.seed, "leaves")
     branches = grow(archetype)
     tubes = [tube(b.points, b.radii) for b in branches]
     volume = wood_volume(tubes, sum(frustum_volume(b.points, b.radii) for b in branches),

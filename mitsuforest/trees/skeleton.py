@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .. import seeds
 from .archetypes import Archetype
 
 GOLDEN_ANGLE = np.pi * (3 - np.sqrt(5))
@@ -134,7 +135,7 @@ def _branch_site(a: Archetype, i: int, s_lo: float, rng) -> tuple[float, float]:
 
 def grow(a: Archetype) -> list[Branch]:
     """All branches of one tree, stem first; deterministic in the archetype's parameters."""
-    rng = np.random.default_rng(a.seed)
+    rng = seeds.rng(a.seed, "skeleton")
     branches: list[Branch] = []
     # Stem: straight with a slight random lean and sweep.
     z = np.linspace(0, a.height, _segments(a.height, a.dbh) + 1)

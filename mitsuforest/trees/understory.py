@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import manifold3d
 import numpy as np
 
+from .. import seeds
 from ..classes import BUSH, DEADWOOD, ROCK, STUMP
 from .leaves import leaf_blades, leaf_count
 from .models import Component, Model, Part, merge
@@ -71,7 +72,8 @@ def shrub_skeleton(form: ShrubForm, rng) -> tuple[list[tuple[np.ndarray, np.ndar
     Stems leave the root collar at up to ``spread`` from vertical and bend upward; side shoots leave
     the outer two thirds of each stem. The whole is then spread or drawn in horizontally to a crown
     diameter drawn from ``form.crown`` (less 0.2 m: the leaves reach past the shoots), at most
-    :data:`MAX_SHRUB_REACH` from the base.
+    :data:`MAX_SHRUB_REACH` from the base, and stretched vertically to the height drawn from
+    ``form.height`` (the stems' drawn lengths and bends alone would leave it outside the form's range).
     """
     height = rng.uniform(*form.height)
     crown = rng.uniform(*form.crown)
@@ -95,16 +97,18 @@ def shrub_skeleton(form: ShrubForm, rng) -> tuple[list[tuple[np.ndarray, np.ndar
             sr = max(radii[i] * 0.5, 0.0015)
             pieces.append(_curve(base, sd, sl, sr, 0.0015, 3, np.deg2rad(15), rng, 0.1))
     reach = max(float(np.hypot(p[:, 0], p[:, 1]).max()) for p, _ in pieces)
+    top = max(float(p[:, 2].max()) for p, _ in pieces)
     target = min(crown / 2 - 0.1, MAX_SHRUB_REACH - 0.1)   # leaves add up to a leaf length and a clump beyond the shoots
     for p, _ in pieces:
         p[:, :2] *= target / reach
+        p[:, 2] *= height / top
     return pieces, stems
 
 
 def bush_model(seed: int, name: str, form: int = 0) -> Model:
     """A shrub of form ``SHRUB_FORMS[form]``: several branching stems (closed tubes) and leaves
     clumped at the shoot tips (one component, class bush)."""
-    rng = np.random.default_rng(seed)
+    rng = seeds.rng(seed, "bush")
     shape = SHRUB_FORMS[form]
     pieces, stems = shrub_skeleton(shape, rng)
     wood = [tube(p, r) for p, r in pieces]
@@ -142,7 +146,7 @@ def _hull(points: np.ndarray) -> manifold3d.Manifold:
 def rock_model(seed: int, name: str) -> Model:
     """An irregular boulder 0.3-1.2 m across: the union of two to four faceted convex lumps, a third
     of its height buried (closed)."""
-    rng = np.random.default_rng(seed)
+    rng = seeds.rng(seed, "rock")
     size = rng.uniform(0.3, 1.2)
     lumps = []
     for k in range(int(rng.integers(2, 5))):
@@ -162,7 +166,7 @@ def rock_model(seed: int, name: str) -> Model:
 def stump_model(seed: int, name: str) -> Model:
     """A cut stump 0.2-0.8 m tall, 0.2-0.7 m across, with a flared base, a sloping saw cut and three to
     five root buttresses running into the ground (closed parts; carries its union wood volume)."""
-    rng = np.random.default_rng(seed)
+    rng = seeds.rng(seed, "stump")
     r, h = rng.uniform(0.1, 0.35), rng.uniform(0.2, 0.8)
     z = np.linspace(-0.1, h, 6)
     radii = r * (1 + 0.3 * np.exp(-(z + 0.1) / 0.15))
@@ -188,7 +192,7 @@ def deadwood_model(seed: int, name: str, length: float = 4.0, radius: float = 0.
     most 0.1 m), knotty (radius varying along it) and snapped (blunt at the thin end), with 0-3 side
     branches (each at most 1.5 m long, 30-60° off the log: they reach 1.3 m sideways at most);
     carries its wood volume."""
-    rng = np.random.default_rng(seed)
+    rng = seeds.rng(seed, "deadwood")
     r = radius
     segments = max(int(length / 0.25), 4)
     pts, radii = _curve([-length / 2, 0, r * 0.8], [1.0, 0, 0], length, r, r * rng.uniform(0.45, 0.8), segments,

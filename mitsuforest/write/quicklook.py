@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 from PIL import Image
 
+from .. import seeds
 from ..classes import BUSH, DEADWOOD, GROUND, GROUND_VEGETATION, ROCK, STUMP, TREE_LEAVES, TREE_WOOD
 from .atomic import atomic_path
 
@@ -30,7 +31,7 @@ def instance_colours(instance: np.ndarray) -> np.ndarray:
 
 def instance_palette(largest: int) -> np.ndarray:
     """(largest + 1, 3) colours, the same for an id whatever ``largest`` is; id 0 grey."""
-    rng = np.random.default_rng(12345)
+    rng = seeds.rng(0, "instance-colours")
     palette = rng.integers(40, 230, (max(largest, 0) + 1, 3)).astype(np.uint8)
     palette[0] = 170
     return palette

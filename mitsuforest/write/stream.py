@@ -16,6 +16,7 @@ import os
 
 import numpy as np
 
+from .. import seeds
 from ..fields import POINT_DTYPE, pcd_dtype
 from ..threads import Workers, row_ranges, writer_threads
 from .atomic import naming_errors
@@ -68,7 +69,7 @@ class PointWriter:
         self.side = SideTile(self.area)
         self.counts = ReturnCounts(terrain, self.area)      # profile and return charts, realism table
         self._ground = ground_surface(terrain)              # every point's height_above_ground
-        rng = np.random.default_rng([scene.seed, 99])
+        rng = seeds.rng(scene.seed, "spacing-tiles")
         corner = [rng.uniform(0, max(s - SPACING_TILE, 0), 4) for s in self.area]
         self._tiles = np.column_stack(corner)
         self._tile_points = [[] for _ in self._tiles]

@@ -1,8 +1,8 @@
 """The numpy twins of the scan's Dr.Jit stages: the reference the tests check the device path against.
 
-Naming rule: a Dr.Jit module ``scan/X.py`` that has a numpy twin has it at ``scan/reference/X.py``,
+Naming rule: a Dr.Jit module ``scan/X.py`` that has a numpy twin has it at ``testing/reference/X.py``,
 with the same public names (``pulses.reaching_pulses``, ``pulses.reaches_box``, ``deflector.deflect``,
-``echoes.pulse_echoes``). Nothing here runs in a render.
+``echoes.pulse_echoes``). Nothing here runs in a render, and no pipeline stage imports it.
 """
 
 from __future__ import annotations
@@ -10,8 +10,8 @@ from __future__ import annotations
 import numpy as np
 
 from ...labels import label_hits
-from ..radiometry import received_power, reflectance_db
-from ..tracer import POINT_DTYPE
+from ...scan.radiometry import received_power, reflectance_db
+from ...scan.tracer import POINT_DTYPE
 from .echoes import pulse_echoes
 from .pulses import Pulses, reaching_pulses
 

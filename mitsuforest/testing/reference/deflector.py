@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..deflector import FOV_TOLERANCE
+from ...scan.deflector import FOV_TOLERANCE
 
 
 def wrap(angle):

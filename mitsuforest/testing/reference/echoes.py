@@ -50,7 +50,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..echoes import FWHM_PER_SIGMA
+from ...scan.echoes import FWHM_PER_SIGMA
 
 
 def waveform_maxima(ranges: np.ndarray, powers: np.ndarray, resolving: float, grid_step: float | None = None) -> int:

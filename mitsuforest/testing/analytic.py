@@ -18,9 +18,9 @@ import dataclasses
 
 from ..config import load_scene
 from ..plan import ModelSpec, PlacedObject, make_plan
-from ..scan.reference.pulses import Pulses
+from ..scene import build_scene
 from ..trees.models import Component, Model, Part
-from . import build_scene
+from .reference.pulses import Pulses
 
 
 def bare_scene_file(folder, sensor, variant: str = "auto", **sections) -> Path:
