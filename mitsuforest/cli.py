@@ -16,7 +16,8 @@ from pathlib import Path
 
 from . import __version__
 from .errors import UserError
-from .interrupts import InterruptedAfterCommit, Terminated, deferred_signals, in_main_thread, raise_terminated
+from .interrupts import (InterruptedAfterCommit, StoppedWithWorkKept, Terminated, deferred_signals, in_main_thread,
+                         raise_terminated)
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -129,6 +130,9 @@ def main(argv=None) -> int:
     except InterruptedAfterCommit as e:
         print(f"mitsuforest: {_stopped(e.terminated)} as the finished files were being moved "
               "into place; they are all there and complete.", file=sys.stderr)
+        return 143 if e.terminated else 130
+    except StoppedWithWorkKept as e:
+        print(f"mitsuforest: {_stopped(e.terminated)}; {e.kept}.", file=sys.stderr)
         return 143 if e.terminated else 130
     except KeyboardInterrupt as e:
         print(f"mitsuforest: {_stopped(isinstance(e, Terminated))}; no finished output was written (partial "
