@@ -9,7 +9,7 @@ import numpy as np
 import trimesh
 from PIL import Image
 
-from ..write.atomic import atomic_path, write_text
+from ..write.atomic import atomic_path, naming_errors, write_text
 from ..write.tables import csv_text
 from ..plan.types import ModelSpec
 from . import build_model
@@ -23,8 +23,10 @@ def write_gallery(archetypes, folder, progress=print, models=()) -> list[dict]:
     the archetypes, then the imported ``models`` (``forest.models`` entries), numbered as a render
     numbers them. With imported meshes, ``repairs.csv`` lists every wood part the repair changed.
 
-    Every model is built before anything is written, so a model that cannot be built leaves the folder
-    as it was; the files of an earlier gallery in ``folder`` are replaced, none left behind."""
+    Every model is built, then every file written into a staging folder and moved into place at the end,
+    so a model that cannot be built, a failing write (a full disk, named) or Ctrl-C leaves the folder as it
+    was; the files of an earlier gallery in ``folder`` are replaced, none left behind."""
+    from ..write import Staging
     specs = [ModelSpec("tree", 0, archetype=a) for a in archetypes] + [ModelSpec("tree", 0, source=m) for m in models]
     built = []
     for i, spec in enumerate(specs):
@@ -33,26 +35,28 @@ def write_gallery(archetypes, folder, progress=print, models=()) -> list[dict]:
         progress(f"{model.name}: {v.union:.4f} m3 wood (union), {model.triangles:,} triangles"
                  + (f", {v.repaired} parts repaired, {v.skipped} skipped" if spec.source else ""))
         built.append((model, spec))
-    folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
-    for old in folder.iterdir():
-        if GALLERY_FILE.fullmatch(old.name) and old.is_file():
-            old.unlink()
+    staging = Staging(folder, "trees")
     rows = [_row(model, spec.archetype) for model, spec in built]
+    earlier = [p.name for p in staging.folder.iterdir() if GALLERY_FILE.fullmatch(p.name) and p.is_file()]
+    staging.commit_or_discard(lambda: _write_files(staging.path, built, rows), earlier)
+    return rows
+
+
+def _write_files(folder: Path, built, rows) -> None:
     repairs = [{"model": model.name, "source": model.meta["source"], **r}
                for model, _ in built for r in model.meta.get("repair", [])]
     for model, _ in built:
         for part in model.parts:
-            with atomic_path(folder / f"{model.name}_{part.name}.ply") as tmp:
+            path = folder / f"{model.name}_{part.name}.ply"
+            with atomic_path(path) as tmp, naming_errors(path):
                 trimesh.Trimesh(part.vertices, part.faces, process=False).export(tmp, file_type="ply")
     header = list(rows[0])
     write_text(folder / "volumes.csv", csv_text(header, [[_cell(r[k]) for k in header] for r in rows]))
     if repairs:
         write_text(folder / "repairs.csv", csv_text(list(repairs[0]), [[_cell(r[k]) for k in repairs[0]]
                                                                          for r in repairs]))
-    with atomic_path(folder / "trees.png") as tmp:
+    with atomic_path(folder / "trees.png") as tmp, naming_errors(folder / "trees.png"):
         _side_by_side([_side_picture(model) for model, _ in built]).save(tmp, format="PNG")
-    return rows
 
 
 def _row(model, archetype) -> dict:
