@@ -7,7 +7,9 @@ run inside :func:`deferred_signals`, which notes a signal and acts on it when th
 
 from __future__ import annotations
 
+import os
 import signal
+import sys
 import threading
 from contextlib import contextmanager
 
@@ -36,6 +38,23 @@ class StoppedWithWorkKept(KeyboardInterrupt):
 def raise_terminated(signum, frame):
     """A SIGTERM handler."""
     raise Terminated()
+
+
+def quiet_signals_until_exit() -> None:
+    """Once a command has ended: a Ctrl-C or SIGTERM while the interpreter shuts down (joining threads,
+    running exit handlers) ends the process at once with one line and the usual code (130, 143), not a
+    traceback or a silent kill."""
+    def leave(signum, frame):
+        name = "stopped (SIGTERM)" if signum == signal.SIGTERM else "interrupted"
+        for stream in (sys.stdout, sys.stderr):
+            try:
+                stream.flush()
+            except (OSError, ValueError):   # a closed pipe or stream: nothing more to say there
+                pass
+        os.write(2, f"mitsuforest: {name} while exiting, after the command had ended\n".encode())
+        os._exit(128 + signum)
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, leave)
 
 
 def in_main_thread() -> bool:
