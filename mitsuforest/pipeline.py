@@ -95,7 +95,7 @@ def render(scene, *, output_dir=None, seed=None, variant=None, overwrite=False, 
                                                           keep_points, staging, overwrite)
     log(f"scan: {result.pulses_cast:,} pulses cast in {result.seconds:.1f} s "
         f"({result.pulses_cast / max(result.seconds, 1e-9):,.0f} pulses/s), {manifest['points']:,} points, "
-        f"{manifest['density_per_m2']:.0f} points/m2")
+        f"{manifest['density_per_m2']:.0f} points/m2 over the plot ({scene.area.size[0]:g} x {scene.area.size[1]:g} m)")
     return RenderResult(scene, plan, manifest, writer.points, files)
 
 

@@ -52,6 +52,8 @@ def run_dataset(dataset, output_dir=None, workers: int | None = None, scheduler:
     if threads is not None and threads < 1:
         raise UserError(f"--threads: must be >= 1, got {threads}")
     splits = files.assign_splits([p.name for p in dataset.plots], dataset.splits, dataset.seed)
+    for note in _empty_splits(splits, dataset):
+        log(f"note: {note}")
     records = []
     client, cluster, default_threads = _connect(scheduler, workers)
     threads = threads or default_threads
@@ -81,6 +83,14 @@ def run_dataset(dataset, output_dir=None, workers: int | None = None, scheduler:
                                 f"{first[1]}); the index lists the {done} finished. Run the same command again "
                                 "to retry them")
     return manifest
+
+
+def _empty_splits(splits: dict, dataset: Dataset) -> list[str]:
+    """Why a split with a share holds no plot (too few plots for it), one sentence per split."""
+    n = len(dataset.plots)
+    return [f"split '{key}' ({ratio:.1%}) holds none of the {n} plots: {n} plots at {ratio:.1%} make "
+            f"{n * ratio:.2f} of one (each block of {files.SPLIT_BLOCK} plots gets its share, rounded)"
+            for key, ratio in dataset.splits.items() if ratio > 0 and not splits[key]]
 
 
 class DatasetIncomplete(UserError):
