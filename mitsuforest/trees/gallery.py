@@ -7,7 +7,6 @@ from pathlib import Path
 
 import numpy as np
 import trimesh
-from PIL import Image
 
 from ..write.atomic import atomic_path, naming_errors, write_text
 from ..write.tables import csv_text
@@ -15,6 +14,7 @@ from ..plan.types import ModelSpec
 from . import build_model
 
 
+PIXELS_PER_M = 14    # trees.png's scale
 GALLERY_FILE = re.compile(r"tree\d{2,}_(wood|leaves)\.ply|volumes\.csv|repairs\.csv|trees\.png")
 
 
@@ -55,8 +55,10 @@ def _write_files(folder: Path, built, rows) -> None:
     if repairs:
         write_text(folder / "repairs.csv", csv_text(list(repairs[0]), [[_cell(r[k]) for k in repairs[0]]
                                                                          for r in repairs]))
+    names = [model.name + (f"\n{Path(model.meta.get('source', '')).name}" if spec.source else "") for model, spec in built]
+    figure = gallery_figure([_side_picture(model) for model, _ in built], names)
     with atomic_path(folder / "trees.png") as tmp, naming_errors(folder / "trees.png"):
-        _side_by_side([_side_picture(model) for model, _ in built]).save(tmp, format="PNG")
+        figure.savefig(tmp, format="png", dpi=figure.dpi)
 
 
 def _row(model, archetype) -> dict:
@@ -74,7 +76,7 @@ def _cell(x):
     return x
 
 
-def _side_picture(model, pixels_per_m=14, samples=250_000):
+def _side_picture(model, pixels_per_m=PIXELS_PER_M, samples=250_000):
     """Surface samples of wood (brown) and leaves (green), seen from the side, as an RGB image."""
     rng = np.random.default_rng(0)
     layers = []
@@ -93,12 +95,24 @@ def _side_picture(model, pixels_per_m=14, samples=250_000):
     return img
 
 
-def _side_by_side(images, gap=10):
+def gallery_figure(images, names, pixels_per_m=PIXELS_PER_M, gap=10):
+    """The trees' side pictures (:func:`_side_picture`) side by side on their bases, each named under it,
+    with a height axis in metres: a matplotlib :class:`~matplotlib.figure.Figure` at one pixel per
+    picture pixel."""
+    from matplotlib.figure import Figure
     h = max(im.shape[0] for im in images)
     w = sum(im.shape[1] for im in images) + gap * (len(images) + 1)
     canvas = np.full((h + 2 * gap, w, 3), 255, np.uint8)
-    x = gap
+    x, centres = gap, []
     for im in images:
         canvas[gap + h - im.shape[0]:gap + h, x:x + im.shape[1]] = im
+        centres.append((x + im.shape[1] / 2) / pixels_per_m)
         x += im.shape[1] + gap
-    return Image.fromarray(canvas)
+    fig = Figure(figsize=(w / 100 + 1.0, (h + 2 * gap) / 100 + 1.0), dpi=100, layout="constrained")
+    ax = fig.add_subplot()
+    ax.imshow(canvas, extent=(0, w / pixels_per_m, -gap / pixels_per_m, (h + gap) / pixels_per_m),
+              interpolation="nearest")
+    ax.set_xticks(centres, names, fontsize=8)
+    ax.set(ylabel="height above the tree's base (m)",
+           title=f"{len(images)} trees seen from the side: wood brown, leaves green")
+    return fig
