@@ -52,10 +52,10 @@ def run_dataset(dataset, output_dir=None, workers: int | None = None, scheduler:
     if threads is not None and threads < 1:
         raise UserError(f"--threads: must be >= 1, got {threads}")
     splits = files.assign_splits([p.name for p in dataset.plots], dataset.splits, dataset.seed)
-    for note in _empty_splits(splits, dataset):
-        log(f"note: {note}")
     records = []
     client, cluster, default_threads = _connect(scheduler, workers)
+    for note in _empty_splits(splits, dataset):
+        log(f"note: {note}")
     threads = threads or default_threads
     start = time.perf_counter()
     try:
