@@ -72,8 +72,8 @@ def threaded_cluster(monkeypatch):
 def test_ctrl_c_indexes_every_plot_with_a_record_and_says_how_many_are_kept(tmp_path, capfd, monkeypatch,
                                                                                threaded_cluster):
     """Ctrl-C as the client takes the second plot's result: both plots have their records (made by a
-    stand-in task), so both are kept and indexed (the index used to miss the one the client had not taken), and the message says
-    so in one line; the third plot never finished."""
+    stand-in task), so both are kept and indexed (the index used to miss the one the client had not
+    taken), and the message says so in one line; the third plot never finished."""
     from mitsuforest.cli import main
     from mitsuforest.dataset import runner, tasks
     from mitsuforest.dataset.files import valid_record

@@ -50,7 +50,8 @@ def test_a_missing_relative_path_to_a_builtin_sensor_says_to_name_it(tmp_path, c
     path = _scene(tmp_path, "../sensors/riegl_minivux-1uav.yaml")
     assert main(["plan", str(path), "-o", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert err == [f"mitsuforest: {path}: sensor: file not found: {tmp_path.parent / 'sensors'}/riegl_minivux-1uav.yaml "
+    missing = tmp_path.parent / "sensors" / "riegl_minivux-1uav.yaml"
+    assert err == [f"mitsuforest: {path}: sensor: file not found: {missing} "
                    "(relative paths are read from the scene file's folder); the built-in sensor of that name is "
                    "named without a path: sensor: riegl_minivux-1uav"]
 

@@ -55,7 +55,8 @@ def _write_files(folder: Path, built, rows) -> None:
     if repairs:
         write_text(folder / "repairs.csv", csv_text(list(repairs[0]), [[_cell(r[k]) for k in repairs[0]]
                                                                          for r in repairs]))
-    names = [model.name + (f"\n{Path(model.meta.get('source', '')).name}" if spec.source else "") for model, spec in built]
+    names = [model.name + (f"\n{Path(model.meta.get('source', '')).name}" if spec.source else "")
+             for model, spec in built]
     figure = gallery_figure([_side_picture(model) for model, _ in built], names)
     with atomic_path(folder / "trees.png") as tmp, naming_errors(folder / "trees.png"):
         figure.savefig(tmp, format="png", dpi=figure.dpi)

@@ -64,7 +64,8 @@ def top_figure(top, tile=None, classes_present=()):
         ax.add_patch(Rectangle((tile.x0, tile.y0), tile.tile, tile.tile, fill=False, lw=1.2, ec="black", ls="--"))
         ax.annotate(f"{tile.tile:g} m tile", (tile.x0, tile.y0 + tile.tile), xytext=(2, 3),
                     textcoords="offset points", fontsize=8)
-    ax.set(xlabel="x (m, local frame)", ylabel="y (m)", title="Top view by class (highest point per pixel, gaps < 1 m filled)")
+    ax.set(xlabel="x (m, local frame)", ylabel="y (m)",
+           title="Top view by class (highest point per pixel, gaps < 1 m filled)")
     _class_legend(ax, classes_present, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
     return fig
 
