@@ -3,7 +3,8 @@
 User errors (bad files, bad values, refused overwrites, a busy or unwritable output folder) print
 one line ``mitsuforest: ...`` and exit with code 2, without a traceback. A write that fails mid-run
 (a full disk, say) prints ``mitsuforest: PATH: reason`` and exits with 1. Ctrl-C exits with 130 and
-SIGTERM with 143; neither leaves finished-looking output.
+SIGTERM with 143; neither leaves finished-looking output. Run as a program, a signal while Python shuts
+down after the command prints one line and exits with the same codes.
 """
 
 from __future__ import annotations
@@ -16,7 +17,8 @@ from pathlib import Path
 
 from . import __version__
 from .errors import UserError
-from .interrupts import InterruptedAfterCommit, Terminated, deferred_signals, in_main_thread, raise_terminated
+from .interrupts import (InterruptedAfterCommit, StoppedWithWorkKept, Terminated, deferred_signals, in_main_thread,
+                         quiet_signals_until_exit, raise_terminated)
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -130,6 +132,9 @@ def main(argv=None) -> int:
         print(f"mitsuforest: {_stopped(e.terminated)} as the finished files were being moved "
               "into place; they are all there and complete.", file=sys.stderr)
         return 143 if e.terminated else 130
+    except StoppedWithWorkKept as e:
+        print(f"mitsuforest: {_stopped(e.terminated)}; {e.kept}.", file=sys.stderr)
+        return 143 if e.terminated else 130
     except KeyboardInterrupt as e:
         print(f"mitsuforest: {_stopped(isinstance(e, Terminated))}; no finished output was written (partial "
               "files removed). Run the same command again to redo it.", file=sys.stderr)
@@ -143,7 +148,9 @@ def main(argv=None) -> int:
               file=sys.stderr)
         return 1
     finally:
-        if previous is not None:
+        if argv is None and in_main_thread():   # the program itself: signals until the process ends
+            quiet_signals_until_exit()
+        elif previous is not None:
             signal.signal(signal.SIGTERM, previous)
 
 

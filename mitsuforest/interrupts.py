@@ -7,7 +7,9 @@ run inside :func:`deferred_signals`, which notes a signal and acts on it when th
 
 from __future__ import annotations
 
+import os
 import signal
+import sys
 import threading
 from contextlib import contextmanager
 
@@ -24,9 +26,35 @@ class InterruptedAfterCommit(KeyboardInterrupt):
         self.terminated = terminated   # SIGTERM rather than SIGINT
 
 
+class StoppedWithWorkKept(KeyboardInterrupt):
+    """A signal that stopped a command whose finished work is kept (a dataset's finished plots):
+    ``kept`` says what, in words."""
+
+    def __init__(self, kept: str, terminated: bool):
+        super().__init__(kept)
+        self.kept, self.terminated = kept, terminated
+
+
 def raise_terminated(signum, frame):
     """A SIGTERM handler."""
     raise Terminated()
+
+
+def quiet_signals_until_exit() -> None:
+    """Once a command has ended: a Ctrl-C or SIGTERM while the interpreter shuts down (joining threads,
+    running exit handlers) ends the process at once with one line and the usual code (130, 143), not a
+    traceback or a silent kill."""
+    def leave(signum, frame):
+        name = "stopped (SIGTERM)" if signum == signal.SIGTERM else "interrupted"
+        for stream in (sys.stdout, sys.stderr):
+            try:
+                stream.flush()
+            except (OSError, ValueError):   # a closed pipe or stream: nothing more to say there
+                pass
+        os.write(2, f"mitsuforest: {name} while exiting, after the command had ended\n".encode())
+        os._exit(128 + signum)
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, leave)
 
 
 def in_main_thread() -> bool:
@@ -34,9 +62,9 @@ def in_main_thread() -> bool:
 
 
 @contextmanager
-def deferred_signals():
+def deferred_signals(ignore: bool = False):
     """Hold SIGINT and SIGTERM while a block runs, then act on them (raise :class:`KeyboardInterrupt`
-    or :class:`Terminated`).
+    or :class:`Terminated`), or with ``ignore`` drop them (a block that cleans up after one).
 
     The signals are only noted during the block (Python runs handlers in the main thread, whichever
     thread the OS delivers them to); off the main thread the block runs as it is.
@@ -52,5 +80,13 @@ def deferred_signals():
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
-    if pending:
+    if pending and not ignore:
         raise Terminated() if signal.SIGTERM in pending else KeyboardInterrupt()
+
+
+def dask_setup(worker) -> None:
+    """Dask's preload hook (``preload=["mitsuforest.interrupts"]``): a worker process of the embedded
+    LocalCluster ignores Ctrl-C, which the terminal sends to the whole process group, and leaves it to
+    the client, which stops the workers and reports once (no worker tracebacks)."""
+    if in_main_thread():
+        signal.signal(signal.SIGINT, signal.SIG_IGN)

@@ -80,7 +80,7 @@ def render(scene, *, output_dir=None, seed=None, variant=None, overwrite=False, 
     timings = Timings()
     plan = plan or make_plan(scene)
     timings.lap("plan")
-    log(f"plan: {len(plan.trees)} trees, canopy cover {plan.canopy_cover:.1%}, {len(plan.objects)} objects, "
+    log(f"plan: {placed_summary(plan)}, canopy cover {plan.canopy_cover:.1%}, {len(plan.objects)} objects, "
         f"{len(plan.legs)} legs")
     models = models or build_models(plan)
     timings.lap("trees")
@@ -100,8 +100,16 @@ def render(scene, *, output_dir=None, seed=None, variant=None, overwrite=False, 
                                                           keep_points, staging, overwrite)
     log(f"scan: {result.pulses_cast:,} pulses cast in {result.seconds:.1f} s "
         f"({result.pulses_cast / max(result.seconds, 1e-9):,.0f} pulses/s), {manifest['points']:,} points, "
-        f"{manifest['density_per_m2']:.0f} points/m2")
+        f"{manifest['density_per_m2']:.0f} points/m2 over the plot ({scene.area.size[0]:g} x {scene.area.size[1]:g} m)")
     return RenderResult(scene, plan, manifest, writer.points, files)
+
+
+def placed_summary(plan) -> str:
+    """``12 trees``; for a HELIOS++ survey, whose objects are its parts and none a tree, ``40 HELIOS++ parts``."""
+    parts = sum(o.kind == "helios_part" for o in plan.objects)
+    if parts and not plan.trees:
+        return f"{parts} HELIOS++ part{'s' * (parts != 1)}"
+    return f"{len(plan.trees)} trees"
 
 
 class Timings(dict):

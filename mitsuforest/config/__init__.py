@@ -186,15 +186,37 @@ def _mesh_leaves(value, mesh, ctx: Context, key: str):
     return FilePath(REQUIRED).parse(value, ctx, key)
 
 
+BUILTIN_SENSORS = Path(__file__).resolve().parent.parent / "sensors"   # the package's sensors/*.yaml
+
+
+def builtin_sensors() -> list[str]:
+    """The names of the sensors the package ships (``sensor: NAME`` in a scene file)."""
+    return sorted(p.stem for p in BUILTIN_SENSORS.glob("*.yaml"))
+
+
 def _sensor(value, ctx: Context, key: str):
     if isinstance(value, Sensor):
         return _checked_sensor_object(value, ctx, key)
     if isinstance(value, str):
-        path = Path(FilePath(REQUIRED).parse(value, ctx, key))
-        return load_sensor(path)
+        return load_sensor(_sensor_path(value, ctx, key))
     if isinstance(value, dict):
         return _sensor_from_mapping(value, ctx, key + ".")
-    ctx.fail(key, "must be a sensor file path or a mapping")
+    ctx.fail(key, "must be a built-in sensor's name, a sensor file path or a mapping")
+
+
+def _sensor_path(value: str, ctx: Context, key: str) -> Path:
+    """A built-in sensor by its name (``livox_mid-70``), or a sensor file's path relative to the scene file."""
+    names = builtin_sensors()
+    if "/" not in value and "\\" not in value and not value.endswith((".yaml", ".yml")):
+        if value not in names:
+            ctx.fail(key, f"unknown built-in sensor {value!r}; built-in sensors: {', '.join(names)} "
+                          "(or give a sensor file's path)")
+        return BUILTIN_SENSORS / f"{value}.yaml"
+    path = (ctx.folder / Path(value).expanduser()).resolve()
+    if not path.exists() and Path(value).stem in names:
+        ctx.fail(key, f"file not found: {path} (relative paths are read from the scene file's folder); the "
+                      f"built-in sensor of that name is named without a path: sensor: {Path(value).stem}")
+    return Path(FilePath(REQUIRED).parse(value, ctx, key))
 
 
 def _sensor_from_mapping(data, ctx: Context, prefix: str, file: str | None = None) -> Sensor:

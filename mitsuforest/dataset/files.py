@@ -261,16 +261,19 @@ def assign_splits(names: list[str], ratios: dict, seed: int) -> dict:
     Plots are taken in blocks of :data:`SPLIT_BLOCK`. Each block's quota per split is what brings the
     running counts to the ratios times the plots so far (:func:`split_quotas`), so after every whole
     block each split is within one plot of its ratio. Inside a block the j-th of a split's q places
-    falls at ``(j + u) / q`` of the block, u uniform from ``seeds.rng(seed, "splits", block)``: each split is
-    spread evenly through the block, so a partial block (a dataset of 3 plots) stays close to the ratios too,
-    yet no split follows a period of the plot list (a grid's combinations repeat along it)."""
+    falls at ``(j + u) / q`` of the block, u uniform from ``seeds.rng(seed, "splits", block)``: each split
+    is spread evenly through the block, so a partial block (a dataset of 3 plots) stays close to the ratios too,
+    yet no split follows a period of the plot list (a grid's combinations repeat along it). Each split's
+    first place (j = 0) comes before all second places, so the block's first plots hold one of every
+    split that has a place in it: 8 plots at 0.75 / 0.125 / 0.125 give 6 / 1 / 1 (a block of 10 quotas
+    8 / 1 / 1, whose last places would otherwise fall past the eighth plot)."""
     out = {key: [] for key in ratios}
     keys = list(ratios)
     for block, quota in enumerate(split_quotas(ratios, -(-len(names) // SPLIT_BLOCK))):
         split = np.repeat(np.arange(len(keys)), quota)
         place = np.concatenate([np.arange(q) for q in quota])
         u = seeds.rng(seed, "splits", block).random(len(split))
-        order = split[np.argsort((place + u) / quota[split], kind="stable")]
+        order = split[np.lexsort(((place + u) / quota[split], place > 0))]
         for name, k in zip(names[block * SPLIT_BLOCK:(block + 1) * SPLIT_BLOCK], order):
             out[keys[k]].append(name)
     return {key: sorted(plots) for key, plots in out.items()}

@@ -17,6 +17,7 @@ import time
 from pathlib import Path
 
 from ..errors import UserError
+from ..interrupts import StoppedWithWorkKept, Terminated, deferred_signals
 from ..write import check_output_folder
 from . import files, tasks
 from .spec import Dataset, load_dataset
@@ -50,20 +51,24 @@ def run_dataset(dataset, output_dir=None, workers: int | None = None, scheduler:
                         "workers are used")
     if threads is not None and threads < 1:
         raise UserError(f"--threads: must be >= 1, got {threads}")
+    splits = files.assign_splits([p.name for p in dataset.plots], dataset.splits, dataset.seed)
+    records = []
     client, cluster, default_threads = _connect(scheduler, workers)
+    for note in _empty_splits(splits, dataset):
+        log(f"note: {note}")
     threads = threads or default_threads
     start = time.perf_counter()
     try:
         for plot in dataset.plots:
             scene = plot.scene.with_({"output.dir": str(files.plot_folder(root, plot.name))})
             files.write_scene_file(files.scene_file(root, plot.name), scene)
-        splits = files.assign_splits([p.name for p in dataset.plots], dataset.splits, dataset.seed)
         files.write_json(root / "splits.json", splits)
-        records, failures = _run(client, dataset, str(root), threads, splits, progress)
+        failures = _run(client, dataset, str(root), threads, splits, progress, records)
+    except KeyboardInterrupt as e:
+        _stop(client, cluster)
+        raise _interrupted(root, dataset, records, splits, isinstance(e, Terminated)) from None
     finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()
+        _stop(client, cluster)
     manifest = _manifest(dataset, records, failures, time.perf_counter() - start, scheduler,
                          workers if scheduler is None else None)
     files.write_index(root, records, dataset.varied, splits)
@@ -80,10 +85,40 @@ def run_dataset(dataset, output_dir=None, workers: int | None = None, scheduler:
     return manifest
 
 
+def _empty_splits(splits: dict, dataset: Dataset) -> list[str]:
+    """Why a split with a share holds no plot (too few plots for it), one sentence per split."""
+    n = len(dataset.plots)
+    return [f"split '{key}' ({ratio:.1%}) holds none of the {n} plots: {n} plots at {ratio:.1%} make "
+            f"{n * ratio:.2f} of one (each block of {files.SPLIT_BLOCK} plots gets its share, rounded)"
+            for key, ratio in dataset.splits.items() if ratio > 0 and not splits[key]]
+
+
 class DatasetIncomplete(UserError):
     """Some plots failed: the others are finished and indexed."""
 
     exit_code = 1
+
+
+def _stop(client, cluster) -> None:
+    """Close the client and the embedded cluster (again: a no-op), with Ctrl-C and SIGTERM held."""
+    with deferred_signals(ignore=True):
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+def _interrupted(root: Path, dataset: Dataset, records: list, splits, terminated: bool) -> StoppedWithWorkKept:
+    """Index every plot finished so far, those whose record came after the last result the client took
+    included, and say how many are kept."""
+    with deferred_signals(ignore=True):
+        taken = {r["plot"] for r in records}
+        late = [files.valid_record(root, p.name) for p in dataset.plots if p.name not in taken]
+        records = records + [_with_values(r, dataset) for r in late if r is not None]
+        if (root / "splits.json").exists():      # else stopped before the dataset's first file
+            files.write_index(root, records, dataset.varied, splits)
+    kept = (f"{len(records)} of {len(dataset.plots)} plots finished and kept, listed in {root / 'index.csv'}"
+            if records else f"none of the {len(dataset.plots)} plots finished")
+    return StoppedWithWorkKept(f"{kept}. Run the same command again to render the rest", terminated)
 
 
 def _connect(scheduler: str | None, workers: int | None):
@@ -98,13 +133,15 @@ def _connect(scheduler: str | None, workers: int | None):
     cores = os.cpu_count() or 1
     workers = workers or cores
     cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
-                           silence_logs=logging.ERROR)
+                           scheduler_kwargs={"dashboard_address": ":0"},   # no warning when port 8787 is taken
+                           silence_logs=logging.CRITICAL,   # a failed task is the client's to report, in one line
+                           preload=["mitsuforest.interrupts"])   # workers leave Ctrl-C to the client
     return Client(cluster), cluster, max(1, cores // workers)
 
 
-def _run(client, dataset: Dataset, root: str, threads, splits, progress: bool):
-    """Submit every plot and follow them to the end; returns (records, {plot: failure})."""
-    records = []
+def _run(client, dataset: Dataset, root: str, threads, splits, progress: bool, records: list) -> dict:
+    """Submit every plot and follow them to the end, appending their records to ``records``; returns
+    ``{plot: failure}``."""
     if dataset.legs_per_task:
         futures, kept = _submit_split_plots(client, dataset, root, threads)
         records += [_with_values({**r, "skipped": True}, dataset) for r in kept]
@@ -113,10 +150,9 @@ def _run(client, dataset: Dataset, root: str, threads, splits, progress: bool):
     bars = _Bars(progress, len(dataset.plots), sum(_pulses(p.scene) for p in dataset.plots))
     bars.plot(len(records), sum(r["pulses"] for r in records))
     try:
-        failures = _follow(futures, records, dataset, root, splits, bars)
+        return _follow(futures, records, dataset, root, splits, bars)
     finally:
         bars.close()
-    return records, failures
 
 
 def dataset_token(dataset: Dataset, root: str) -> str:

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import UserError
+from ..interrupts import InterruptedAfterCommit, Terminated, deferred_signals
 
 from .atomic import TMP_MARK, fsync_file, fsync_folder, owner_is_gone, owner_tag, write_json, write_text
 from .las import write_las
@@ -147,19 +148,20 @@ class Staging:
         return self.path / (self.name + suffix)
 
     def sync(self) -> None:
-        """Flush every staged file to disk (the slow part of :meth:`commit`, which may come first, where a
-        signal can still stop it; the files are then flushed again at no cost)."""
-        for p in self.path.iterdir():
-            fsync_file(p)
+        """Flush every staged file (and folder) to disk (the slow part of :meth:`commit`, which may come
+        first, where a signal can still stop it; the files are then flushed again at no cost)."""
+        for p in self.path.rglob("*"):
+            fsync_folder(p) if p.is_dir() else fsync_file(p)
 
-    def commit(self) -> list[Path]:
-        """Remove the previous render's files, then move the new ones in, the manifest last. Each file
-        is flushed to disk before its rename, and the folder before the manifest's rename and after it,
-        so a crash of the machine never leaves a renamed file without its content, nor the manifest
-        without the files it lists."""
+    def commit(self, replaced: list[str] | None = None) -> list[Path]:
+        """Remove the previous render's files (or the files and folders named in ``replaced``), then move
+        the new ones in, the manifest last. Each file is flushed to disk before its rename, and the folder
+        before the manifest's rename and after it, so a crash of the machine never leaves a renamed file
+        without its content, nor the manifest without the files it lists."""
         self.sync()
-        for old in existing_outputs(self.folder, self.name):
-            (self.folder / old).unlink()
+        for old in existing_outputs(self.folder, self.name) if replaced is None else replaced:
+            old = self.folder / old
+            shutil.rmtree(old) if old.is_dir() and not old.is_symlink() else old.unlink(missing_ok=True)
         staged = sorted(self.path.iterdir(), key=lambda p: p.name.endswith("_manifest.json"))
         moved = []
         for p in staged:
@@ -181,9 +183,28 @@ class Staging:
         name = Path(error.filename) if error.filename else None
         if name is None:
             name = self.folder
-        elif name.parent == self.path:
-            name = self.folder / name.name.split(TMP_MARK)[0]
+        elif name.is_relative_to(self.path):
+            name = self.folder / name.relative_to(self.path)
+            name = name.with_name(name.name.split(TMP_MARK)[0])
         return OSError(error.errno, error.strerror or str(error), str(name))
+
+    def commit_or_discard(self, write, replaced: list[str]) -> list[Path]:
+        """Run ``write()`` (which fills :attr:`path`), then :meth:`commit` with Ctrl-C and SIGTERM held:
+        on any failure or signal before, the staging folder is removed and nothing in :attr:`folder`
+        changes (an :class:`OSError` then names the file it would have become)."""
+        try:
+            write()
+            self.sync()
+            try:
+                with deferred_signals():     # never half the files in place
+                    return self.commit(replaced)
+            except KeyboardInterrupt as e:
+                raise InterruptedAfterCommit(isinstance(e, Terminated)) from None
+        except BaseException as e:
+            self.discard()
+            if isinstance(e, OSError):
+                raise self.public_error(e) from e
+            raise
 
 
 def write_render_outputs(staging: Staging, *, scene, plan, models, writer) -> None:

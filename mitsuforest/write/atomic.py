@@ -92,7 +92,7 @@ def fsync_folder(path) -> None:
 
 
 def write_text(path, text: str) -> None:
-    with atomic_path(path) as tmp:
+    with atomic_path(path) as tmp, naming_errors(path):
         tmp.write_text(text)
 
 

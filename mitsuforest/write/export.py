@@ -30,20 +30,45 @@ import trimesh
 from ..classes import CLASS_NAMES, GROUND
 from ..helios.documents import (PartFile, helios_path, materials_mtl, platform_xml, scanner_notes, scanner_xml,
                                 scene_xml, survey_xml)
-from .atomic import atomic_path, write_text
+from . import Staging
+from .atomic import atomic_path, naming_errors, write_text
 from .tables import component_treeid, csv_text
 
 MATERIALS = "materials.mtl"
 
 
 def export_scene(scene, plan, models: dict, folder, log=print) -> list[Path]:
-    """Write the meshes, tables and HELIOS++ documents of a planned scene into ``folder``."""
+    """Write the meshes, tables and HELIOS++ documents of a planned scene into ``folder``.
+
+    Everything is written into a staging folder in ``folder`` and moved into place at the end (the
+    meshes' folder replacing an earlier export's): a failing write (a full disk, named in the error) or
+    Ctrl-C leaves ``folder`` as it was."""
     folder = Path(folder).absolute()
     helios_path(folder / f"{scene.name}_helios_scene.xml")       # refusals first: nothing half-written
     scanner = scanner_xml(scene.sensor, scene.pulse_frequency)
+    staging = Staging(folder, f"{scene.name}_export")
+    done = {}
+    staging.commit_or_discard(lambda: done.update(_write_export(scene, plan, models, scanner, folder, staging.path)),
+                              [f"{scene.name}_models"])
+    log(f"exported {len(plan.objects)} objects of {done['models']} models as {done['parts']} HELIOS++ parts to "
+        f"{folder}; fly them with: helios++ {folder / f'{scene.name}_helios_survey.xml'}")
+    for note in scanner_notes(scene.sensor):
+        log(f"note: {note}")
+    if unexported := _unexported_platform(scene):
+        log(f"note: the HELIOS++ survey flies level straight legs between each leg's ends; {unexported} "
+            "not exported")
+    return done["written"]
+
+
+def _write_export(scene, plan, models: dict, scanner: str, folder: Path, stage: Path) -> dict:
+    """Write the export's files under ``stage`` as they will lie in ``folder`` (the documents name their
+    final paths); returns their final paths (``written``) and the numbers of ``models`` and ``parts``."""
+    def at(path: Path) -> Path:
+        return stage / path.relative_to(folder)
+
     meshes = folder / f"{scene.name}_models"
-    meshes.mkdir(parents=True, exist_ok=True)
-    write_text(meshes / MATERIALS, materials_mtl(scene.sensor.wavelength))
+    at(meshes).mkdir()
+    write_text(at(meshes / MATERIALS), materials_mtl(scene.sensor.wavelength))
     written = [meshes / MATERIALS]
     files = {}   # (model, component) -> OBJ path
     for name in sorted({o.model for o in plan.objects}):
@@ -51,10 +76,10 @@ def export_scene(scene, plan, models: dict, folder, log=print) -> list[Path]:
         for k, (vertices, faces) in component_meshes(model).items():
             comp = model.components[k]
             files[name, k] = meshes / f"{name}_c{k:03d}_{comp.kind}.obj"
-            write_obj(files[name, k], vertices, faces, CLASS_NAMES[comp.classification])
+            write_obj(at(files[name, k]), vertices, faces, CLASS_NAMES[comp.classification])
             written.append(files[name, k])
     ground = meshes / "ground.obj"
-    write_obj(ground, *plan.terrain.mesh(), CLASS_NAMES[GROUND])
+    write_obj(at(ground), *plan.terrain.mesh(), CLASS_NAMES[GROUND])
     written.append(ground)
     parts, rows = _parts(plan, models, files, ground)
     names = {k: folder / f"{scene.name}_helios_{k}.xml" for k in ("scene", "survey", "platform", "scanner")}
@@ -65,19 +90,14 @@ def export_scene(scene, plan, models: dict, folder, log=print) -> list[Path]:
         "scanner": scanner,
     }
     offset = scene.origin.offset
-    written.append(_write_table(folder / f"{scene.name}_transforms.csv", *_transform_rows(plan), offset))
-    written.append(_write_table(folder / f"{scene.name}_helios_parts.csv", PART_HEADER, rows, offset))
+    for name, (header, table) in {"transforms": _transform_rows(plan), "helios_parts": (PART_HEADER, rows)}.items():
+        path = folder / f"{scene.name}_{name}.csv"
+        _write_table(at(path), header, table, offset)
+        written.append(path)
     for key, text in texts.items():
-        write_text(names[key], text)
+        write_text(at(names[key]), text)
         written.append(names[key])
-    log(f"exported {len(plan.objects)} objects of {len({m for m, _ in files})} models as "
-        f"{len(parts)} HELIOS++ parts to {folder}; fly them with: helios++ {names['survey']}")
-    for note in scanner_notes(scene.sensor):
-        log(f"note: {note}")
-    if unexported := _unexported_platform(scene):
-        log(f"note: the HELIOS++ survey flies level straight legs between each leg's ends; {unexported} "
-            "not exported")
-    return written
+    return {"written": written, "models": len({m for m, _ in files}), "parts": len(parts)}
 
 
 def _unexported_platform(scene) -> str:
@@ -113,7 +133,7 @@ def write_obj(path: Path, vertices, faces, material: str) -> None:
     text = trimesh.exchange.obj.export_obj(trimesh.Trimesh(vertices, faces, process=False), include_normals=False,
                                            include_texture=False, include_color=False, digits=9)
     body = "\n".join(line for line in text.splitlines() if not line.startswith("#"))
-    with atomic_path(path) as tmp:
+    with atomic_path(path) as tmp, naming_errors(path):
         tmp.write_text(f"mtllib {MATERIALS}\nusemtl {material}\n{body}\n")
 
 

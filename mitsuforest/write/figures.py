@@ -15,6 +15,7 @@ from .quicklook import CLASS_COLOURS, WOODY_CLASSES, front_view, instance_palett
 
 DPI = 100
 NON_TREE_GREY = 200
+LEGEND_DROP_IN = 0.5   # inches from an axes' bottom edge down to a legend under it: clear of tick labels and x label
 
 
 def _figure(width_in: float, height_in: float):
@@ -35,7 +36,20 @@ def _class_legend(ax, codes, **kwargs) -> None:
     ax.legend(handles=handles, fontsize=8, framealpha=0.9, **kwargs)
 
 
+def _below(ax) -> dict:
+    """A legend's placement under ``ax``, a fixed distance below its bottom edge whatever the axes' height
+    (a fraction of the height put it over the x label of a short tile)."""
+    from matplotlib.transforms import ScaledTranslation
+    return dict(loc="upper center", bbox_to_anchor=(0.5, 0.0),
+                bbox_transform=ax.transAxes + ScaledTranslation(0, -LEGEND_DROP_IN, ax.figure.dpi_scale_trans))
+
+
 def write_top_figure(path, top, tile=None, classes_present=()) -> None:
+    """Write :func:`top_figure` to ``path``."""
+    _save(top_figure(top, tile, classes_present), path)
+
+
+def top_figure(top, tile=None, classes_present=()):
     """The plot from above, each pixel the class of its highest point, metre axes, the tile outlined.
 
     :param top: a :class:`~.quicklook.TopView`; ``tile`` a :class:`~.quicklook.SideTile`.
@@ -50,12 +64,18 @@ def write_top_figure(path, top, tile=None, classes_present=()) -> None:
         ax.add_patch(Rectangle((tile.x0, tile.y0), tile.tile, tile.tile, fill=False, lw=1.2, ec="black", ls="--"))
         ax.annotate(f"{tile.tile:g} m tile", (tile.x0, tile.y0 + tile.tile), xytext=(2, 3),
                     textcoords="offset points", fontsize=8)
-    ax.set(xlabel="x (m, local frame)", ylabel="y (m)", title="Top view by class (highest point per pixel)")
+    ax.set(xlabel="x (m, local frame)", ylabel="y (m)",
+           title="Top view by class (highest point per pixel, gaps < 1 m filled)")
     _class_legend(ax, classes_present, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
-    _save(fig, path)
+    return fig
 
 
 def write_tile_figure(path, tile) -> None:
+    """Write :func:`tile_figure` to ``path``."""
+    _save(tile_figure(tile), path)
+
+
+def tile_figure(tile):
     """The tile seen from the south: by class, its woody parts only, and its trees by instance.
 
     :param tile: a :class:`~.quicklook.SideTile`; the z axis spans the ground to the highest point.
@@ -74,19 +94,21 @@ def write_tile_figure(path, tile) -> None:
     ]
     panel_in = 3.6                                   # width of one panel's tile, inches
     height_in = panel_in * (z_range[1] - z_range[0]) / tile.tile
-    fig = _figure(3 * (panel_in + 0.45) + 0.4, height_in + 1.2)
+    rows = max(len(_present(cls)), 10) / 2          # legend rows (two columns; the instances' legend has up to 10)
+    fig = _figure(3 * (panel_in + 0.45) + 0.4, height_in + 0.7 + LEGEND_DROP_IN + 0.25 * rows)   # title, ticks, legend
     axes = fig.subplots(1, 3, sharey=True)
     for ax, (title, p, colours, codes) in zip(axes, panels):
         ax.imshow(front_view(p, x_range, z_range, colours), extent=(*x_range, *z_range), interpolation="nearest")
         ax.set(title=f"{tile.tile:g} m tile from the south: {title}", xlabel="x (m)",
                xticks=np.arange(np.ceil(x_range[0] / 5) * 5, x_range[1] - 1, 5))   # no label at the shared edges
         ax.title.set_fontsize(9)
+        ax.set_anchor("N")      # spare height goes below, where the legend is
         if codes is not None:
-            _class_legend(ax, codes, loc="upper center", bbox_to_anchor=(0.5, -0.12), ncol=2)
+            _class_legend(ax, codes, ncol=2, **_below(ax))
         else:
             _instance_legend(ax, pts[is_tree], palette)
     axes[0].set_ylabel("z (m)")
-    _save(fig, path)
+    return fig
 
 
 def tile_z_range(points) -> tuple[float, float]:
@@ -112,12 +134,20 @@ def _instance_legend(ax, trees, palette, most: int = 8) -> None:
     treeid = {int(i): int(t) for i, t in zip(trees["instance"], trees["treeid"])} if "treeid" in trees.dtype.names \
         else {}
     shown = ids[np.argsort(-counts)][:most]
-    handles = [Patch(color=palette[i] / 255, label=f"tree {i}" + (f" (archetype {treeid[int(i)]})"
-                                                                   if int(i) in treeid else "")) for i in shown]
+    handles = [Patch(color=palette[i] / 255, label=instance_label(int(i), treeid.get(int(i)))) for i in shown]
     if len(ids) > most:
-        handles.append(Patch(color="white", label=f"... {len(ids) - most} more trees"))
+        handles.append(Patch(color="white", label=f"... {len(ids) - most} more"))
     handles.append(Patch(color=np.full(3, NON_TREE_GREY / 255), label="not a tree"))
-    ax.legend(handles=handles, fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.12), ncol=2)
+    ax.legend(handles=handles, fontsize=8, ncol=2, **_below(ax))
+
+
+def instance_label(instance: int, treeid: int | None) -> str:
+    """A legend's name for an instance of a tree class: ``tree 7 (tree03)``, its model as the plan, the
+    volumes table and ``mitsuforest trees`` name it (an archetype or an imported tree alike); an instance
+    of no tree model (treeid 0: a HELIOS++ part) is ``object 7``."""
+    if treeid == 0:
+        return f"object {instance}"
+    return f"tree {instance}" + (f" (tree{treeid:02d})" if treeid is not None else "")
 
 
 def write_profile_figure(path, counts) -> None:

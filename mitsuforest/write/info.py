@@ -129,7 +129,8 @@ def summary(path) -> str:
     lines.append("bounds: " + "  ".join(f"{a} {l:.3f} .. {h:.3f}" for a, l, h in zip("xyz", lo, hi)))
     area = (hi[0] - lo[0]) * (hi[1] - lo[1])
     if area > 0:
-        lines.append(f"density: {n / area:.1f} points/m2 over the x-y bounding box ({area:.1f} m2)")
+        lines.append(f"density: {n / area:.1f} points/m2 over the x-y bounding box ({area:.1f} m2; a render reports "
+                     "its density over its plot, which the points overrun)")
     if "classification" in pts:
         counts = np.bincount(np.asarray(pts["classification"]).astype(int))
         lines.append("classes: " + ", ".join(f"{class_names.get(k, f'class {k}')} {v:,} ({v / n:.1%})"

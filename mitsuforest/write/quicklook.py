@@ -60,10 +60,19 @@ class TopView:
         highest = np.flatnonzero(z >= self.top[pix])     # the points now on top of their pixel
         self.cls[pix[highest]] = points["classification"][highest]
 
-    def image(self) -> np.ndarray:
-        """(h, w, 3) uint8, north up; white where no point fell."""
-        img = CLASS_COLOURS[self.cls].reshape(self.size[1], self.size[0], 3).copy()
-        img[~np.isfinite(self.top).reshape(self.size[1], self.size[0])] = 255
+    def image(self, fill_m: float = 0.5) -> np.ndarray:
+        """(h, w, 3) uint8, north up. A pixel no point fell in takes the class of the nearest pixel one did
+        within ``fill_m`` (the gaps between scan lines, narrower than a metre, are no no-data stripes);
+        farther ones stay white."""
+        from scipy.ndimage import distance_transform_edt
+        shape = (self.size[1], self.size[0])
+        empty = ~np.isfinite(self.top).reshape(shape)
+        cls = self.cls.reshape(shape)
+        if empty.all():
+            return np.full((*shape, 3), 255, np.uint8)
+        distance, (rows, cols) = distance_transform_edt(empty, return_indices=True)
+        img = CLASS_COLOURS[cls[rows, cols]]
+        img[distance > fill_m * self.scale] = 255
         return img
 
 

@@ -1,0 +1,32 @@
+"""A signal that arrives after the command has ended, while the interpreter shuts down (threads
+joining, exit handlers running), ends the process with one line and the usual code."""
+
+import signal
+import subprocess
+import sys
+
+import pytest
+
+from conftest import ROOT
+
+# `python -m mitsuforest info missing.pcd` (exit 2 at once) with an exit handler that takes its time, as
+# Dask's or Dr.Jit's may: it says "ready" and waits for the signal.
+PROGRAM = """
+import atexit, runpy, sys, time
+atexit.register(lambda: (print("ready", flush=True), time.sleep(60)))
+sys.argv = ["mitsuforest", "info", "missing.pcd"]
+runpy.run_module("mitsuforest", run_name="__main__")
+"""
+
+
+@pytest.mark.parametrize("sig, code, word", [(signal.SIGINT, 130, "interrupted"),
+                                             (signal.SIGTERM, 143, "stopped (SIGTERM)")])
+def test_a_signal_during_teardown_exits_with_one_line(tmp_path, sig, code, word):
+    proc = subprocess.Popen([sys.executable, "-c", PROGRAM], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    assert proc.stdout.readline().strip() == "ready"
+    proc.send_signal(sig)
+    _, err = proc.communicate(timeout=30)
+    assert proc.returncode == code
+    assert err.strip().splitlines() == ["mitsuforest: missing.pcd: file not found",
+                                        f"mitsuforest: {word} while exiting, after the command had ended"]
