@@ -61,17 +61,26 @@ def test_return_counts_by_height_class_and_return_number():
     assert counts.first[GROUND] == 1 and counts.first[TREE_LEAVES] == 1 and counts.by_return[2, TREE_WOOD] == 1
 
 
-def test_a_render_writes_every_picture(tmp_path):
+PICTURES = ("_top.png", "_side.png", "_profile.png", "_returns.png")
+
+
+def test_a_render_writes_every_picture_unless_told_not_to(tmp_path):
+    """``output.pictures: false`` leaves the four pictures out and changes no other file."""
     from mitsuforest.pipeline import render
     from helpers import scene_file
-    path = scene_file(tmp_path, survey={"altitude": 30, "pulse_frequency": 100000, "scan_frequency": 50,
-                                        "speed": 20, "lines": [[[20.0, 0.0], [20.0, 40.0]]]})
-    result = render(path, progress=False, log=lambda *_: None)
+    survey = {"altitude": 30, "pulse_frequency": 100000, "scan_frequency": 50, "speed": 20,
+              "lines": [[[20.0, 0.0], [20.0, 40.0]]]}
+    result = render(scene_file(tmp_path / "a", survey=survey), progress=False, log=lambda *_: None)
     names = {f.name for f in result.files}
-    for suffix in ("_top.png", "_side.png", "_profile.png", "_returns.png"):
+    for suffix in PICTURES:
         assert "test" + suffix in names
-        with Image.open(tmp_path / "out" / ("test" + suffix)) as im:
+        with Image.open(tmp_path / "a" / "out" / ("test" + suffix)) as im:
             assert im.format == "PNG"
+    bare = render(scene_file(tmp_path / "b", survey=survey, output={"pictures": False}), progress=False,
+                  log=lambda *_: None)
+    assert {f.name for f in bare.files} == {n for n in names if not n.endswith(PICTURES)}
+    for name in ("test.pcd", "test_ids.csv", "test_volumes.csv"):
+        assert (tmp_path / "b" / "out" / name).read_bytes() == (tmp_path / "a" / "out" / name).read_bytes()
 
 
 def test_heights_above_a_ground_given_only_as_a_mesh():

@@ -317,6 +317,7 @@ SCENE_SPEC = {
         "profile": Text("ours", choices=OUTPUT_PROFILES),
         "waveforms": Flag(False),
         "pulses": Flag(False),
+        "pictures": Flag(True),
     },
 }
 

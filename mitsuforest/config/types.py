@@ -285,6 +285,7 @@ class Output:
     profile: str = "ours"                     # one of OUTPUT_PROFILES
     waveforms: bool = False                   # NAME_waveforms.npz: each pulse's sampled waveform and its echoes
     pulses: bool = False                      # NAME_pulses.npz: every fired pulse with its echo count (0: none)
+    pictures: bool = True                     # NAME_top/side/profile/returns.png (about 1 CPU s a render)
 
 
 @dataclass(frozen=True)

@@ -214,6 +214,8 @@ def write_render_outputs(staging: Staging, *, scene, plan, models, writer) -> No
     write_ids(staging.file("_ids.csv"), plan, models, offset)
     write_text(staging.file(PLAN), plan.to_json())
     write_trajectory(staging.file("_trajectory.csv"), scene, plan)
+    if not scene.output.pictures:
+        return
     classes = [int(c) for c in np.flatnonzero(writer.classes)]
     write_top_figure(staging.file("_top.png"), writer.top, writer.side, classes)
     write_tile_figure(staging.file("_side.png"), writer.side)
