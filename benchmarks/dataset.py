@@ -5,6 +5,7 @@ flight leg.
     python benchmarks/dataset.py --skip-plots --large-pulse-frequency 200000 --large-speed 2   # the paper's survey
     python benchmarks/dataset.py --large-beam 19  # the 4 ha plot at the default beam (long)
     python benchmarks/dataset.py --quick          # 2 small plots and a small split plot, 2 workers (CI)
+    python benchmarks/dataset.py --plots 32 --workers 2 --skip-large --no-pictures   # fixed costs, no pictures
 
 Each run gets a fresh LocalCluster (one process a worker, Dr.Jit threads = cores / workers) and
 reads its figures from the dataset's records and manifest; the workers' peak memory is their own
@@ -60,10 +61,10 @@ def write_yaml(path: Path, data: dict) -> Path:
     return path
 
 
-def many_plots(folder: Path, plots: int, worker_counts, quick: bool) -> list[dict]:
+def many_plots(folder: Path, plots: int, worker_counts, quick: bool, pictures: bool = True) -> list[dict]:
     base = yaml.safe_load((ROOT / "scenes" / "demo.yaml").read_text())
     base["sensor"] = str(ROOT / "sensors" / "riegl_vux-1uav22.yaml")
-    base.pop("output")
+    base["output"] = {"pictures": pictures}
     if quick:
         base["survey"].update({"lines": [[[10, -2], [10, 22]]], "pulse_frequency": 100000})
         base["simulation"] = {"beam_samples": 1, "beam_pattern": "fixed"}
@@ -125,6 +126,7 @@ def main() -> None:
     p.add_argument("--large-speed", type=float, default=10.0, help="flying speed of the large plot's survey, m/s")
     p.add_argument("--legs-per-task", type=int, default=1)
     p.add_argument("--skip-large", action="store_true")
+    p.add_argument("--no-pictures", action="store_true", help="the plots with output.pictures: false")
     p.add_argument("--skip-plots", action="store_true", help="only the large plot")
     p.add_argument("--quick", action="store_true", help="2 small plots and a 30 m split plot on 2 workers (CI)")
     p.add_argument("--out", type=Path, help="keep the datasets here (default: a temporary folder)")
@@ -154,7 +156,7 @@ def plots_table(folder: Path, args) -> None:
     print("| workers | wall | plots | mean time per plot (task) | worker CPU per plot | points | speed-up | "
           "peak memory per worker | load average at the end |")
     print("| --- | --- | --- | --- | --- | --- | --- | --- | --- |")
-    for row in many_plots(folder, args.plots, args.workers, args.quick):
+    for row in many_plots(folder, args.plots, args.workers, args.quick, not args.no_pictures):
         print(f"| {row['workers']} | {row['wall_s']} s | {row['plots']} | {row['mean_plot_s']} s | "
               f"{row['cpu_per_plot_s']} s | {row['points']:,} | {row['speed_up']}x | "
               f"{', '.join(f'{m} MB' for m in row['worker_peak_mb'])} | {row['load']} |", flush=True)
