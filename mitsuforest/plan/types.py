@@ -11,7 +11,7 @@ import numpy as np
 from ..classes import GROUND, GROUND_OBJECT_ID
 from ..trees.archetypes import Archetype
 from ..trees.sources import MeshTree, QsmTree
-from .terrain import Terrain
+from .terrain import MeshGround, Terrain
 from .trajectory import Track
 from .transforms import rotation
 
@@ -115,7 +115,7 @@ class Plan:
     area: tuple[float, float]
     forest_type: str
     canopy_cover: float
-    terrain: Terrain
+    terrain: Terrain | MeshGround         # a grid, or a mesh alone (a HELIOS++ scene's ground)
     models: dict[str, ModelSpec]
     objects: tuple[PlacedObject, ...]
     legs: tuple[Leg, ...]
