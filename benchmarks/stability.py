@@ -21,7 +21,7 @@ from mitsuforest.classes import ROCK, TREE_WOOD
 from mitsuforest.pipeline import render
 from mitsuforest.scan import PulseTracer
 from mitsuforest.scan.reference.echoes import pulse_echoes, waveform_maxima
-from mitsuforest.scene.analytic import analytic_scene, bare_scene_file, plane_model, pulses
+from mitsuforest.testing.analytic import analytic_scene, bare_scene_file, plane_model, pulses
 from mitsuforest.trees.models import Component, Model, Part
 from mitsuforest.trees.tubes import tube
 from mitsuforest.trees.volume import union_volume

@@ -202,7 +202,7 @@ def _plan(args) -> int:
 
 def _trees(args) -> int:
     from .trees.archetypes import DEFAULT_ARCHETYPES, expanded
-    from .trees.gallery import write_gallery
+    from .write.gallery import write_gallery
     from .write import check_output_folder
     check_output_folder(args.output)
     models = ()
@@ -222,7 +222,7 @@ def _export(args) -> int:
     from .plan import make_plan
     from .trees import build_models
     from .write import check_output_folder
-    from .write.export import export_scene
+    from .helios.export import export_scene
     check_output_folder(args.output)
     scene = load_scene(args.scene, seed=args.seed)
     plan = make_plan(scene)

@@ -27,7 +27,7 @@ from .realism import realism_table
 from .scan import ScanResult, scan_batches
 from .scene import ScanScene, build_scene
 from .trees import build_models
-from .trees.imported import import_report
+from .write.manifest import import_report
 from .write import PointWriter, Staging, write_manifest, write_render_outputs
 from .write.background import Background
 from .write.output_profiles import stem_ids

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from mitsuforest.scene.analytic import analytic_scene, bare_scene_file, plane_model, pulses  # noqa: F401
+from mitsuforest.testing.analytic import analytic_scene, bare_scene_file, plane_model, pulses  # noqa: F401
 
 ROOT = Path(__file__).resolve().parents[1]
 SENSORS = ROOT / "sensors"

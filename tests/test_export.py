@@ -24,7 +24,7 @@ from mitsuforest.plan import make_plan
 from mitsuforest.plan.transforms import apply
 from mitsuforest.scan.radiometry import reflectance_table
 from mitsuforest.trees import build_models
-from mitsuforest.write.export import component_meshes
+from mitsuforest.helios.export import component_meshes
 
 
 @pytest.fixture(scope="module")

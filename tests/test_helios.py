@@ -18,7 +18,7 @@ from mitsuforest.helios.render import render_survey
 from mitsuforest.pipeline import render
 from mitsuforest.trees import build_models
 from mitsuforest.write import read_pcd
-from mitsuforest.write.export import export_scene
+from mitsuforest.helios.export import export_scene
 
 QUIET = {"write": False, "progress": False, "log": lambda *_: None}
 

@@ -202,7 +202,7 @@ def test_import_report_gives_none_for_undefined_volumes(tmp_path):
     import json
     from types import SimpleNamespace
 
-    from mitsuforest.trees.imported import import_report
+    from mitsuforest.write.manifest import import_report
     path = write_obj(tmp_path / "t.obj", {"stem": (*cylinder([0, 0, 0], [0, 0, 5.0], 0.2), "bark"),
                                           "flat": (*leaf_sheet(3.0, 0.5, (2.0, 0.0)), "bark")})
     entry = MeshTree(mesh=str(path), leaves=(), repair="skip")

@@ -20,7 +20,7 @@ from ..config import load_scene
 from ..plan import ModelSpec, PlacedObject, make_plan
 from ..scan.reference.pulses import Pulses
 from ..trees.models import Component, Model, Part
-from . import build_scene
+from ..scene import build_scene
 
 
 def bare_scene_file(folder, sensor, variant: str = "auto", **sections) -> Path:

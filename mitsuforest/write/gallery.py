@@ -9,10 +9,10 @@ import numpy as np
 import trimesh
 from PIL import Image
 
-from ..write.atomic import atomic_path, write_text
-from ..write.tables import csv_text
 from ..plan.types import ModelSpec
-from . import build_model
+from ..trees import build_model
+from .atomic import atomic_path, write_text
+from .tables import csv_text
 
 
 GALLERY_FILE = re.compile(r"tree\d{2,}_(wood|leaves)\.ply|volumes\.csv|repairs\.csv|trees\.png")
