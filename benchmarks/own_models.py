@@ -36,7 +36,7 @@ OPEN_EVERY, INSIDE_OUT_EVERY = 10, 25   # every 10th branch open (k % 10 == 9), 
 
 def write_big_tree(path: Path, triangles: int) -> dict:
     """A tree mesh of about ``triangles`` triangles (half wood, half leaves); returns what it holds."""
-    from mitsuforest.trees.archetypes import DEFAULT_ARCHETYPES
+    from mitsuforest.specs.archetypes import DEFAULT_ARCHETYPES
     from mitsuforest.trees.leaves import leaves_on_twigs
     from mitsuforest.trees.skeleton import grow, terminal_branches
     from mitsuforest.trees.tubes import tube
@@ -88,7 +88,7 @@ def _write_piece(out, name, material, v, f, base) -> int:
 
 
 def _entry(path):
-    from mitsuforest.trees.sources import MeshTree
+    from mitsuforest.specs.sources import MeshTree
     return MeshTree(mesh=str(path), units="cm", up="y", leaves=("leaf*",))
 
 

@@ -201,7 +201,7 @@ def _plan(args) -> int:
 
 
 def _trees(args) -> int:
-    from .trees.archetypes import DEFAULT_ARCHETYPES, expanded
+    from .specs.archetypes import DEFAULT_ARCHETYPES, expanded
     from .write.gallery import write_gallery
     from .write import check_output_folder
     check_output_folder(args.output)

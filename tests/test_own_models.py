@@ -9,7 +9,7 @@ from mitsuforest.classes import TREE_LEAVES, TREE_WOOD
 from mitsuforest.config import load_scene
 from mitsuforest.trees.cache import cache_dir
 from mitsuforest.trees.imported import imported_model, mesh_tree_model, qsm_tree_model
-from mitsuforest.trees.sources import MeshTree, ModelFileError, QsmTree
+from mitsuforest.specs.sources import MeshTree, ModelFileError, QsmTree
 from mitsuforest.trees.tubes import tube
 
 
@@ -399,7 +399,7 @@ def test_the_cache_key_covers_the_files_a_mesh_reads(tmp_path):
     cannot accept what a cold one refuses; so does the file's kind (suffix)."""
     import json
 
-    from mitsuforest.trees.sources import companion_files, content_hash
+    from mitsuforest.specs.sources import companion_files, content_hash
     gltf = tmp_path / "t.gltf"
     gltf.write_text(json.dumps({"buffers": [{"uri": "geo%20metry.bin"}, {"uri": "data:application/octet-stream;base64,AA=="}]}))
     (tmp_path / "geo metry.bin").write_bytes(b"\0" * 8)

@@ -220,7 +220,7 @@ def test_tree_list_leaf_area_column_sets_each_trees_leaves(tmp_path):
     plan = make_plan(load_scene(tmp_path / "s.yaml"))
     first, second = (plan.models[t.model].archetype for t in plan.trees)
     assert first.leaf_area == 30.0
-    from mitsuforest.trees.archetypes import DEFAULT_ARCHETYPES
+    from mitsuforest.specs.archetypes import DEFAULT_ARCHETYPES
     template = min(DEFAULT_ARCHETYPES, key=lambda a: abs(a.height - 18))    # the nearest Eucalyptus in height
     volume = (6.0 / template.crown_diameter) ** 2 * 18 / template.height
     assert second.leaf_area == pytest.approx(template.leaf_area * volume, abs=0.01)   # by crown volume

@@ -13,7 +13,7 @@ from mitsuforest.cli import main
 from mitsuforest.config import load_scene
 from mitsuforest.plan import make_plan, plan_json
 from mitsuforest.trees import build_model, build_models
-from mitsuforest.trees.archetypes import (ABSOLUTE_SPREAD, FAMILY_ARCHETYPES, RELATIVE_SPREAD, UniqueTrees,
+from mitsuforest.specs.archetypes import (ABSOLUTE_SPREAD, FAMILY_ARCHETYPES, RELATIVE_SPREAD, UniqueTrees,
                                           unique_archetypes)
 
 

@@ -27,7 +27,7 @@ from ..scan.radiometry import reflectance_table
 from ..scene import scene_variant
 from ..survey import prepare_plan
 from ..trees.models import Component, Model, Part, merge
-from ..trees.sources import missing_companions
+from ..specs.sources import missing_companions
 from .parts import class_reflectances, read_obj
 from .survey import HeliosSurvey, read_survey
 

@@ -17,7 +17,7 @@ import numpy as np
 from ..classes import DEADWOOD_TREEID, GROUND_OBJECT_ID
 from ..config import RSA_JAMMING, scene_error
 from ..errors import UserError
-from ..trees.archetypes import UniqueTrees, grown_to, nearest_template, unique_archetypes
+from ..specs.archetypes import UniqueTrees, grown_to, nearest_template, unique_archetypes
 from ..trees.imported import summary as imported_summary
 from ..trees.models import tree_components
 from ..trees.skeleton import grow
@@ -186,7 +186,7 @@ def _tree_list(scene) -> list:
 
 def _listed_tree_models(scene, listed) -> dict[str, tuple[np.ndarray, ModelSpec]]:
     """One procedural model per listed tree: the scene's (or its family's) archetype of the tree's species
-    nearest in height, grown to the tree's height and crown (:func:`~mitsuforest.trees.archetypes.grown_to`)."""
+    nearest in height, grown to the tree's height and crown (:func:`~mitsuforest.specs.archetypes.grown_to`)."""
     archetypes = scene.forest.archetypes
     default_species = archetypes[0].species if archetypes else "eucalyptus"
     out = {}

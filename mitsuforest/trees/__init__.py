@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from .archetypes import DEFAULT_ARCHETYPES, Archetype
+from ..specs.archetypes import DEFAULT_ARCHETYPES, Archetype
 from .cache import cached
 from .imported import imported_model
 from .models import Component, Model, Part, tree_model

@@ -23,7 +23,7 @@ from .meshfile import check_height, joined, read_pieces, split_by_patterns, stem
 from .models import Component, Model, Part, merge
 from .qsm import read_qsm
 from .repair import PartRepair, UnrepairablePart, boundary_loops, loose_parts, repair_part
-from .sources import MAX_RADIUS, UNITS, MeshTree, ModelFileError, QsmTree, content_hash, source_name
+from ..specs.sources import MAX_RADIUS, UNITS, MeshTree, ModelFileError, QsmTree, content_hash, source_name
 from .tubes import signed_volume, tube
 from .volume import WoodVolume, union_volume
 

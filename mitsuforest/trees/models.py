@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..classes import TREE_LEAVES, TREE_WOOD
-from .archetypes import Archetype
+from ..specs.archetypes import Archetype
 from .leaves import leaf_count, leaves_on_twigs
 from .skeleton import grow, terminal_branches
 from .tubes import frustum_volume, tube
