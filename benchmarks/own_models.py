@@ -104,7 +104,7 @@ def stage(name: str, path: Path, copies: int) -> dict:
     else:
         from mitsuforest.pipeline import render   # noqa: F401  (imports as a render would)
         from mitsuforest.config import load_scene
-        from mitsuforest.plan import make_plan
+        from mitsuforest.survey import make_plan
         from mitsuforest.scene import build_scene
         from mitsuforest.trees import build_models
         scene = load_scene(_scene_file(path, copies))

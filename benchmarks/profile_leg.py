@@ -20,7 +20,7 @@ from collections import defaultdict
 from pathlib import Path
 
 from mitsuforest.config import load_scene
-from mitsuforest.plan import make_plan
+from mitsuforest.survey import make_plan
 from mitsuforest.scan import PulseTracer, tracer as tracer_module
 from mitsuforest.scene import build_scene, variant_scope
 from mitsuforest.trees import build_models

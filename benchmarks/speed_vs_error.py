@@ -37,7 +37,7 @@ from scipy.spatial import cKDTree
 
 from mitsuforest.classes import CLASS_NAMES
 from mitsuforest.config import load_scene
-from mitsuforest.plan import make_plan
+from mitsuforest.survey import make_plan
 from mitsuforest.scan import PulseTracer
 from mitsuforest.scan.kernel import RayCaster
 from mitsuforest.scan.pulses import upload_pulses

@@ -18,7 +18,7 @@ import numpy as np
 
 from mitsuforest.classes import GROUND
 from mitsuforest.config import load_scene
-from mitsuforest.plan import make_plan
+from mitsuforest.survey import make_plan
 from mitsuforest.scan import scan
 from mitsuforest.scene import build_scene
 from mitsuforest.trees import build_models

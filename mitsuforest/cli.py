@@ -182,7 +182,7 @@ def _render(args) -> int:
 
 def _plan(args) -> int:
     from .config import load_scene
-    from .plan import make_plan
+    from .survey import make_plan
     from .write import check_output_folder, refuse_finished_render, write_plan
     scene = load_scene(args.scene, seed=args.seed, output_dir=args.output)
     out = Path(scene.output.dir)
@@ -219,7 +219,7 @@ def _trees(args) -> int:
 
 def _export(args) -> int:
     from .config import load_scene
-    from .plan import make_plan
+    from .survey import make_plan
     from .trees import build_models
     from .write import check_output_folder
     from .helios.export import export_scene

@@ -22,17 +22,17 @@ import numpy as np
 
 from . import __version__
 from .config import Scene
-from .plan import Plan, make_plan
+from .plan import Plan, plan_scene
 from .realism import realism_table
 from .scan import ScanResult, scan_batches
 from .scene import ScanScene, build_scene
-from .trees import build_models
+from .trees import build_models, tree_shape
 from .write.manifest import import_report
 from .write import PointWriter, Staging, write_manifest, write_render_outputs
 from .write.background import Background
 from .write.output_profiles import stem_ids
 
-__all__ = ["PreparedSurvey", "Batches", "Written", "Timings", "prepare", "prepare_plan", "scan", "write", "versions"]
+__all__ = ["make_plan", "PreparedSurvey", "Batches", "Written", "Timings", "prepare", "prepare_plan", "scan", "write", "versions"]
 
 DEPENDENCIES = ("mitsuba", "drjit", "numpy", "trimesh", "manifold3d", "laspy", "scipy", "pyyaml", "pyproj", "rasterio",
                 "matplotlib")
@@ -85,6 +85,12 @@ class Written:
 
     manifest: dict
     points: np.ndarray | None
+
+
+def make_plan(scene: Scene) -> Plan:
+    """The plan of ``scene`` (:func:`~mitsuforest.plan.plan_scene`), its trees' crowns and components from
+    the trees stage (:func:`~mitsuforest.trees.tree_shape`)."""
+    return plan_scene(scene, tree_shape)
 
 
 def prepare(scene: Scene, legs: range | None = None, *, log=_quiet) -> PreparedSurvey:

@@ -17,7 +17,6 @@ ABOVE = ("survey", "pipeline", "cli", "__main__", "dataset", "helios", "twin", "
 # Imports from a stage to a later one that are still there (issue 29), each with its way out; the
 # test fails when one is added, and when one is gone but still listed here.
 KNOWN = {
-    ("plan", "trees"): "archetype drawing, skeletons for crown outlines, shrub forms, patch sizes",
     ("config", "write"): "write.las.crs_wkt checks origin.crs: to a module of its own",
     ("scan", "labels"): "the echo kernel labels hits on the device (labels/device.py)",
 }

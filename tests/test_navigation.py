@@ -7,7 +7,7 @@ from helpers import SENSORS, scene_file
 
 from mitsuforest.cli import main
 from mitsuforest.config import load_scene
-from mitsuforest.plan import make_plan
+from mitsuforest.survey import make_plan
 from mitsuforest.plan.trajectory import ENU_FROM_NED, euler_matrix, matrix_euler
 from mitsuforest.scan import scan
 from mitsuforest.scene import build_scene

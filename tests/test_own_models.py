@@ -284,7 +284,7 @@ def test_bark_and_leaf_materials_become_wood_and_leaf_points_with_the_tree_ids(t
 
 
 def test_models_come_after_the_archetypes_in_treeid_and_deadwood_moves_past_them(tmp_path):
-    from mitsuforest.plan import make_plan
+    from mitsuforest.survey import make_plan
     stem = cylinder([0, 0, 0], [0, 0, 8.0], 0.2)
     write_obj(tmp_path / "a.obj", {"stem": (*stem, "bark"), "leaves": (*leaf_sheet(7.0), "leaf")})
     models = [{"mesh": "a.obj", "weight": 5}] * 2

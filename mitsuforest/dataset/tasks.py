@@ -177,7 +177,7 @@ def _plot_setup(path):
     if key not in _SETUP:
         _SETUP.clear()
         from ..config import load_scene
-        from ..plan import make_plan
+        from ..survey import make_plan
         from ..scene import scene_variant
         from ..trees import build_models
         scene = load_scene(path)

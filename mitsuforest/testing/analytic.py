@@ -17,7 +17,8 @@ import yaml
 import dataclasses
 
 from ..config import load_scene
-from ..plan import ModelSpec, PlacedObject, make_plan
+from ..plan import ModelSpec, PlacedObject
+from ..survey import make_plan
 from ..scan.reference.pulses import Pulses
 from ..trees.models import Component, Model, Part
 from ..scene import build_scene

@@ -13,11 +13,10 @@ from __future__ import annotations
 import numpy as np
 
 from ..classes import GROUND_VEGETATION
+from ..specs.understory import PATCH_MODELS, PATCH_SIZE
 from .models import Model
 from .understory import single_part_model
 
-PATCH_SIZE = 1.0          # m, side of a patch (and of a plan cell)
-PATCH_MODELS = 4          # distinct models of each kind (grass, litter) whatever the cover
 TUFTS = 36                # grass tussocks per patch
 BLADES = (14, 26)         # blades per tussock (low, high inclusive)
 BLADE_WIDTH = 0.006       # m at the base; blades taper to a point
