@@ -211,7 +211,7 @@ def _crs(value, ctx: Context, key: str):
         return None
     if not isinstance(value, str):
         ctx.fail(key, f"must be a string such as 'EPSG:7855', got {value!r}")
-    from ..write.las import crs_wkt
+    from ..crs import crs_wkt
     try:
         crs_wkt(value)
     except UserError as e:

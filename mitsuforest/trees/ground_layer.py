@@ -3,7 +3,7 @@
 A patch is :data:`PATCH_SIZE` m square, centred on the origin, its ground at z = 0. A grass patch
 holds tussocks of narrow, curved blades rooted just below the ground; a litter patch holds flat
 lanceolate leaves lying a few millimetres above it. The plan places a handful of patch models
-(:data:`PATCH_MODELS` of each kind) as many times as the cover asks, so memory does not grow with the
+(:data:`~mitsuforest.specs.understory.PATCH_MODELS` of each kind) as many times as the cover asks, so memory does not grow with the
 cover. Every vertex of a patch lies inside its square, so a patch in a plot cell stays inside the plot.
 Class :data:`~mitsuforest.classes.GROUND_VEGETATION` (one component).
 """
@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..classes import GROUND_VEGETATION
-from ..specs.understory import PATCH_MODELS, PATCH_SIZE
+from ..specs.understory import PATCH_SIZE
 from .models import Model
 from .understory import single_part_model
 
