@@ -104,13 +104,9 @@ def stage(name: str, path: Path, copies: int) -> dict:
     else:
         from mitsuforest.pipeline import render   # noqa: F401  (imports as a render would)
         from mitsuforest.config import load_scene
-        from mitsuforest.survey import make_plan
-        from mitsuforest.scene import build_scene
-        from mitsuforest.trees import build_models
-        scene = load_scene(_scene_file(path, copies))
-        plan = make_plan(scene)
-        models = build_models(plan)
-        built = build_scene(plan, models, scene.sensor, "llvm_ad_mono")
+        from mitsuforest.survey import prepare
+        scene = load_scene(_scene_file(path, copies), variant="llvm_ad_mono")
+        built = prepare(scene).scan_scene
         result = {"objects": built.objects, "distinct_triangles": built.triangles}
     result["seconds"] = round(time.perf_counter() - t0, 2)
     usage = resource.getrusage(resource.RUSAGE_SELF)
