@@ -83,7 +83,7 @@ def main(argv=None) -> int:
 def one_leg_scene(scene: Path, leg: int | None, work: Path, quick: bool = False) -> Path:
     """The scene file with its survey cut to one leg of its plan (same altitude, speed, frequencies)."""
     from mitsuforest.config import load_scene
-    from mitsuforest.plan import make_plan
+    from mitsuforest.survey import make_plan
     plan = make_plan(load_scene(scene))
     k = (leg or (len(plan.legs) + 1) // 2) - 1
     chosen = plan.legs[k]

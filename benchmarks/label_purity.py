@@ -26,7 +26,7 @@ sys.path.insert(0, str(ROOT))
 
 from mitsuforest.config import load_scene  # noqa: E402
 from mitsuforest.pipeline import render  # noqa: E402
-from mitsuforest.plan import make_plan  # noqa: E402
+from mitsuforest.survey import make_plan  # noqa: E402
 from mitsuforest.trees import build_models  # noqa: E402
 
 

@@ -36,7 +36,7 @@ OPEN_EVERY, INSIDE_OUT_EVERY = 10, 25   # every 10th branch open (k % 10 == 9), 
 
 def write_big_tree(path: Path, triangles: int) -> dict:
     """A tree mesh of about ``triangles`` triangles (half wood, half leaves); returns what it holds."""
-    from mitsuforest.trees.archetypes import DEFAULT_ARCHETYPES
+    from mitsuforest.specs.archetypes import DEFAULT_ARCHETYPES
     from mitsuforest.trees.leaves import leaves_on_twigs
     from mitsuforest.trees.skeleton import grow, terminal_branches
     from mitsuforest.trees.tubes import tube
@@ -88,7 +88,7 @@ def _write_piece(out, name, material, v, f, base) -> int:
 
 
 def _entry(path):
-    from mitsuforest.trees.sources import MeshTree
+    from mitsuforest.specs.sources import MeshTree
     return MeshTree(mesh=str(path), units="cm", up="y", leaves=("leaf*",))
 
 
@@ -104,13 +104,9 @@ def stage(name: str, path: Path, copies: int) -> dict:
     else:
         from mitsuforest.pipeline import render   # noqa: F401  (imports as a render would)
         from mitsuforest.config import load_scene
-        from mitsuforest.plan import make_plan
-        from mitsuforest.scene import build_scene
-        from mitsuforest.trees import build_models
-        scene = load_scene(_scene_file(path, copies))
-        plan = make_plan(scene)
-        models = build_models(plan)
-        built = build_scene(plan, models, scene.sensor, "llvm_ad_mono")
+        from mitsuforest.survey import prepare
+        scene = load_scene(_scene_file(path, copies), variant="llvm_ad_mono")
+        built = prepare(scene).scan_scene
         result = {"objects": built.objects, "distinct_triangles": built.triangles}
     result["seconds"] = round(time.perf_counter() - t0, 2)
     usage = resource.getrusage(resource.RUSAGE_SELF)

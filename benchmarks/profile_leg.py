@@ -20,10 +20,9 @@ from collections import defaultdict
 from pathlib import Path
 
 from mitsuforest.config import load_scene
-from mitsuforest.plan import make_plan
 from mitsuforest.scan import PulseTracer, tracer as tracer_module
-from mitsuforest.scene import build_scene, variant_scope
-from mitsuforest.trees import build_models
+from mitsuforest.scene import variant_scope
+from mitsuforest.survey import prepare
 from mitsuforest.write import PointWriter, Staging
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -49,8 +48,8 @@ class Stopwatch:
 
 def profile(scene, leg_index: int, batch: int, folder: Path) -> tuple[dict, int, int]:
     import drjit as dr
-    plan = make_plan(scene)
-    scan_scene = build_scene(plan, build_models(plan), scene.sensor, scene.simulation.variant)
+    prepared = prepare(scene)
+    plan, scan_scene = prepared.plan, prepared.scan_scene
     sim = scene.simulation
     tracer = PulseTracer(scan_scene, scene.sensor, sim.beam_samples, scene.seed, sim.beam_pattern, sim.point_position)
     leg = plan.legs[leg_index]

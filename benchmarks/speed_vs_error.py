@@ -37,14 +37,13 @@ from scipy.spatial import cKDTree
 
 from mitsuforest.classes import CLASS_NAMES
 from mitsuforest.config import load_scene
-from mitsuforest.plan import make_plan
 from mitsuforest.scan import PulseTracer
 from mitsuforest.scan.kernel import RayCaster
 from mitsuforest.scan.pulses import upload_pulses
 from mitsuforest.testing.reference import reaching_pulses, sub_ray_returns, trace_reference
 from mitsuforest.testing.reference.echoes import pulse_echoes, waveform_maxima
-from mitsuforest.scene import build_scene, variant_scope
-from mitsuforest.trees import build_models
+from mitsuforest.scene import variant_scope
+from mitsuforest.survey import prepare
 
 ROOT = Path(__file__).resolve().parents[1]
 HELIOS_BIN = 0.075  # m: HELIOS++ samples the waveform in 0.25 ns bins of one-way time
@@ -57,9 +56,8 @@ def setup(scene_file: Path, seconds: float, variant: str):
     (w, h), half = scene.area.size, seconds * scene.survey.speed / 2
     scene = scene.with_({"survey.lines": [[[w / 2, h / 2 - half], [w / 2, h / 2 + half]]],
                          "sensor.range_precision": 0.0})
-    plan = make_plan(scene)
-    scan_scene = build_scene(plan, build_models(plan), scene.sensor, scene.simulation.variant)
-    leg = plan.legs[0]
+    prepared = prepare(scene)
+    scan_scene, leg = prepared.scan_scene, prepared.plan.legs[0]
     box = PulseTracer(scan_scene, scene.sensor, 1, pattern="stratified").box   # the widest reach of any setting
     pulses, _ = reaching_pulses(leg, scene.sensor, scene.pulse_frequency, scene.scan_frequency, 0,
                                 leg.pulse_count(scene.pulse_frequency), box)

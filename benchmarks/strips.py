@@ -18,10 +18,7 @@ import numpy as np
 
 from mitsuforest.classes import GROUND
 from mitsuforest.config import load_scene
-from mitsuforest.plan import make_plan
-from mitsuforest.scan import scan
-from mitsuforest.scene import build_scene
-from mitsuforest.trees import build_models
+from mitsuforest.survey import prepare, scan
 
 ROOT = Path(__file__).resolve().parents[1]
 ERRORS = {"gnss_sigma_m": [0.02, 0.02, 0.03], "gnss_random_walk_m_per_sqrt_s": 0.01,
@@ -37,9 +34,7 @@ def strips(frequency: float, samples: int, errors: dict | None) -> np.ndarray:
     if errors:
         changes["survey.navigation_errors"] = errors
     scene = scene.with_(changes)
-    plan = make_plan(scene)
-    models = build_models(plan)
-    return scan(scene, plan, build_scene(plan, models, scene.sensor, scene.simulation.variant), progress=False).points
+    return np.concatenate(list(scan(prepare(scene))))
 
 
 def ground_difference(points: np.ndarray) -> np.ndarray:

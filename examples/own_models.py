@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 from common import ROOT, load_render, read_csv
 
-from mitsuforest.trees.archetypes import Archetype
+from mitsuforest.specs.archetypes import Archetype
 from mitsuforest.trees.leaves import leaves_on_twigs
 from mitsuforest.trees.skeleton import grow, terminal_branches
 from mitsuforest.trees.tubes import tube

@@ -17,7 +17,7 @@ import importlib
 __version__ = "0.1.0"
 
 _API = {"load_scene": "config", "load_sensor": "config", "ConfigError": "errors", "UserError": "errors",
-        "make_plan": "plan", "render": "pipeline", "read_pcd": "write"}
+        "make_plan": "survey", "render": "pipeline", "read_pcd": "write"}
 
 __all__ = [*_API, "__version__"]
 

@@ -189,7 +189,7 @@ def _render(args) -> int:
 
 def _plan(args) -> int:
     from .config import load_scene
-    from .plan import make_plan
+    from .survey import make_plan
     from .write import check_output_folder, refuse_finished_render, write_plan
     scene = load_scene(args.scene, seed=args.seed, output_dir=args.output)
     out = Path(scene.output.dir)
@@ -208,8 +208,8 @@ def _plan(args) -> int:
 
 
 def _trees(args) -> int:
-    from .trees.archetypes import DEFAULT_ARCHETYPES, expanded
-    from .trees.gallery import write_gallery
+    from .specs.archetypes import DEFAULT_ARCHETYPES, expanded
+    from .write.gallery import write_gallery
     from .write import check_output_folder
     check_output_folder(args.output)
     models = ()
@@ -226,10 +226,10 @@ def _trees(args) -> int:
 
 def _export(args) -> int:
     from .config import load_scene
-    from .plan import make_plan
+    from .survey import make_plan
     from .trees import build_models
     from .write import check_output_folder
-    from .write.export import export_scene
+    from .helios.export import export_scene
     check_output_folder(args.output)
     scene = load_scene(args.scene, seed=args.seed)
     plan = make_plan(scene)

@@ -42,10 +42,7 @@ def demo_result(tmp_path_factory, variant):
 @pytest.fixture(scope="session")
 def demo_setup(tmp_path_factory, variant):
     """The demo's trees (no understory) loaded in Mitsuba: (scene, plan, models, scan_scene)."""
-    from mitsuforest.plan import make_plan
-    from mitsuforest.scene import build_scene
-    from mitsuforest.trees import build_models
+    from mitsuforest.survey import prepare
     scene = _demo_scene(tmp_path_factory, variant, bushes=0, rocks=0, deadwood=0, stumps=0)
-    plan = make_plan(scene)
-    models = build_models(plan)
-    return scene, plan, models, build_scene(plan, models, scene.sensor, variant)
+    prepared = prepare(scene)
+    return prepared.scene, prepared.plan, prepared.models, prepared.scan_scene

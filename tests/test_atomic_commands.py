@@ -93,7 +93,7 @@ def tiny_scene(tmp_path_factory):
 def test_export_interrupted_leaves_the_folder_as_it_was(tmp_path, capsys, monkeypatch, tiny_scene):
     """Ctrl-C at the fifth OBJ: an earlier export's meshes and documents stay as they were, no new one."""
     from mitsuforest.cli import main
-    from mitsuforest.write import export
+    from mitsuforest.helios import export
     out = tmp_path / "export"
     before = _earlier_files(out, ["tiny_models/tree01_c000_stem.obj", "tiny_helios_survey.xml", "other.txt"])
     monkeypatch.setattr(export, "write_obj", _failing_on_call(5, KeyboardInterrupt(), export.write_obj))

@@ -9,7 +9,7 @@ from helpers import ROOT, SENSORS
 
 from mitsuforest.cli import main
 from mitsuforest.config import ConfigError, load_scene, load_sensor
-from mitsuforest.plan import make_plan
+from mitsuforest.survey import make_plan
 from mitsuforest.pipeline import render
 
 GOOD = f"""

@@ -20,11 +20,11 @@ from mitsuforest.classes import CLASS_NAMES, GROUND, TREE_LEAVES
 from mitsuforest.cli import main
 from mitsuforest.config import load_scene
 from mitsuforest.helios.documents import beam_sample_quality, sub_rays
-from mitsuforest.plan import make_plan
+from mitsuforest.survey import make_plan
 from mitsuforest.plan.transforms import apply
 from mitsuforest.scan.radiometry import reflectance_table
 from mitsuforest.trees import build_models
-from mitsuforest.write.export import component_meshes
+from mitsuforest.helios.export import component_meshes
 
 
 @pytest.fixture(scope="module")

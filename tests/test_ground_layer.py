@@ -8,7 +8,7 @@ from helpers import ROOT, scene_file
 from mitsuforest.classes import GROUND, GROUND_VEGETATION
 from mitsuforest.config import ConfigError, load_scene
 from mitsuforest.pipeline import render
-from mitsuforest.plan import make_plan
+from mitsuforest.survey import make_plan
 from mitsuforest.plan.transforms import apply
 from mitsuforest.trees import build_model
 from mitsuforest.trees.ground_layer import PATCH_SIZE, covered_share, grass_patch_model, litter_patch_model

@@ -8,7 +8,7 @@ from helpers import scene_file
 
 from mitsuforest.classes import GROUND
 from mitsuforest.pipeline import render
-from mitsuforest.plan import make_plan
+from mitsuforest.survey import make_plan
 from mitsuforest.config import load_scene
 from mitsuforest.plan.terrain import Terrain, TriangleSurface
 from mitsuforest.write.pcd import read_pcd

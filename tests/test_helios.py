@@ -18,7 +18,7 @@ from mitsuforest.helios.render import render_survey
 from mitsuforest.pipeline import render
 from mitsuforest.trees import build_models
 from mitsuforest.write import read_pcd
-from mitsuforest.write.export import export_scene
+from mitsuforest.helios.export import export_scene
 
 QUIET = {"write": False, "progress": False, "log": lambda *_: None}
 
@@ -36,7 +36,7 @@ def test_exported_survey_flown_here_gives_the_demo_points(tmp_path, demo_result,
     scene = demo_result.scene.with_({"sensor.footprint_range_noise": 0.0})
     plan = demo_result.plan
     export_scene(scene, plan, build_models(plan), tmp_path / "export", log=lambda *_: None)
-    native = render(scene, plan=plan, **QUIET).points
+    native = render(scene, **QUIET).points
     assert main(["render", str(tmp_path / "export" / "demo_helios_survey.xml"), "-o", str(tmp_path / "flown"),
                  "--variant", variant, "--quiet"]) == 0                  # the survey carries the seed
     flown = read_pcd(tmp_path / "flown" / "demo.pcd")

@@ -7,7 +7,7 @@ from helpers import SENSORS, scene_file
 
 from mitsuforest.cli import main
 from mitsuforest.config import load_scene
-from mitsuforest.plan import make_plan
+from mitsuforest.survey import make_plan
 from mitsuforest.plan.trajectory import ENU_FROM_NED, euler_matrix, matrix_euler
 from mitsuforest.scan import scan
 from mitsuforest.scene import build_scene
@@ -314,7 +314,7 @@ def test_navigation_errors_do_not_depend_on_batches_or_legs_scanned_apart(tmp_pa
 
 
 def test_the_helios_export_names_the_platform_settings_it_leaves_out(tmp_path):
-    from mitsuforest.write.export import _unexported_platform
+    from mitsuforest.helios.export import _unexported_platform
     scene = load_scene(scene_file(tmp_path))
     assert _unexported_platform(scene) == ""
     assert _unexported_platform(scene.with_({"survey.attitude.roll": 1})) == "survey.attitude is"

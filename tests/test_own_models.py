@@ -9,7 +9,7 @@ from mitsuforest.classes import TREE_LEAVES, TREE_WOOD
 from mitsuforest.config import load_scene
 from mitsuforest.trees.cache import cache_dir
 from mitsuforest.trees.imported import imported_model, mesh_tree_model, qsm_tree_model
-from mitsuforest.trees.sources import MeshTree, ModelFileError, QsmTree
+from mitsuforest.specs.sources import MeshTree, ModelFileError, QsmTree
 from mitsuforest.trees.tubes import tube
 
 
@@ -202,7 +202,7 @@ def test_import_report_gives_none_for_undefined_volumes(tmp_path):
     import json
     from types import SimpleNamespace
 
-    from mitsuforest.trees.imported import import_report
+    from mitsuforest.write.manifest import import_report
     path = write_obj(tmp_path / "t.obj", {"stem": (*cylinder([0, 0, 0], [0, 0, 5.0], 0.2), "bark"),
                                           "flat": (*leaf_sheet(3.0, 0.5, (2.0, 0.0)), "bark")})
     entry = MeshTree(mesh=str(path), leaves=(), repair="skip")
@@ -284,7 +284,7 @@ def test_bark_and_leaf_materials_become_wood_and_leaf_points_with_the_tree_ids(t
 
 
 def test_models_come_after_the_archetypes_in_treeid_and_deadwood_moves_past_them(tmp_path):
-    from mitsuforest.plan import make_plan
+    from mitsuforest.survey import make_plan
     stem = cylinder([0, 0, 0], [0, 0, 8.0], 0.2)
     write_obj(tmp_path / "a.obj", {"stem": (*stem, "bark"), "leaves": (*leaf_sheet(7.0), "leaf")})
     models = [{"mesh": "a.obj", "weight": 5}] * 2
@@ -399,7 +399,7 @@ def test_the_cache_key_covers_the_files_a_mesh_reads(tmp_path):
     cannot accept what a cold one refuses; so does the file's kind (suffix)."""
     import json
 
-    from mitsuforest.trees.sources import companion_files, content_hash
+    from mitsuforest.specs.sources import companion_files, content_hash
     gltf = tmp_path / "t.gltf"
     gltf.write_text(json.dumps({"buffers": [{"uri": "geo%20metry.bin"}, {"uri": "data:application/octet-stream;base64,AA=="}]}))
     (tmp_path / "geo metry.bin").write_bytes(b"\0" * 8)

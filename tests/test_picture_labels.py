@@ -73,7 +73,7 @@ def test_the_top_view_fills_the_gaps_between_scan_lines():
 
 
 def test_trees_png_names_each_tree_with_a_height_scale():
-    from mitsuforest.trees.gallery import PIXELS_PER_M, gallery_figure
+    from mitsuforest.write.gallery import PIXELS_PER_M, gallery_figure
     tall, short = np.zeros((280, 70, 3), np.uint8), np.zeros((140, 42, 3), np.uint8)
     fig = gallery_figure([tall, short], ["tree01", "tree02\nbirch.ply"])
     ax = fig.axes[0]
@@ -89,7 +89,7 @@ def test_a_helios_survey_is_summarised_by_its_parts(tmp_path, monkeypatch):
     from test_helios import _demo_like_survey
     from mitsuforest.helios.render import survey_scene
     from mitsuforest.helios.survey import read_survey
-    from mitsuforest.pipeline import placed_summary
+    from mitsuforest.survey import placed_summary
     _demo_like_survey(tmp_path)
     monkeypatch.chdir(tmp_path)
     scene, plan, *_ = survey_scene(read_survey("data/survey.xml", ["assets"]))
@@ -101,5 +101,5 @@ def test_a_forest_is_summarised_by_its_trees(demo_result):
 
 
 def placed_summary_of(plan):
-    from mitsuforest.pipeline import placed_summary
+    from mitsuforest.survey import placed_summary
     return placed_summary(plan)

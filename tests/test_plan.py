@@ -8,7 +8,8 @@ from helpers import ROOT
 
 from mitsuforest.cli import main
 from mitsuforest.config import FOREST_BANDS, load_scene
-from mitsuforest.plan import make_plan, plan_json
+from mitsuforest.plan import plan_json
+from mitsuforest.survey import make_plan
 from mitsuforest.plan.flight import flight_legs
 
 PAPER = {"woodland": (70, 0.38), "open": (121, 0.63), "closed": (216, 0.84)}

@@ -6,7 +6,7 @@ from helpers import ROOT, analytic_scene, plane_model, scene_file
 
 from mitsuforest.classes import GROUND, TREE_LEAVES, TREE_WOOD
 from mitsuforest.config import load_scene
-from mitsuforest.plan import make_plan
+from mitsuforest.survey import make_plan
 from mitsuforest.realism import REFERENCE, area_indices
 from mitsuforest.trees import build_models
 

@@ -16,7 +16,8 @@ from mitsuforest.scan import POINT_DTYPE
 from mitsuforest.trees import cache
 from mitsuforest.trees.understory import rock_model
 from mitsuforest.write import Staging
-from mitsuforest.write.las import crs_wkt, write_las
+from mitsuforest.crs import crs_wkt
+from mitsuforest.write.las import write_las
 
 HOST = socket.gethostname()
 

@@ -12,7 +12,7 @@ from rasterio.transform import Affine
 from mitsuforest.cli import main
 from mitsuforest.config import ConfigError, load_scene
 from mitsuforest.pipeline import render
-from mitsuforest.plan import make_plan
+from mitsuforest.survey import make_plan
 from mitsuforest.plan.terrain import heights_under
 
 EAST, NORTH = 500_000.0, 6_000_000.0        # the DEMs' world frame (metres of a projected CRS)

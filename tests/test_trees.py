@@ -6,7 +6,7 @@ import pytest
 from mitsuforest.cli import main
 from mitsuforest.plan import ModelSpec
 from mitsuforest.trees import DEFAULT_ARCHETYPES, build_model
-from mitsuforest.trees.archetypes import FAMILY_ARCHETYPES
+from mitsuforest.specs.archetypes import FAMILY_ARCHETYPES
 from mitsuforest.trees.models import tree_model
 from mitsuforest.trees.skeleton import crown_radius, grow
 from mitsuforest.plan import CLEARANCE
@@ -110,7 +110,7 @@ def test_default_trees_are_reproducible_and_in_the_paper_range():
 
 
 def test_trees_command_writes_meshes_volumes_and_picture(tmp_path, monkeypatch):
-    import mitsuforest.trees.archetypes as arch
+    import mitsuforest.specs.archetypes as arch
     monkeypatch.setattr(arch, "DEFAULT_ARCHETYPES", arch.DEFAULT_ARCHETYPES[:2])
     assert main(["trees", "-o", str(tmp_path)]) == 0
     names = sorted(p.name for p in tmp_path.iterdir())

@@ -82,7 +82,7 @@ def test_twin_estimates_altitude_and_line_spacing_of_the_survey(demo_twin):
 
 def test_twin_scene_loads_and_plans_one_model_per_tree(demo_twin):
     from mitsuforest.config import load_scene
-    from mitsuforest.plan import make_plan
+    from mitsuforest.survey import make_plan
     _, _, out, report = demo_twin
     scene = load_scene(out / f"{report_name(out)}.yaml")
     plan = make_plan(scene)
@@ -91,7 +91,7 @@ def test_twin_scene_loads_and_plans_one_model_per_tree(demo_twin):
 
 def test_tree_list_places_each_tree_grown_to_its_size(tmp_path):
     from mitsuforest.config import load_scene
-    from mitsuforest.plan import make_plan
+    from mitsuforest.survey import make_plan
     (tmp_path / "trees.csv").write_text("x,y,height,crown_radius,species\n1005,2005,12,2.5,pinus_radiata\n"
                                         "1014,2012,18,3.0,\n")
     (tmp_path / "s.yaml").write_text(
@@ -163,7 +163,7 @@ def test_twin_without_ground_points_or_gps_time_says_so_and_uses_named_fallbacks
 def test_tree_list_refuses_a_tree_outside_the_plot_and_a_count_beside_it(tmp_path):
     from mitsuforest.config import load_scene
     from mitsuforest.errors import ConfigError
-    from mitsuforest.plan import make_plan
+    from mitsuforest.survey import make_plan
     (tmp_path / "trees.csv").write_text("x,y,height,crown_radius\n5,5,12,2\n25,5,12,2\n")
     base = (f"area: {{size: [20, 20]}}\nsensor: {ROOT / 'sensors' / 'ideal.yaml'}\n"
             "understory: {bushes: 0, rocks: 0, deadwood: 0, stumps: 0}\n")
@@ -211,7 +211,7 @@ def test_crown_lai_inverts_beer_lambert():
 
 def test_tree_list_leaf_area_column_sets_each_trees_leaves(tmp_path):
     from mitsuforest.config import load_scene
-    from mitsuforest.plan import make_plan
+    from mitsuforest.survey import make_plan
     (tmp_path / "trees.csv").write_text("x,y,height,crown_radius,leaf_area\n5,5,12,2.5,30\n14,12,18,3,\n")
     (tmp_path / "s.yaml").write_text(
         "area: {size: [20, 20]}\nforest: {trees_file: trees.csv}\n"
@@ -220,7 +220,7 @@ def test_tree_list_leaf_area_column_sets_each_trees_leaves(tmp_path):
     plan = make_plan(load_scene(tmp_path / "s.yaml"))
     first, second = (plan.models[t.model].archetype for t in plan.trees)
     assert first.leaf_area == 30.0
-    from mitsuforest.trees.archetypes import DEFAULT_ARCHETYPES
+    from mitsuforest.specs.archetypes import DEFAULT_ARCHETYPES
     template = min(DEFAULT_ARCHETYPES, key=lambda a: abs(a.height - 18))    # the nearest Eucalyptus in height
     volume = (6.0 / template.crown_diameter) ** 2 * 18 / template.height
     assert second.leaf_area == pytest.approx(template.leaf_area * volume, abs=0.01)   # by crown volume

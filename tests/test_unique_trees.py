@@ -11,9 +11,10 @@ from helpers import ROOT
 
 from mitsuforest.cli import main
 from mitsuforest.config import load_scene
-from mitsuforest.plan import make_plan, plan_json
+from mitsuforest.plan import plan_json
+from mitsuforest.survey import make_plan
 from mitsuforest.trees import build_model, build_models
-from mitsuforest.trees.archetypes import (ABSOLUTE_SPREAD, FAMILY_ARCHETYPES, RELATIVE_SPREAD, UniqueTrees,
+from mitsuforest.specs.archetypes import (ABSOLUTE_SPREAD, FAMILY_ARCHETYPES, RELATIVE_SPREAD, UniqueTrees,
                                           unique_archetypes)
 
 

@@ -18,9 +18,9 @@ from pathlib import Path
 import yaml
 
 from ..errors import ConfigError, UserError
-from ..trees.archetypes import (DEFAULT_ARCHETYPES, FAMILY_ARCHETYPES, FIELDS as ARCHETYPE_FIELDS, MAX_UNIQUE, Archetype,
+from ..specs.archetypes import (DEFAULT_ARCHETYPES, FAMILY_ARCHETYPES, FIELDS as ARCHETYPE_FIELDS, MAX_UNIQUE, Archetype,
                                  UniqueTrees)
-from ..trees.sources import DEFAULT_LEAF_PATTERNS, REPAIR_MODES, UNITS, UP_AXES, MeshTree, QsmTree
+from ..specs.sources import DEFAULT_LEAF_PATTERNS, REPAIR_MODES, UNITS, UP_AXES, MeshTree, QsmTree
 from .schema import REQUIRED, Context, Custom, FilePath, Flag, ListOf, Number, Text, Vector, name_problem, parse_mapping
 from .types import (BEAM_PATTERNS, FOREST_BANDS, INTENSITY_SOURCES, OUTPUT_PROFILES, POINT_POSITIONS, Scene, Sensor, display_path,
                     from_mapping, to_mapping)
@@ -124,8 +124,8 @@ UNIQUE_SPEC = {"species": _field_spec(ARCHETYPE_FIELDS["species"]),
 
 
 def _unique_entry(item: dict, ctx: Context, where: str) -> UniqueTrees:
-    """``{species: S, unique: N, weight: W}``: N trees drawn for each plot (trees/archetypes.py,
-    :func:`~mitsuforest.trees.archetypes.drawn_archetype`); their parameters cannot be given."""
+    """``{species: S, unique: N, weight: W}``: N trees drawn for each plot (specs/archetypes.py,
+    :func:`~mitsuforest.specs.archetypes.drawn_archetype`); their parameters cannot be given."""
     for name in item:
         if name == "base":
             ctx.fail(f"{where}.base", "each unique tree starts from a random built-in archetype of its species; "
@@ -238,7 +238,7 @@ def _crs(value, ctx: Context, key: str):
         return None
     if not isinstance(value, str):
         ctx.fail(key, f"must be a string such as 'EPSG:7855', got {value!r}")
-    from ..write.las import crs_wkt
+    from ..crs import crs_wkt
     try:
         crs_wkt(value)
     except UserError as e:

@@ -27,8 +27,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import display_path  # noqa: F401 (re-exported: config uses it from here)
-from ..trees.archetypes import Archetype, UniqueTrees
-from ..trees.sources import MeshTree, QsmTree
+from ..specs.archetypes import Archetype, UniqueTrees
+from ..specs.sources import MeshTree, QsmTree
 
 # Australia's National Forest Inventory crown cover classes.
 FOREST_BANDS = {"woodland": (0.20, 0.50), "open": (0.50, 0.80), "closed": (0.80, 1.00)}
@@ -172,7 +172,7 @@ class Forest:
     min_spacing: float
     tilt: float
     archetypes: tuple[Archetype | UniqueTrees, ...]   # unique entries: drawn per plot by the plan
-    models: tuple[MeshTree | QsmTree, ...] = ()   # imported trees (trees/sources.py), treeids after the archetypes
+    models: tuple[MeshTree | QsmTree, ...] = ()   # imported trees (specs/sources.py), treeids after the archetypes
     trees_file: str | None = None             # a tree list (plan/tree_list.py): one procedural model per row
 
     @property

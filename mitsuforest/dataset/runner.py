@@ -274,9 +274,9 @@ class _Bars:
 
 
 def _manifest(dataset: Dataset, records, failures, seconds: float, scheduler, workers) -> dict:
-    from ..pipeline import _versions
+    from ..survey import versions
     return {
-        "versions": _versions(),
+        "versions": versions(),
         "dataset": dataset.resolved,
         "file": dataset.file,
         "base_scene": dataset.base.file,

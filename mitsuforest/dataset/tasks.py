@@ -12,7 +12,6 @@ import json
 import os
 import shutil
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -59,8 +58,8 @@ def check_plot(root: str, name: str) -> dict | None:
 
 def scan_legs(root: str, name: str, first: int, stop: int, threads: int | None = None) -> dict:
     """Scan legs ``first .. stop-1`` of a plot into ``DIR/plots/NAME/.parts/``: the points of each batch
-    appended to one file, the batch sizes and pulse counts in a JSON beside it (written last). A part
-    already there is reused."""
+    appended to one file, the batch sizes and pulse counts in a JSON beside it (written last). Only the
+    objects in reach of these legs are loaded. A part already there is reused."""
     part = _part_path(root, name, first, stop)
     scene_sha = files.sha256(files.scene_file(root, name))
     done = _read_part(part, scene_sha)
@@ -68,19 +67,20 @@ def scan_legs(root: str, name: str, first: int, stop: int, threads: int | None =
         return done
     started = time.perf_counter()
     set_threads(threads)
-    from ..scan import scan
-    scene, plan, scan_scene = _scan_setup(files.scene_file(root, name))
+    from ..survey import prepare_plan, scan
+    prepared = prepare_plan(*_plot_setup(files.scene_file(root, name)), legs=range(first, stop))
     part.parent.mkdir(parents=True, exist_ok=True)
-    batches = []
+    batches = scan(prepared)
+    sizes = []
     with files.atomic_path(part.with_suffix(".points")) as tmp, open(tmp, "wb") as f:
-        def keep(points):
-            batches.append(len(points))
+        for points in batches:
+            sizes.append(len(points))
             f.write(np.ascontiguousarray(points).data)
-        result = scan(scene, plan, scan_scene, progress=False, on_points=keep, legs=range(first, stop))
-    info = {"first": first, "stop": stop, "scene_sha256": scene_sha, "batches": batches, "points": part.with_suffix(".points").name,
+    result, scan_scene = batches.result, prepared.scan_scene
+    info = {"first": first, "stop": stop, "scene_sha256": scene_sha, "batches": sizes, "points": part.with_suffix(".points").name,
             "emitted": result.pulses_emitted, "fired": result.pulses_fired, "cast": result.pulses_cast,
             "rays": result.rays, "seconds": result.seconds, "task_seconds": time.perf_counter() - started,
-            "scene": {"objects": scan_scene.objects, "culled": scan_scene.culled,
+            "scene": {"objects": scan_scene.objects, "culled": scan_scene.culled, "loaded": scan_scene.loaded,
                       "triangles": scan_scene.triangles, "variant": scan_scene.variant}}
     files.write_json(part, info)
     return info
@@ -90,48 +90,47 @@ def merge_plot(root: str, name: str, parts: list[dict], tiles=None, threads: int
     """Write a split plot's files from its parts, in leg order, through the render's own writer: the
     same bytes as a render of the whole plot in one process. Then tiles and record; the parts go."""
     set_threads(threads)
-    from ..pipeline import render
+    from ..config import load_scene
+    from ..pipeline import write_files
+    from ..survey import prepare
     start = time.perf_counter()
     files.remove_record(root, name)
-    source = PartsSource(files.plot_folder(root, name) / PARTS, sorted(parts, key=lambda p: p["first"]))
-    result = render(files.scene_file(root, name), output_dir=files.plot_folder(root, name), overwrite=True,
-                    progress=False, log=_quiet, scan_source=source)
+    parts = sorted(parts, key=lambda p: p["first"])
+    scene = load_scene(files.scene_file(root, name), output_dir=files.plot_folder(root, name))
+    prepared = prepare(scene, legs=range(0))     # plan and models for the tables; no object loaded
+    result = write_files(prepared, part_batches(files.plot_folder(root, name) / PARTS, parts), overwrite=True)
     merge = time.perf_counter() - start
     legs = [{"legs": [p["first"], p["stop"]], "pulses": p["emitted"], "points": sum(p["batches"]),
              "scan_seconds": round(p["seconds"], 3), "task_seconds": round(p.get("task_seconds", p["seconds"]), 3)}
-            for p in sorted(parts, key=lambda p: p["first"])]
+            for p in parts]
     record = _finish(root, result, tiles, merge + sum(p["task_seconds"] for p in legs),
                      {"leg_tasks": legs, "merge_seconds": round(merge, 3)})
     shutil.rmtree(files.plot_folder(root, name) / PARTS, ignore_errors=True)
     return record
 
 
-@dataclass
-class PartsSource:
-    """Feeds the batches of a plot's parts, in order, as the scan would (see ``render(scan_source=)``)."""
+def part_batches(folder: Path, parts: list[dict]):
+    """The batches of a plot's parts (:func:`scan_legs`' records, in leg order) read back from
+    ``folder``, with their summed counts: the survey's batches as one scan would give them."""
+    from ..scan import ScanResult
+    from ..survey import Batches
+    result = ScanResult()
+    for part in parts:
+        result.pulses_emitted += part["emitted"]
+        result.pulses_fired += part["fired"]
+        result.pulses_cast += part["cast"]
+        result.rays += part["rays"]
+        result.seconds += part["seconds"]
+    return Batches(_read_batches(folder, parts), result)
 
-    folder: Path
-    parts: list
 
-    def __post_init__(self):
-        scene = self.parts[0]["scene"]
-        self.objects, self.culled = scene["objects"], scene["culled"]
-        self.triangles, self.variant = scene["triangles"], scene["variant"]
-
-    def __call__(self, on_points):
-        from ..scan import POINT_DTYPE, ScanResult
-        result = ScanResult()
-        for part in self.parts:
-            data = np.fromfile(self.folder / part["points"], POINT_DTYPE)
-            starts = np.concatenate([[0], np.cumsum(part["batches"])])
-            for a, b in zip(starts[:-1], starts[1:]):
-                on_points(data[a:b])
-            result.pulses_emitted += part["emitted"]
-            result.pulses_fired += part["fired"]
-            result.pulses_cast += part["cast"]
-            result.rays += part["rays"]
-            result.seconds += part["seconds"]
-        return result
+def _read_batches(folder: Path, parts: list[dict]):
+    from ..scan import POINT_DTYPE
+    for part in parts:
+        data = np.fromfile(folder / part["points"], POINT_DTYPE)
+        starts = np.concatenate([[0], np.cumsum(part["batches"])])
+        for a, b in zip(starts[:-1], starts[1:]):
+            yield data[a:b]
 
 
 def _finish(root, result, tiles, seconds: float, extra: dict | None = None) -> dict:
@@ -168,21 +167,21 @@ def _read_part(path: Path, scene_sha: str) -> dict | None:
     return info if complete and info.get("scene_sha256") == scene_sha else None
 
 
-_SETUP: dict = {}   # this worker's plot in memory: {scene file: (scene, plan, Mitsuba scene)}
+_SETUP: dict = {}   # this worker's plot in memory: {scene file: (scene, plan, models)}
 
 
-def _scan_setup(path):
-    """The plot's scene, plan and Mitsuba scene, kept for the next legs of the same plot (one plot at a
+def _plot_setup(path):
+    """The plot's scene, plan and models, kept for the next leg tasks of the same plot (one plot at a
     time: a new plot replaces the last)."""
     key = (str(path), os.stat(path).st_mtime_ns)
     if key not in _SETUP:
         _SETUP.clear()
         from ..config import load_scene
-        from ..plan import make_plan
-        from ..scene import build_scene, scene_variant
+        from ..survey import make_plan
+        from ..scene import scene_variant
         from ..trees import build_models
         scene = load_scene(path)
         scene_variant(scene)
         plan = make_plan(scene)
-        _SETUP[key] = (scene, plan, build_scene(plan, build_models(plan), scene.sensor, scene.simulation.variant))
+        _SETUP[key] = (scene, plan, build_models(plan))
     return _SETUP[key]

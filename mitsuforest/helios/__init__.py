@@ -1,5 +1,5 @@
-"""HELIOS++ both ways: the XML documents that let HELIOS++ fly our survey over an exported scene
-(:mod:`.documents`), and the reading of an existing HELIOS++ survey so that we fly it ourselves
+"""HELIOS++ both ways: the meshes and XML documents that let HELIOS++ fly our survey over an exported
+scene (:mod:`.export`, :mod:`.documents`), and the reading of an existing HELIOS++ survey so that we fly it ourselves
 (:mod:`.survey`, :mod:`.parts`, :mod:`.render`).
 
 HELIOS++ facts these modules rely on (HELIOS++ 2.x source, ``src/assetloading``):

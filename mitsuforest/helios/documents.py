@@ -1,5 +1,5 @@
 """The HELIOS++ documents of an exported scene: scene, survey, platform, scanner (XML text) and the
-materials (MTL text). Pure functions of the scene and plan; :mod:`mitsuforest.write.export` writes them.
+materials (MTL text). Pure functions of the scene and plan; :mod:`mitsuforest.helios.export` writes them.
 
 Every path a document names is absolute, so HELIOS++ resolves each one way only, whatever its
 working folder and ``--assets`` (see :mod:`mitsuforest.helios`).

@@ -21,10 +21,13 @@ from ..classes import CLASS_NAMES, GROUND
 from ..config import MAX_BEAM_SAMPLES, scene_from_mapping
 from ..errors import ConfigError, display_path
 from ..plan import MAX_LEG_PULSES
+from ..plan.terrain import MeshGround
 from ..plan.types import Leg, ModelSpec, PlacedObject, Plan
 from ..scan.radiometry import reflectance_table
+from ..scene import scene_variant
+from ..survey import prepare_plan
 from ..trees.models import Component, Model, Part, merge
-from ..trees.sources import missing_companions
+from ..specs.sources import missing_companions
 from .parts import class_reflectances, read_obj
 from .survey import HeliosSurvey, read_survey
 
@@ -40,33 +43,20 @@ class PlacedPart(PlacedObject):
         return np.array(self.transform, float)
 
 
-@dataclass(frozen=True)
-class MeshGround:
-    """The terrain of a HELIOS++ scene: its ground parts' triangles, in place."""
-
-    vertices: np.ndarray
-    faces: np.ndarray
-    type: str = "helios"
-
-    def mesh(self):
-        return self.vertices, self.faces
-
-    @property
-    def mean_height(self) -> float:
-        return float(self.vertices[:, 2].mean())
-
-
 def render_survey(path, *, assets=(), output_dir=None, seed=None, variant=None, overwrite=False, progress=True,
                   write=True, keep_points=None, log=print):
     """Read the HELIOS++ survey at ``path`` (relative paths resolved as HELIOS++ does, ``assets`` as its
     ``--assets``) and render it with :func:`mitsuforest.pipeline.render`."""
-    from ..pipeline import render
-    survey = read_survey(path, assets)
-    scene, plan, models, reflectance, notes = survey_scene(survey, output_dir=output_dir, seed=seed, variant=variant)
+    from ..pipeline import check_output, render
+    scene, plan, models, reflectance, notes = survey_scene(read_survey(path, assets), output_dir=output_dir, seed=seed,
+                                                           variant=variant)
     for note in notes:
         log(f"note: {note}")
-    return render(scene, plan=plan, models=models, reflectance=reflectance, overwrite=overwrite, progress=progress,
-                  write=write, keep_points=keep_points, log=log)
+    scene_variant(scene)
+    if write:
+        check_output(scene, overwrite)     # before the scene is loaded
+    prepared = prepare_plan(scene, plan, models, reflectance=reflectance, log=log)
+    return render(prepared, overwrite=overwrite, progress=progress, write=write, keep_points=keep_points, log=log)
 
 
 def survey_scene(survey: HeliosSurvey, output_dir=None, seed=None, variant=None):

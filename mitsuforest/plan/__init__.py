@@ -1,6 +1,8 @@
 """Stage 1: a scene file becomes a deterministic placement plan.
 
->>> plan = make_plan(load_scene("scenes/demo.yaml"))   # doctest: +SKIP
+>>> plan = plan_scene(load_scene("scenes/demo.yaml"), tree_shape)   # doctest: +SKIP
+
+(:func:`mitsuforest.survey.make_plan` passes :func:`mitsuforest.trees.tree_shape`.)
 
 The plan is plain JSON-ready data: the models to build, every placed object with its transform and
 ids, the measured canopy cover and the flight legs. The same scene and seed give the same plan,
@@ -10,7 +12,7 @@ byte for byte, when written with :func:`plan_json`.
 from __future__ import annotations
 
 import dataclasses
-from functools import lru_cache
+from collections.abc import Callable
 
 import numpy as np
 
@@ -18,11 +20,9 @@ from .. import seeds
 from ..classes import DEADWOOD_TREEID, GROUND_OBJECT_ID
 from ..config import RSA_JAMMING, scene_error
 from ..errors import UserError
-from ..trees.archetypes import UniqueTrees, grown_to, nearest_template, unique_archetypes
-from ..trees.imported import summary as imported_summary
-from ..trees.models import tree_components
-from ..trees.skeleton import grow
-from ..trees.understory import SHRUB_FORMS, UNDERSTORY_COMPONENTS
+from ..specs.understory import SHRUB_FORMS, UNDERSTORY_COMPONENTS
+from ..specs.archetypes import Archetype, UniqueTrees, grown_to, nearest_template, unique_archetypes
+from ..specs.sources import MeshTree, QsmTree
 from .cover import CoverGrid, crown_outline
 from .flight import flight_legs
 from .ground_layer import place_ground_layer
@@ -31,7 +31,7 @@ from .transforms import apply
 from .tree_list import read_tree_list
 from .types import Leg, ModelSpec, PlacedObject, Plan
 
-__all__ = ["make_plan", "plan_json", "Plan", "PlacedObject", "ModelSpec", "Leg", "Terrain", "UNDERSTORY_MODELS"]
+__all__ = ["plan_scene", "TreeShape", "plan_json", "Plan", "PlacedObject", "ModelSpec", "Leg", "Terrain", "UNDERSTORY_MODELS"]
 
 BUSH_MODELS = 8          # bushes are instances of this many distinct shrubs
 MAX_TREES = 5000
@@ -41,26 +41,33 @@ UNDERSTORY_MODELS = tuple(UNDERSTORY_KEYS)
 
 
 class _Refusal(Exception):
-    """A scene the plan cannot be made of: raised as the scene file's ConfigError by make_plan."""
+    """A scene the plan cannot be made of: raised as the scene file's ConfigError by plan_scene."""
 
     def __init__(self, key: str, reason: str):
         super().__init__(reason)
         self.key, self.reason = key, reason
 
 
-def make_plan(scene) -> Plan:
+TreeShape = Callable[[Archetype | MeshTree | QsmTree], tuple[np.ndarray, int]]
+"""A tree model's (k, 3) crown points, model frame, and its labelled component count (see
+:func:`mitsuforest.trees.tree_shape`, the trees stage's answer, which the plan cannot import)."""
+
+
+def plan_scene(scene, tree_shape: TreeShape) -> Plan:
     """Place trees and understory, measure canopy cover, lay out the flight legs of a
     :class:`~mitsuforest.config.types.Scene`.
 
+    :param tree_shape: the crown points and component count of each tree model, for spacing, canopy
+        cover and object ids: the plan's one call into the trees stage, passed in by its caller.
     :raises ConfigError: ``FILE: key.path: reason`` when the scene cannot be planned.
     """
     try:
-        return _plan(scene)
+        return _plan(scene, tree_shape)
     except _Refusal as r:
         raise scene_error(scene, r.key, r.reason) from None
 
 
-def _plan(scene) -> Plan:
+def _plan(scene, tree_shape: TreeShape) -> Plan:
     rng = seeds.rng(scene.seed, "trees")
     size = scene.area.size
     try:
@@ -70,7 +77,8 @@ def _plan(scene) -> Plan:
     legs = _checked_legs(scene, flight_legs(size, scene.survey, terrain.mean_height), terrain)   # before the slow part
     _check_understory_fits(scene)
     listed = _tree_list(scene) if scene.forest.trees_file else None
-    tree_models = _tree_models(scene.forest, scene.seed) if listed is None else _listed_tree_models(scene, listed)
+    tree_models = _tree_models(scene.forest, scene.seed, tree_shape) if listed is None else \
+        _listed_tree_models(scene, listed, tree_shape)
     crowns = [crown for crown, _ in tree_models.values()]
     models = {name: spec for name, (_, spec) in tree_models.items()}
     if listed is None:
@@ -155,17 +163,17 @@ def _deadwood_treeid(tree_models: int) -> int:
     return max(DEADWOOD_TREEID, tree_models + 1)
 
 
-def _tree_models(forest, seed: int) -> dict[str, tuple[np.ndarray, ModelSpec]]:
+def _tree_models(forest, seed: int, tree_shape: TreeShape) -> dict[str, tuple[np.ndarray, ModelSpec]]:
     """``treeNN``: (crown points, spec) of the archetypes (a unique entry's N drawn trees in its place),
     then of the imported models (``forest.models``), numbered on: tree model N carries treeid N."""
     out = {}
     for i, entry in enumerate(forest.archetypes):
         drawn = isinstance(entry, UniqueTrees)
         for a in unique_archetypes(entry, seed, i) if drawn else (entry,):
-            crown, components = _summarise(a)
+            crown, components = tree_shape(a)
             out[f"tree{len(out) + 1:02d}"] = crown, ModelSpec("tree", components, archetype=a, drawn=drawn or None)
     for entry in forest.models:
-        crown, components = imported_summary(entry)   # builds (or loads) the model: files are read here
+        crown, components = tree_shape(entry)   # builds (or loads) the model: files are read here
         out[f"tree{len(out) + 1:02d}"] = crown, ModelSpec("tree", components, source=entry)
     return out
 
@@ -186,9 +194,9 @@ def _tree_list(scene) -> list:
     return listed
 
 
-def _listed_tree_models(scene, listed) -> dict[str, tuple[np.ndarray, ModelSpec]]:
+def _listed_tree_models(scene, listed, tree_shape: TreeShape) -> dict[str, tuple[np.ndarray, ModelSpec]]:
     """One procedural model per listed tree: the scene's (or its family's) archetype of the tree's species
-    nearest in height, grown to the tree's height and crown (:func:`~mitsuforest.trees.archetypes.grown_to`)."""
+    nearest in height, grown to the tree's height and crown (:func:`~mitsuforest.specs.archetypes.grown_to`)."""
     archetypes = scene.forest.archetypes
     default_species = archetypes[0].species if archetypes else "eucalyptus"
     out = {}
@@ -197,7 +205,7 @@ def _listed_tree_models(scene, listed) -> dict[str, tuple[np.ndarray, ModelSpec]
         a = grown_to(template, t.height, 2 * t.crown_radius,
                      seed=seeds.key(scene.seed, "listed-tree", i, bits=31),
                      leaf_area=t.leaf_area)
-        crown, components = _summarise(a)
+        crown, components = tree_shape(a)
         out[f"tree{i + 1:02d}"] = crown, ModelSpec("tree", components, archetype=a)
     return out
 
@@ -210,22 +218,6 @@ def _place_listed_trees(listed, size, crowns, terrain, tilt_max, rng) -> tuple[l
         grid.add(crown_outline(apply(tree.matrix, crowns[k])))
         trees.append(tree)
     return trees, grid.fraction
-
-
-@lru_cache(maxsize=64)
-def _summarise(a) -> tuple[np.ndarray, int]:
-    """Crown points (skeleton widened outward by a leaf length) and component count of an archetype.
-
-    Cached per process: a dataset worker plans many plots of the same archetypes, and growing their
-    skeletons was most of a small plot's planning time. The crown array is shared, so it is read-only."""
-    branches = grow(a)
-    pts = np.vstack([b.points for b in branches])
-    radial = pts.copy()
-    radial[:, 2] = 0
-    norm = np.linalg.norm(radial, axis=1, keepdims=True)
-    crown = pts + radial / np.maximum(norm, 1e-9) * a.leaf_length
-    crown.flags.writeable = False
-    return crown, len(tree_components(a, branches))
 
 
 def _tree(archetype_index: int, xy, terrain, tilt_max, rng) -> PlacedObject:

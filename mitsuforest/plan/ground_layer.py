@@ -1,10 +1,10 @@
 """Placing the ground layer (``understory.grass`` and ``understory.litter``): patches on a grid of cells.
 
-The plot is cut into :data:`~mitsuforest.trees.ground_layer.PATCH_SIZE` m cells (the grid centred in
+The plot is cut into :data:`~mitsuforest.specs.understory.PATCH_SIZE` m cells (the grid centred in
 the plot; a plot whose sides are not whole metres keeps a strip under 1 m free at its edges); ``cover``
 × the number of cells, drawn at random, each take one patch, grass first, then litter from the cells
 left, so the two never overlap and the covers are met to one cell. Each patch is one of
-:data:`~mitsuforest.trees.ground_layer.PATCH_MODELS` models of its kind, turned by a multiple of 90° (so
+:data:`~mitsuforest.specs.understory.PATCH_MODELS` models of its kind, turned by a multiple of 90° (so
 it stays in its cell), and laid on the plane fitted to the terrain under its cell: tilted to the slope,
 its centre at the plane's height there. A tilted patch's top leans out of its cell downhill; in a cell
 at the plot's edge it is tilted less, just enough for its top to stay inside the plot (its centre never
@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import seeds
-from ..trees.ground_layer import PATCH_MODELS, PATCH_SIZE
+from ..specs.understory import PATCH_MODELS, PATCH_SIZE
 from .types import ModelSpec, PlacedObject
 
 FIT_SAMPLES = 5           # terrain samples per cell side for the patch's plane

@@ -66,6 +66,23 @@ class Terrain:
         return vertices, faces.astype(np.uint32)
 
 
+@dataclass(frozen=True)
+class MeshGround:
+    """A ground that is only a mesh, in place (a HELIOS++ scene's ground parts): no height grid; heights
+    are those of its triangles, its mean height beyond them (see :class:`TriangleSurface`)."""
+
+    vertices: np.ndarray   # (n, 3) float64, local frame
+    faces: np.ndarray      # (m, 3) uint32
+    type: str = "helios"
+
+    def mesh(self) -> tuple[np.ndarray, np.ndarray]:
+        return self.vertices, self.faces
+
+    @property
+    def mean_height(self) -> float:
+        return float(self.vertices[:, 2].mean())
+
+
 def make_terrain(settings, size, seed: int, cell: float = 1.0, origin=None) -> Terrain:
     """The terrain of a scene's ``terrain`` section (:class:`~mitsuforest.config.types.TerrainSettings`)
     over a plot of ``size`` (m).

@@ -1,4 +1,5 @@
-"""The plan's parts: flight legs, placed objects and the models they place (frozen dataclasses)."""
+"""The plan's parts: flight legs, placed objects and the models they place (frozen dataclasses;
+:class:`~mitsuforest.specs.ModelSpec`, what the trees stage builds, is shared)."""
 
 from __future__ import annotations
 
@@ -9,9 +10,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..classes import GROUND, GROUND_OBJECT_ID
-from ..trees.archetypes import Archetype
-from ..trees.sources import MeshTree, QsmTree
-from .terrain import Terrain
+from ..specs import ModelSpec
+from .terrain import MeshGround, Terrain
 from .trajectory import Track
 from .transforms import rotation
 
@@ -58,32 +58,6 @@ class Leg:
 
 
 @dataclass(frozen=True)
-class ModelSpec:
-    """What to build for one model: a tree archetype, or an understory kind and its parameters."""
-
-    kind: str                            # tree, bush, rock, deadwood, stump, grass, litter (or custom, in tests)
-    components: int                      # labelled components (object ids per placed copy)
-    archetype: Archetype | None = None   # procedural trees
-    drawn: bool | None = None            # a unique tree (forest.archetypes unique: N): one plot's own, not cached on disk
-    source: MeshTree | QsmTree | None = None   # imported trees (forest.models)
-    seed: int | None = None              # understory
-    length: float | None = None          # deadwood
-    radius: float | None = None
-    form: int | None = None              # bush: index into understory.SHRUB_FORMS
-    height: float | None = None          # grass: mean blade length (trees/ground_layer.py)
-
-    @property
-    def species(self) -> str:
-        """The species name (classes.SPECIES_CODES): a procedural tree's family, ``none`` for everything else."""
-        return self.archetype.species if self.kind == "tree" and self.archetype is not None else "none"
-
-    def parameters(self) -> dict:
-        """The understory builder's keyword arguments (seed, a log's length and radius, a shrub's form, a
-        grass patch's blade height)."""
-        return {k: getattr(self, k) for k in ("seed", "length", "radius", "form", "height") if getattr(self, k) is not None}
-
-
-@dataclass(frozen=True)
 class PlacedObject:
     """One placed copy of a model: rotation about z, then tilt about x and y, then translation."""
 
@@ -115,7 +89,7 @@ class Plan:
     area: tuple[float, float]
     forest_type: str
     canopy_cover: float
-    terrain: Terrain
+    terrain: Terrain | MeshGround         # a grid, or a mesh alone (a HELIOS++ scene's ground)
     models: dict[str, ModelSpec]
     objects: tuple[PlacedObject, ...]
     legs: tuple[Leg, ...]

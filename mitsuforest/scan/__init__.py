@@ -24,7 +24,7 @@ from .platform import Platform
 from .tracer import POINT_DTYPE, PulseTracer
 
 __all__ = ["POINT_DTYPE", "NavigationModel", "Platform", "PulseTracer", "ScanResult", "default_batch",
-           "navigation_model", "scan"]
+           "navigation_model", "scan", "scan_batches"]
 
 BATCH_SUB_RAYS = {"llvm": 2_000_000, "cuda": 20_000_000}   # default sub-rays per launch, by Dr.Jit backend
 MAX_BATCH_SLOTS = {"llvm": 400_000, "cuda": 1_000_000}     # ... and at most this many time slots
@@ -60,8 +60,25 @@ def scan(scene, plan, scan_scene, progress: bool = True, on_points=None, legs: r
         as in the whole survey: the batches of consecutive leg ranges, concatenated in order, are
         those of the whole survey.
     :param on_pulses: called with each batch's :class:`~mitsuforest.scan.waveform.PulseBatch` when the
-        scene asks for ``output.waveforms`` or ``output.pulses`` (after ``on_points`` of the batch).
+        scene asks for ``output.waveforms`` or ``output.pulses`` (before ``on_points`` of the batch).
     """
+    result = ScanResult()
+    chunks = []
+    for points in scan_batches(scene, plan, scan_scene, result, progress, legs, on_pulses):
+        if on_points is None:
+            chunks.append(points)
+        else:
+            on_points(points)
+    if on_points is None:
+        result.points = np.concatenate(chunks) if chunks else np.zeros(0, POINT_DTYPE)
+    return result
+
+
+def scan_batches(scene, plan, scan_scene, result: ScanResult, progress: bool = True, legs: range | None = None,
+                 on_pulses=None):
+    """:func:`scan` as a generator: each batch's points (local frame, POINT_DTYPE) in survey order, the
+    pulse counts and seconds added to ``result`` as it goes (complete once exhausted); ``on_pulses`` as
+    in :func:`scan`, called with a batch's pulses before its points are yielded."""
     sim = scene.simulation
     batch = sim.pulses_per_batch or default_batch(scan_scene.variant, sim.beam_samples)
     platform = Platform(scene)
@@ -69,8 +86,6 @@ def scan(scene, plan, scan_scene, progress: bool = True, on_points=None, legs: r
                          sim.point_position, platform=platform, navigation=navigation_model(scene, plan, platform),
                          waveforms=scene.output.waveforms and on_pulses is not None,
                          pulse_records=scene.output.pulses and on_pulses is not None)
-    result = ScanResult()
-    chunks = []
     counts = [leg.pulse_count(scene.pulse_frequency) for leg in plan.legs]
     legs = range(len(plan.legs)) if legs is None else legs
     first_id = sum(counts[:legs.start])
@@ -86,22 +101,16 @@ def scan(scene, plan, scan_scene, progress: bool = True, on_points=None, legs: r
             result.pulses_fired += fired
             result.pulses_cast += cast
             result.rays += cast * tracer.samples
-            if on_points is None:
-                chunks.append(points)
-            else:
-                on_points(points)
             if records:
                 on_pulses(records[0])
+            yield points
             if bar:
                 bar.update(count)
         if bar:
             bar.close()
         result.pulses_emitted += total
         first_id += total
-    if on_points is None:
-        result.points = np.concatenate(chunks) if chunks else np.zeros(0, POINT_DTYPE)
     result.seconds = time.perf_counter() - start
-    return result
 
 
 def navigation_model(scene, plan, platform: Platform) -> NavigationModel | None:

@@ -3,7 +3,7 @@
 Each model's meshes are loaded once as a ``shapegroup``; every placed object is an ``instance`` of
 it; the ground is a plain mesh. Nothing else is modelled: no emitters, no sensor, no integrator —
 the scan kernel only reads hit distances and ids. Objects that no pulse of any leg can reach are
-left out (see :func:`reachable`).
+left out (see :func:`reachable`); a scene built for some legs loads only the objects in their reach.
 """
 
 from __future__ import annotations
@@ -63,9 +63,10 @@ class ScanScene:
     table: HitTable
     bbox: np.ndarray         # (2, 3) local-frame bounds of everything modelled
     variant: str
-    objects: int             # placed objects modelled
-    culled: int              # placed objects left out as unreachable
-    triangles: int           # distinct triangles loaded (instanced copies counted once)
+    objects: int             # placed objects in reach of the survey
+    culled: int              # placed objects out of reach of every leg, left out
+    triangles: int           # distinct triangles of those objects' models and the ground (instanced copies once)
+    loaded: int              # placed objects loaded: those in reach of the legs it was built for
     reflectance: np.ndarray | None = None   # (256,) by class; None: ours at the sensor's wavelength
 
 
@@ -87,34 +88,43 @@ def reachable(obj_bounds: np.ndarray, legs, sensor) -> bool:
     return False
 
 
-def build_scene(plan, models: dict, sensor, variant: str) -> ScanScene:
+def build_scene(plan, models: dict, sensor, variant: str, legs: range | None = None,
+                reflectance: np.ndarray | None = None) -> ScanScene:
     """Load the plan's objects and ground into Mitsuba under ``variant`` and build the hit table.
 
     :param sensor: the scene's :class:`~mitsuforest.config.types.Sensor` (objects out of its reach are
         left out).
     :param variant: a Mitsuba variant (see :func:`select_variant`); the global variant is left as it was.
+    :param legs: load only the objects in reach of these legs (indices into ``plan.legs``; all by
+        default). The box, counts and triangles stay those of the whole survey, so a scan of these legs
+        casts the same pulses and makes the same points as over the whole survey's scene.
+    :param reflectance: (256,) reflectance by class; None: ours at the sensor's wavelength.
     """
     import mitsuba as mi
     import drjit as dr
 
     variant = select_variant(variant)
     with variant_scope(variant):
-        return _build(mi, dr, plan, models, sensor, variant)
+        return _build(mi, dr, plan, models, sensor, variant, legs, reflectance)
 
 
-def _build(mi, dr, plan, models, sensor, variant) -> ScanScene:
-    ground_v, ground_f = plan.terrain.mesh()
-    keep, culled = [], 0
-    # hull corners: a large model (an imported 2 M-triangle mesh) is not transformed whole per placed copy
+def _placed(plan, models) -> list[tuple]:
+    """(object, 4×4 matrix, bounds (2, 3)) of every placed object; a large model (an imported
+    2 M-triangle mesh) is bounded by its hull's corners, not transformed whole per placed copy."""
     extremes = {name: models[name].hull_corners() for name in {obj.model for obj in plan.objects}}
+    out = []
     for obj in plan.objects:
         m = obj.matrix
         v = apply(m, extremes[obj.model])
-        bounds = np.array([v.min(0), v.max(0)])
-        if reachable(bounds, plan.legs, sensor):
-            keep.append((obj, m, bounds))
-        else:
-            culled += 1
+        out.append((obj, m, np.array([v.min(0), v.max(0)])))
+    return out
+
+
+def _build(mi, dr, plan, models, sensor, variant, legs, reflectance) -> ScanScene:
+    ground_v, ground_f = plan.terrain.mesh()
+    placed = _placed(plan, models)
+    survey = [p for p in placed if reachable(p[2], plan.legs, sensor)]
+    keep = survey if legs is None else [p for p in survey if reachable(p[2], [plan.legs[i] for i in legs], sensor)]
     used = sorted({obj.model for obj, _, _ in keep})
     d = {"type": "scene"}
     part_meshes = []          # in part-row order, as _hit_table numbers parts
@@ -128,10 +138,11 @@ def _build(mi, dr, plan, models, sensor, variant) -> ScanScene:
     d["ground"] = mitsuba_mesh("ground", ground_v, ground_f)
     mi_scene = mi.load_dict(d)
     table = _hit_table(mi_scene, dr, mi, plan, models, used, keep, ground_v, ground_f, part_meshes)
-    all_bounds = [b for _, _, b in keep] + [np.array([ground_v.min(0), ground_v.max(0)])]
+    all_bounds = [b for _, _, b in survey] + [np.array([ground_v.min(0), ground_v.max(0)])]
     bbox = np.array([np.min([b[0] for b in all_bounds], 0), np.max([b[1] for b in all_bounds], 0)])
-    triangles = sum(models[n].triangles for n in used) + len(ground_f)
-    return ScanScene(mi_scene, table, bbox, variant, len(keep), culled, triangles)
+    triangles = sum(models[n].triangles for n in sorted({obj.model for obj, _, _ in survey})) + len(ground_f)
+    return ScanScene(mi_scene, table, bbox, variant, len(survey), len(placed) - len(survey), triangles, len(keep),
+                     reflectance)
 
 
 def _registry_ids(dr, mi, shapes) -> np.ndarray:

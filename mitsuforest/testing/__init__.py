@@ -5,6 +5,6 @@
 - :mod:`.analytic`: bare plots, planes and hand-made pulses run through the real pipeline.
 
 It lives in the package, not in ``tests/``, because the benchmarks (``benchmarks/speed_vs_error.py``,
-``benchmarks/stability.py``) use it too, and a user may use it to check a sensor setup. No other
-module of the package imports it (``tests/test_testing_package.py``).
+``benchmarks/stability.py``) use it too, and a user may use it to check a sensor setup. Above the
+stages: it may import any of them, and no stage imports it (``tests/test_testing_package.py``).
 """

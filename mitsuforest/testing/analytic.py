@@ -17,8 +17,9 @@ import yaml
 import dataclasses
 
 from ..config import load_scene
-from ..plan import ModelSpec, PlacedObject, make_plan
+from ..plan import ModelSpec, PlacedObject
 from ..scene import build_scene
+from ..survey import make_plan
 from ..trees.models import Component, Model, Part
 from .reference.pulses import Pulses
 

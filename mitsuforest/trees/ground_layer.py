@@ -3,7 +3,7 @@
 A patch is :data:`PATCH_SIZE` m square, centred on the origin, its ground at z = 0. A grass patch
 holds tussocks of narrow, curved blades rooted just below the ground; a litter patch holds flat
 lanceolate leaves lying a few millimetres above it. The plan places a handful of patch models
-(:data:`PATCH_MODELS` of each kind) as many times as the cover asks, so memory does not grow with the
+(:data:`~mitsuforest.specs.understory.PATCH_MODELS` of each kind) as many times as the cover asks, so memory does not grow with the
 cover. Every vertex of a patch lies inside its square, so a patch in a plot cell stays inside the plot.
 Class :data:`~mitsuforest.classes.GROUND_VEGETATION` (one component).
 """
@@ -14,11 +14,10 @@ import numpy as np
 
 from .. import seeds
 from ..classes import GROUND_VEGETATION
+from ..specs.understory import PATCH_SIZE
 from .models import Model
 from .understory import single_part_model
 
-PATCH_SIZE = 1.0          # m, side of a patch (and of a plan cell)
-PATCH_MODELS = 4          # distinct models of each kind (grass, litter) whatever the cover
 TUFTS = 36                # grass tussocks per patch
 BLADES = (14, 26)         # blades per tussock (low, high inclusive)
 BLADE_WIDTH = 0.006       # m at the base; blades taper to a point

@@ -24,11 +24,11 @@ from .meshfile import check_height, joined, read_pieces, split_by_patterns, stem
 from .models import Component, Model, Part, merge
 from .qsm import read_qsm
 from .repair import PartRepair, UnrepairablePart, boundary_loops, loose_parts, repair_part
-from .sources import MAX_RADIUS, UNITS, MeshTree, ModelFileError, QsmTree, content_hash, source_name
+from ..specs.sources import MAX_RADIUS, UNITS, MeshTree, ModelFileError, QsmTree, content_hash, source_name
 from .tubes import signed_volume, tube
 from .volume import WoodVolume, union_volume
 
-__all__ = ["imported_model", "summary", "import_report", "mesh_tree_model", "qsm_tree_model", "MeshTree", "QsmTree"]
+__all__ = ["imported_model", "summary", "mesh_tree_model", "qsm_tree_model", "MeshTree", "QsmTree"]
 
 log = logging.getLogger(__name__)
 MAX_COMPONENTS = 65_535   # component indices are uint16 per triangle
@@ -179,19 +179,3 @@ def _model(name, wood_meshes, wood_components, components, leaves, volume, meta)
         parts.append(Part("leaves", np.asarray(v, np.float64), np.asarray(f, np.uint32),
                           np.full(len(f), len(components) - 1, np.uint16)))
     return Model(name, parts, components, volume, meta)
-
-
-def import_report(plan, models: dict) -> dict:
-    """Per imported tree model of a plan: its file, height, volumes and the repair of each changed part
-    (for the run manifest). A volume that is not defined (a mesh's cylinder sum, an open part's volume)
-    is None, JSON's null, not nan."""
-    from ..write.atomic import finite_or_null   # the writer's package; a plan alone does not need it
-    out = {}
-    for name, spec in plan.models.items():
-        if getattr(spec, "source", None) is not None and name in models:
-            model = models[name]
-            out[name] = {"source": spec.source.source, "height_m": model.meta.get("height"),
-                         "volume_m3": finite_or_null(model.volume.as_dict()), "triangles": model.triangles,
-                         "parts_ok": model.meta.get("parts_ok"),
-                         "repair": finite_or_null(model.meta.get("repair", []))}
-    return out

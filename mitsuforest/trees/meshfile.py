@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .sources import MAX_HEIGHT, MIN_HEIGHT, UNITS, ModelFileError, missing_companions
+from ..specs.sources import MAX_HEIGHT, MIN_HEIGHT, UNITS, ModelFileError, missing_companions
 
 Y_UP_TO_Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])   # +y becomes +z
 BASE_SLICE = 0.1   # m: the stem base is the centre of the wood's lowest 10 cm (less for small trees)

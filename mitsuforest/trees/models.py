@@ -13,7 +13,7 @@ import numpy as np
 
 from .. import seeds
 from ..classes import TREE_LEAVES, TREE_WOOD
-from .archetypes import Archetype
+from ..specs.archetypes import Archetype
 from .leaves import leaf_count, leaves_on_twigs
 from .skeleton import grow, terminal_branches
 from .tubes import frustum_volume, tube

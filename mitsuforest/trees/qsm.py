@@ -33,7 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .sources import ModelFileError
+from ..specs.sources import ModelFileError
 
 ALIASES = {
     "radius": ("radius", "rad", "r"),

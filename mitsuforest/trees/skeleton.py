@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import seeds
-from .archetypes import Archetype
+from ..specs.archetypes import Archetype
 
 GOLDEN_ANGLE = np.pi * (3 - np.sqrt(5))
 

@@ -9,13 +9,12 @@ union wood volume like a tree.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import manifold3d
 import numpy as np
 
 from .. import seeds
 from ..classes import BUSH, DEADWOOD, ROCK, STUMP
+from ..specs.understory import SHRUB_FORMS, ShrubForm
 from .leaves import leaf_blades, leaf_count
 from .models import Component, Model, Part, merge
 from .skeleton import _curve, _direction
@@ -23,7 +22,6 @@ from .tubes import frustum_volume, tube
 from .volume import to_manifold, wood_volume
 
 
-UNDERSTORY_COMPONENTS = 1   # every understory model is one labelled component
 MAX_SHRUB_REACH = 1.6       # m from the base (crowns up to 3 m across, leaves beyond the shoots): the plan keeps CLEARANCE["bush"] beyond it
 
 
@@ -32,38 +30,6 @@ def single_part_model(name, kind, classification, meshes, volume=None, meta=None
     v, f, _ = merge(meshes, [0] * len(meshes))
     part = Part(kind, v, f, np.zeros(len(f), np.uint16))
     return Model(name, [part], [Component(kind, classification)], volume, meta or {})
-
-
-@dataclass(frozen=True)
-class ShrubForm:
-    """One shrub archetype: ranges drawn per model from its seed (lengths m, angles degrees)."""
-
-    height: tuple[float, float]
-    crown: tuple[float, float]         # crown diameter: the stems and shoots are spread to it
-    stems: tuple[int, int]             # stems from the root collar
-    spread: float                      # largest stem angle from vertical
-    shoots: int                        # side shoots per stem
-    shoot_angle: float                 # side shoot angle from its stem
-    leaf_length: float
-    leaf_width: float
-    leaf_area_density: float           # one-sided leaf area per m3 of the shrub's envelope (m2/m3)
-    leaf_inclination: float
-
-
-# Heath (dense, low, many fine stems), an upright tea-tree-like shrub, a spreading wattle-like shrub and an
-# open, tall sapling-like shrub: different sizes and densities, so bushes do not all look alike. Heights
-# and crowns span the shrub layers of Australian eucalypt woodland and open forest, 0.5-3 m tall and
-# 0.5-3 m across (README, "Understory", gives the sources).
-SHRUB_FORMS: tuple[ShrubForm, ...] = (
-    ShrubForm(height=(0.5, 0.9), crown=(0.6, 1.2), stems=(9, 14), spread=40, shoots=3, shoot_angle=40,
-              leaf_length=0.025, leaf_width=0.008, leaf_area_density=3.0, leaf_inclination=30),
-    ShrubForm(height=(1.5, 2.5), crown=(1.0, 1.8), stems=(3, 5), spread=15, shoots=5, shoot_angle=35,
-              leaf_length=0.04, leaf_width=0.01, leaf_area_density=1.6, leaf_inclination=45),
-    ShrubForm(height=(1.0, 1.8), crown=(1.8, 3.0), stems=(5, 8), spread=55, shoots=4, shoot_angle=50,
-              leaf_length=0.07, leaf_width=0.012, leaf_area_density=1.2, leaf_inclination=40),
-    ShrubForm(height=(2.2, 3.0), crown=(1.5, 2.5), stems=(2, 3), spread=10, shoots=6, shoot_angle=55,
-              leaf_length=0.08, leaf_width=0.025, leaf_area_density=0.5, leaf_inclination=55),
-)
 
 
 def shrub_skeleton(form: ShrubForm, rng) -> tuple[list[tuple[np.ndarray, np.ndarray]], int]:

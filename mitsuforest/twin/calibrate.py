@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..trees.archetypes import FIELDS
+from ..specs.archetypes import FIELDS
 from . import detection, foliage, ground
 
 CHM_CELL = 1.0          # m: cover is counted in 1 m cells, as compare's canopy_cover_2m

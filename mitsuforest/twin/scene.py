@@ -109,7 +109,7 @@ def survey_plan(analysis: dict, sensor=None) -> tuple[dict, dict | str, dict]:
 def _dense_archetypes(species: tuple[str, ...], crown_ratio: float | None) -> dict:
     """``forest.archetypes`` for the families in :data:`DENSE_SHOOTS`: their templates with denser shoots
     and, where the scan gave one, its conical crowns' ratio (:func:`~.foliage.crown_ratio`)."""
-    from ..trees.archetypes import FAMILY_ARCHETYPES
+    from ..specs.archetypes import FAMILY_ARCHETYPES
     out = []
     for family in dict.fromkeys(species):
         if family in DENSE_SHOOTS:

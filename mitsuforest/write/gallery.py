@@ -9,10 +9,10 @@ import numpy as np
 import trimesh
 
 from .. import seeds
-from ..write.atomic import atomic_path, naming_errors, write_text
-from ..write.tables import csv_text
 from ..plan.types import ModelSpec
-from . import build_model
+from ..trees import build_model
+from .atomic import atomic_path, naming_errors, write_text
+from .tables import csv_text
 
 
 PIXELS_PER_M = 14    # trees.png's scale
@@ -27,7 +27,7 @@ def write_gallery(archetypes, folder, progress=print, models=()) -> list[dict]:
     Every model is built, then every file written into a staging folder and moved into place at the end,
     so a model that cannot be built, a failing write (a full disk, named) or Ctrl-C leaves the folder as it
     was; the files of an earlier gallery in ``folder`` are replaced, none left behind."""
-    from ..write import Staging
+    from . import Staging
     specs = [ModelSpec("tree", 0, archetype=a) for a in archetypes] + [ModelSpec("tree", 0, source=m) for m in models]
     built = []
     for i, spec in enumerate(specs):

@@ -28,11 +28,11 @@ import numpy as np
 import trimesh
 
 from ..classes import CLASS_NAMES, GROUND
-from ..helios.documents import (PartFile, helios_path, materials_mtl, platform_xml, scanner_notes, scanner_xml,
-                                scene_xml, survey_xml)
-from . import Staging
-from .atomic import atomic_path, naming_errors, write_text
-from .tables import component_treeid, csv_text
+from ..write import Staging
+from ..write.atomic import atomic_path, naming_errors, write_text
+from ..write.tables import component_treeid, csv_text
+from .documents import (PartFile, helios_path, materials_mtl, platform_xml, scanner_notes, scanner_xml, scene_xml,
+                        survey_xml)
 
 MATERIALS = "materials.mtl"
 

@@ -1,0 +1,253 @@
+"""A survey prepared once, and the two steps that use it: scan its legs, write its files.
+
+>>> prepared = prepare(load_scene("scenes/demo.yaml"))          # doctest: +SKIP
+>>> written = write(prepared, scan(prepared), staging)          # doctest: +SKIP
+
+:func:`prepare` makes the plan, builds the models and loads the Mitsuba scene (stages plan → trees →
+scene); :func:`scan` flies legs of it, batch by batch (scan, labels); :func:`write` turns batches into
+every output file (write). :func:`mitsuforest.pipeline.render` is their composition. A dataset's leg
+task prepares only the objects in reach of its own legs and scans them; its merge writes the batches
+the leg tasks saved, in leg order: the same bytes as one render.
+"""
+
+from __future__ import annotations
+
+import importlib.metadata
+import platform
+import time
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import __version__
+from .config import Scene
+from .plan import Plan, plan_scene
+from .realism import realism_table
+from .scan import ScanResult, scan_batches
+from .scene import ScanScene, build_scene
+from .trees import build_models, tree_shape
+from .write.manifest import import_report
+from .write import PointWriter, Staging, write_manifest, write_render_outputs
+from .write.background import Background
+from .write.output_profiles import stem_ids
+from .write.waveforms import PulseRecordWriter
+
+__all__ = ["make_plan", "PreparedSurvey", "Batches", "Written", "Timings", "prepare", "prepare_plan", "scan", "write", "versions"]
+
+DEPENDENCIES = ("mitsuba", "drjit", "numpy", "trimesh", "manifold3d", "laspy", "scipy", "pyyaml", "pyproj", "rasterio",
+                "matplotlib")
+
+
+def _quiet(*_) -> None:
+    pass
+
+
+class Timings(dict):
+    """Seconds per stage, each from the end of the previous one."""
+
+    def __init__(self, *args):
+        super().__init__(*args)
+        self._clock = time.perf_counter()
+
+    def lap(self, stage: str) -> None:
+        now = time.perf_counter()
+        self[stage] = round(now - self._clock, 3)
+        self._clock = now
+
+
+@dataclass
+class PreparedSurvey:
+    """A scene with its plan, its models and the Mitsuba scene of the objects in reach of ``legs``."""
+
+    scene: Scene
+    plan: Plan
+    models: dict              # model name -> trees.models.Model
+    scan_scene: ScanScene     # counts, box and triangles those of the whole survey (see build_scene)
+    legs: range               # the legs it can scan (indices into plan.legs)
+    timings: dict             # seconds of plan, trees and scene
+
+
+@dataclass
+class Batches:
+    """Points, batch by batch in the survey's order (POINT_DTYPE, local frame), and the counts of the
+    scan that made them: complete once the batches are exhausted. With ``output.waveforms`` or
+    ``output.pulses``, each batch's pulses (:class:`~mitsuforest.scan.waveform.PulseBatch`) go to
+    ``on_pulses`` (set by :func:`write`; dropped while None)."""
+
+    points: Iterator[np.ndarray]
+    result: ScanResult
+    on_pulses: Callable | None = None
+
+    def _pulses(self, records) -> None:
+        if self.on_pulses is not None:
+            self.on_pulses(records)
+
+    def __iter__(self) -> Iterator[np.ndarray]:
+        return self.points
+
+
+@dataclass
+class Written:
+    """What :func:`write` made: the manifest and, when asked for, every point (local frame)."""
+
+    manifest: dict
+    points: np.ndarray | None
+
+
+def make_plan(scene: Scene) -> Plan:
+    """The plan of ``scene`` (:func:`~mitsuforest.plan.plan_scene`), its trees' crowns and components from
+    the trees stage (:func:`~mitsuforest.trees.tree_shape`)."""
+    return plan_scene(scene, tree_shape)
+
+
+def placed_summary(plan: Plan) -> str:
+    """``12 trees``; for a HELIOS++ survey, whose objects are its parts and none a tree, ``40 HELIOS++ parts``."""
+    parts = sum(o.kind == "helios_part" for o in plan.objects)
+    if parts and not plan.trees:
+        return f"{parts} HELIOS++ part{'s' * (parts != 1)}"
+    return f"{len(plan.trees)} trees"
+
+
+def prepare(scene: Scene, legs: range | None = None, *, log=_quiet) -> PreparedSurvey:
+    """Plan ``scene``, build its models and load into Mitsuba the objects in reach of ``legs``.
+
+    :param legs: the legs to be scanned (indices into the plan's legs; all by default). A survey
+        prepared for some legs loads only the objects in their reach, and scans them into the same
+        points as a survey prepared for all; ``range(0)`` loads the ground alone (for writing batches
+        scanned elsewhere).
+    :param log: called with a line on the plan and one on the Mitsuba scene.
+    """
+    timings = Timings()
+    plan = make_plan(scene)
+    timings.lap("plan")
+    models = build_models(plan)
+    timings.lap("trees")
+    return _load(scene, plan, models, legs, None, timings, log)
+
+
+def prepare_plan(scene: Scene, plan: Plan, models: dict, legs: range | None = None, *,
+                 reflectance: np.ndarray | None = None, log=_quiet) -> PreparedSurvey:
+    """:func:`prepare` for a plan and models made elsewhere (a HELIOS++ survey's parts, a dataset
+    worker's plot kept between its leg tasks).
+
+    :param reflectance: (256,) reflectance by class; None: ours at the sensor's wavelength.
+    """
+    timings = Timings({"plan": 0.0, "trees": 0.0})
+    return _load(scene, plan, models, legs, reflectance, timings, log)
+
+
+def _load(scene, plan, models, legs, reflectance, timings, log) -> PreparedSurvey:
+    legs = range(len(plan.legs)) if legs is None else legs
+    if legs.step != 1 or not (0 <= legs.start <= legs.stop <= len(plan.legs)):
+        raise ValueError(f"legs {legs} are not consecutive legs of the plan's {len(plan.legs)}")
+    log(f"plan: {placed_summary(plan)}, canopy cover {plan.canopy_cover:.1%}, {len(plan.objects)} objects, "
+        f"{len(plan.legs)} legs")
+    scan_scene = build_scene(plan, models, scene.sensor, scene.simulation.variant,
+                             None if len(legs) == len(plan.legs) else legs, reflectance)
+    timings.lap("scene")
+    log(f"scene: {scan_scene.objects} objects ({scan_scene.culled} out of reach), "
+        f"{scan_scene.triangles:,} distinct triangles, variant {scan_scene.variant}")
+    return PreparedSurvey(scene, plan, models, scan_scene, legs, dict(timings))
+
+
+def scan(prepared: PreparedSurvey, legs: range | None = None, *, progress: bool = False) -> Batches:
+    """Fly ``legs`` (all the prepared legs by default) of a prepared survey: the batches of consecutive
+    leg ranges, concatenated in order, are those of the whole survey, byte for byte. The scan runs as
+    the batches are taken."""
+    legs = prepared.legs if legs is None else legs
+    if len(legs) and (legs.step != 1 or legs.start < prepared.legs.start or legs.stop > prepared.legs.stop):
+        raise ValueError(f"legs {legs} were not prepared (the survey holds the objects in reach of {prepared.legs})")
+    result = ScanResult()
+    batches = Batches(iter(()), result)
+    records = prepared.scene.output.waveforms or prepared.scene.output.pulses
+    batches.points = scan_batches(prepared.scene, prepared.plan, prepared.scan_scene, result, progress, legs,
+                                  batches._pulses if records else None)
+    return batches
+
+
+def write(prepared: PreparedSurvey, batches: Batches, staging: Staging | None, *, keep_points: bool = False) -> Written:
+    """Write every output file of ``batches`` (the whole survey's, in order) into ``staging``, the
+    manifest last; with ``staging`` None, write nothing but count and keep points as asked.
+
+    Each batch is handed to a writer thread as it comes, so writing overlaps scanning. On failure the
+    point files are abandoned and the exception raised; the caller discards the staging folder.
+    """
+    scene, plan, models = prepared.scene, prepared.plan, prepared.models
+    timings = Timings(prepared.timings)
+    writer = records = None
+    try:
+        writer = PointWriter(staging, scene, keep=keep_points, terrain=plan.terrain, stems=stem_ids(plan, models))
+        sinks = [Background(writer.add)]
+        if staging and (scene.output.waveforms or scene.output.pulses):
+            records = PulseRecordWriter(staging, scene)
+            sinks.append(Background(records.add))
+            batches.on_pulses = sinks[1]
+        _drain(batches, sinks)
+        writer.close()
+        if records:
+            records.close()
+        timings.lap("scan")
+        manifest = _manifest(prepared, batches.result, writer.statistics(), timings)
+        if records:
+            manifest.update(records.statistics())
+        manifest["imported_trees"] = import_report(plan, models)
+        manifest["realism"] = realism_table(plan, models, writer.classes, writer.counts)
+        if staging:
+            write_render_outputs(staging, scene=scene, plan=plan, models=models, writer=writer)
+            timings.lap("write")
+            manifest["timings_s"] = dict(timings)
+            write_manifest(staging, manifest)
+    except BaseException:
+        if writer:
+            writer.abort()
+        if records:
+            records.abort()
+        raise
+    return Written(manifest, writer.points)
+
+
+def _drain(batches: Iterable[np.ndarray], sinks: list[Background]) -> None:
+    """Each batch to the first sink (the points' writer); every sink closed, even on failure."""
+    try:
+        for points in batches:
+            sinks[0](points)
+    finally:
+        _close(sinks)
+
+
+def _close(sinks: list[Background]) -> None:
+    try:
+        sinks[0].close()
+    finally:
+        if sinks[1:]:
+            _close(sinks[1:])
+
+
+def versions() -> dict:
+    """The versions of mitsuforest, Python and the libraries it runs on (None: not installed)."""
+    out = {"mitsuforest": __version__, "python": platform.python_version()}
+    for dist in DEPENDENCIES:
+        try:
+            out[dist] = importlib.metadata.version(dist)
+        except importlib.metadata.PackageNotFoundError:
+            out[dist] = None
+    return out
+
+
+def _manifest(prepared: PreparedSurvey, result: ScanResult, stats: dict, timings: dict) -> dict:
+    scene, plan, scan_scene = prepared.scene, prepared.plan, prepared.scan_scene
+    return {
+        "versions": versions(),
+        "scene": scene.describe(),
+        "seed": scene.seed,
+        "variant": scan_scene.variant,
+        "machine": {"platform": platform.platform(), "processor": platform.processor()},
+        "timings_s": dict(timings),
+        "canopy_cover": plan.canopy_cover,
+        "scene_objects": {"modelled": scan_scene.objects, "culled": scan_scene.culled,
+                          "distinct_triangles": scan_scene.triangles},
+        "pulses": {"emitted": result.pulses_emitted, "fired": result.pulses_fired, "cast": result.pulses_cast,
+                   "rays": result.rays},
+        **stats,
+    }

@@ -1,0 +1,76 @@
+"""``prepare``, ``scan`` and ``write``: a survey prepared for some legs loads only the objects in their
+reach and scans them into the same bytes as the whole survey's scene; batches scanned apart and
+written by a survey prepared for no legs are the render's points."""
+
+import itertools
+
+import numpy as np
+import pytest
+
+from conftest import ROOT
+from mitsuforest.config import load_scene
+from mitsuforest.pipeline import render
+from mitsuforest.scan import ScanResult
+from mitsuforest.survey import Batches, prepare, scan, write
+
+
+@pytest.fixture(scope="module")
+def narrow(tmp_path_factory, variant):
+    """The demo's three legs (12 m apart) with a 30° field of view, so each leg reaches about 8 m to its
+    sides at ground level and the first leg's side of the plot is out of reach of the other two."""
+    scene = load_scene(ROOT / "scenes" / "demo.yaml", variant=variant, output_dir=tmp_path_factory.mktemp("narrow"))
+    return scene.with_({"sensor.field_of_view": 30.0, "survey.pulse_frequency": 100000, "survey.speed": 6.0,
+                        "simulation.beam_samples": 1, "simulation.beam_pattern": "fixed"})
+
+
+@pytest.fixture(scope="module")
+def whole(narrow):
+    return prepare(narrow)
+
+
+def _points(batches: Batches) -> np.ndarray:
+    return np.concatenate(list(batches))
+
+
+@pytest.mark.parametrize("legs", [range(0, 1), range(1, 3)], ids=["leg 1", "legs 2-3"])
+def test_a_survey_prepared_for_some_legs_scans_the_same_bytes_as_the_whole(narrow, whole, legs):
+    part = prepare(narrow, legs=legs)
+    assert len(whole.plan.legs) == 3 and whole.scan_scene.culled == 0
+    assert whole.scan_scene.loaded == whole.scan_scene.objects == len(whole.plan.objects) == 20
+    # the first leg reaches 8 of the 20 objects (trees of the plot's west side); the other two reach all
+    assert part.scan_scene.loaded == {range(0, 1): 8, range(1, 3): 20}[legs]
+    # the counts, box and triangles stay the whole survey's, so the same pulses are cast
+    assert (part.scan_scene.objects, part.scan_scene.culled, part.scan_scene.triangles) == \
+        (whole.scan_scene.objects, whole.scan_scene.culled, whole.scan_scene.triangles)
+    np.testing.assert_array_equal(part.scan_scene.bbox, whole.scan_scene.bbox)
+    apart, together = scan(part), scan(whole, legs=legs)
+    a, b = _points(apart), _points(together)
+    assert len(a) > 10_000 and set(np.unique(a["point_source_id"])) == {k + 1 for k in legs}
+    assert a.tobytes() == b.tobytes()
+    assert (apart.result.pulses_cast, apart.result.rays) == (together.result.pulses_cast, together.result.rays)
+    # every object the legs' points hit in the whole survey's scene was loaded
+    loaded = set(part.scan_scene.table.object_instance.tolist())
+    assert set(np.unique(b["instance"][b["instance"] > 0]).tolist()) <= loaded
+
+
+def test_a_survey_scans_only_the_legs_it_was_prepared_for(narrow):
+    first = prepare(narrow, legs=range(0, 1))
+    with pytest.raises(ValueError, match="were not prepared"):
+        scan(first, legs=range(0, 2))
+    with pytest.raises(ValueError, match="not consecutive legs"):
+        prepare(narrow, legs=range(2, 4))
+
+
+def test_batches_scanned_leg_by_leg_and_written_together_are_the_render(narrow, whole):
+    """What a dataset's merge does: batches scanned by surveys prepared for one leg each, written by a
+    survey prepared for none (the ground alone loaded)."""
+    rendered = render(whole, write=False, progress=False, log=lambda *_: None)
+    legs = [scan(prepare(narrow, legs=range(k, k + 1))) for k in range(3)]
+    counts = ScanResult(pulses_emitted=sum(b.result.pulses_emitted for b in legs))
+    writer = prepare(narrow, legs=range(0))
+    assert writer.scan_scene.loaded == 0 and writer.scan_scene.objects == whole.scan_scene.objects
+    written = write(writer, Batches(itertools.chain.from_iterable(legs), counts), None, keep_points=True)
+    assert len(rendered.points) > 30_000
+    assert written.points.tobytes() == rendered.points.tobytes()
+    assert written.manifest["scene_objects"] == rendered.manifest["scene_objects"]
+    assert written.manifest["classes"] == rendered.manifest["classes"]
