@@ -49,7 +49,7 @@ def _snapshot(folder: Path) -> dict:
 @pytest.fixture
 def one_archetype(monkeypatch):
     """`mitsuforest trees` of one archetype instead of the built-in ten."""
-    from mitsuforest.trees import archetypes
+    from mitsuforest.specs import archetypes
     monkeypatch.setattr(archetypes, "DEFAULT_ARCHETYPES", archetypes.DEFAULT_ARCHETYPES[:1])
 
 

@@ -56,7 +56,7 @@ def test_write_failure_reports_the_cause_and_leaves_nothing(tmp_path, monkeypatc
     import importlib
 
     from test_outputs import _small_scene
-    render_module = importlib.import_module("mitsuforest.pipeline")
+    render_module = importlib.import_module("mitsuforest.survey")
     path = _small_scene(tmp_path)
     out = tmp_path / "out"
 
@@ -147,7 +147,7 @@ def _denied(name, real):
 def test_an_unreadable_input_file_is_bad_input(tmp_path, monkeypatch, capsys, unreadable):
     """A scene, sensor or tree file that cannot be read is named in one line with exit 2 (bad input),
     not reported as a failing write (exit 1)."""
-    from mitsuforest.trees import sources
+    from mitsuforest.specs import sources
     from test_config import SENSORS
     monkeypatch.chdir(tmp_path)
     (tmp_path / "sensor.yaml").write_text((SENSORS / "riegl_vux-1uav22.yaml").read_text())
@@ -434,6 +434,7 @@ def test_signal_at_every_stage_leaves_nothing(sig, tmp_path, monkeypatch, capsys
     import signal
 
     import mitsuforest.pipeline as pipeline
+    import mitsuforest.survey as survey
     from helpers import scene_file
 
     from mitsuforest.write import Staging, existing_outputs
@@ -449,8 +450,16 @@ def test_signal_at_every_stage_leaves_nothing(sig, tmp_path, monkeypatch, capsys
             return func(*args, **kwargs)
         return wrapper
 
-    def scan_signalling_on_first_points(*args, on_points, **kwargs):
-        return real_scan(*args, on_points=signalling("scan", on_points), **kwargs)
+    def scan_signalling_on_first_points(*args, **kwargs):
+        batches = real_scan(*args, **kwargs)
+        batches.points = signalling_before_first(batches.points)
+        return batches
+
+    def signalling_before_first(points):
+        for i, batch in enumerate(points):
+            if i == 0 and at == "scan":
+                os.kill(os.getpid(), signum)
+            yield batch
 
     def commit_signalling_after_first_move(self):
         def replace(*args):
@@ -467,7 +476,7 @@ def test_signal_at_every_stage_leaves_nothing(sig, tmp_path, monkeypatch, capsys
     real_scan, real_commit, real_replace = pipeline.scan, Staging.commit, os.replace
     for name in ("make_plan", "build_models", "build_scene", "write_render_outputs"):
         stage = {"make_plan": "plan", "build_models": "trees", "build_scene": "scene"}.get(name, "write")
-        monkeypatch.setattr(pipeline, name, signalling(stage, getattr(pipeline, name)))
+        monkeypatch.setattr(survey, name, signalling(stage, getattr(survey, name)))
     monkeypatch.setattr(pipeline, "scan", scan_signalling_on_first_points)
     monkeypatch.setattr(Staging, "commit", commit_signalling_after_first_move)
     out = tmp_path / "out"

@@ -15,7 +15,7 @@ from helpers import ROOT
 from mitsuforest import seeds
 from mitsuforest.cli import main
 from mitsuforest.config import load_scene
-from mitsuforest.plan import make_plan
+from mitsuforest.survey import make_plan
 
 # (seed, purpose, ids) -> numbers, as seeds.py derives them (numpy SeedSequence + PCG64, SHA-256 of the purpose).
 EXPECTED = {"rng(7, terrain)": [2021138368, 1384810378, 4146494859], "key(7, beam)": 598996948,
