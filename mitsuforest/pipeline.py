@@ -15,7 +15,6 @@ import numpy as np
 
 from .config import Scene, load_scene, scene_from_mapping
 from .errors import UserError
-from .interrupts import InterruptedAfterCommit, Terminated, deferred_signals
 from .plan import Plan
 from .scene import scene_variant
 from .survey import Batches, PreparedSurvey, prepare, scan, write as write_survey
@@ -88,23 +87,16 @@ def write_files(prepared: PreparedSurvey, batches: Batches, *, overwrite: bool =
     scene = prepared.scene
     out, name = Path(scene.output.dir), scene.name
     check_output(scene, overwrite)
+    written = []
+
+    def write_all() -> None:
+        written.append(write_survey(prepared, batches, staging, keep_points=keep_points))
+        _refuse_existing(out, name, overwrite)   # results that appeared meanwhile
+
     with output_lock(out, name):
         staging = Staging(out, name)
-        try:
-            written = write_survey(prepared, batches, staging, keep_points=keep_points)
-            _refuse_existing(out, name, overwrite)   # results that appeared meanwhile
-            staging.sync()             # flushing to disk may take seconds: before signals are deferred
-            try:
-                with deferred_signals():   # never half the files in place
-                    files = staging.commit()
-            except KeyboardInterrupt as e:
-                raise InterruptedAfterCommit(isinstance(e, Terminated)) from None
-        except BaseException as e:
-            staging.discard()
-            if isinstance(e, OSError):
-                raise staging.public_error(e) from e
-            raise
-    return RenderResult(scene, prepared.plan, written.manifest, written.points, files)
+        files = staging.commit_or_discard(write_all, replaced=None)
+    return RenderResult(scene, prepared.plan, written[0].manifest, written[0].points, files)
 
 
 def _refuse_existing(out: Path, name: str, overwrite: bool) -> None:

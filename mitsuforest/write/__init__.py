@@ -188,7 +188,7 @@ class Staging:
             name = name.with_name(name.name.split(TMP_MARK)[0])
         return OSError(error.errno, error.strerror or str(error), str(name))
 
-    def commit_or_discard(self, write, replaced: list[str]) -> list[Path]:
+    def commit_or_discard(self, write, replaced: list[str] | None) -> list[Path]:
         """Run ``write()`` (which fills :attr:`path`), then :meth:`commit` with Ctrl-C and SIGTERM held:
         on any failure or signal before, the staging folder is removed and nothing in :attr:`folder`
         changes (an :class:`OSError` then names the file it would have become)."""
