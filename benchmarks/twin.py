@@ -16,12 +16,14 @@ where this checkout has it, and says so where it does not.
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))   # this checkout's package, not an installed one
 REAL = ROOT.parent / "shared" / "data" / "real"
 SCANS = ("UAS_Clip.laz", "MixedConifer.laz")
 MATCH_RADIUS = 2.0   # m: a detected top matches a labelled tree's highest point this close, one to one

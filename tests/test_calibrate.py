@@ -87,12 +87,28 @@ def test_a_secant_step_hits_a_power_law_the_first_step_missed():
     assert response_exponent(0.5, 0.7, 1.0, 2.0) == 2.0     # no step: the default
 
 
-def test_crown_ratio_recovers_a_cone_s_length_from_its_first_returns_seen_from_above():
-    from mitsuforest.twin.foliage import crown_ratio
+def test_crown_ratio_recovers_a_cone_s_length_from_the_foliage_profile_of_its_returns():
+    """Layers of a cone's crown of uniform leaf density (crown ratio 0.42: the foliage within relative
+    depth s of the top goes as F (s / 0.42)^2.8, F = 2): a pulse stops at the first leaf, so the depth it
+    reaches is where the foliage above it is an exponential draw, and one in e² reaches the ground.
+    MacArthur-Horn's inversion gives the profile back, and half of it lies 0.781 crown lengths down."""
+    from mitsuforest.twin.foliage import crown_ratio, foliage_profile
     rng = np.random.default_rng(3)
-    height, ratio = 28.0, 0.3
-    rho = np.sqrt(rng.random(200_001))                   # uniform over the crown's disc, rho / R
-    first = height - ratio * height * rho ** (1 / 0.9)   # where a vertical pulse meets the cone
-    assert crown_ratio(first, [height] * 5) == pytest.approx(ratio, rel=0.01)
-    assert crown_ratio([], [height]) is None
-    assert crown_ratio([27.9], [height]) == 0.2          # within the range
+    ratio, total = 0.42, 2.0
+    stopped_at = rng.exponential(1.0, 400_000)                   # foliage each pulse passes before a hit
+    hit = stopped_at < total
+    rel = np.where(hit, 1.0 - ratio * (np.minimum(stopped_at, total) / total) ** (1 / 2.8), 0.0)
+    assert crown_ratio(rel) == pytest.approx(ratio, abs=0.01)
+    z, foliage = foliage_profile(rel, 0.1)
+    expected = total * np.clip((1 - z) / ratio, 0, 1) ** 2.8
+    assert np.abs(foliage - expected).max() < 0.03
+    assert crown_ratio([]) is None and crown_ratio([0.0, 0.0]) is None
+    assert crown_ratio(np.r_[np.full(1000, 0.99), np.zeros(100)]) == 0.2      # within the range
+
+
+def test_relative_heights_are_taken_under_each_tree_s_own_crown():
+    from mitsuforest.twin.foliage import relative_heights_under_crowns
+    rel = relative_heights_under_crowns([0.5, 10.2, 5.0], [0.0, 0.0, 0.0], [10.0, 15.0, 8.0],
+                                        [0.0, 10.0], [0.0, 0.0], [20.0, 30.0], [1.0, 2.0])
+    assert rel.tolist() == [0.5, 0.5]                            # the third point is under neither crown
+    assert len(relative_heights_under_crowns([1.0], [1.0], [1.0], [], [], [], [])) == 0

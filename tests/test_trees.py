@@ -1,5 +1,7 @@
 """Tree meshes and wood volume against analytic truth (README, "Wood volume")."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -242,3 +244,62 @@ def test_species_families_have_their_own_form(family):
         leaves = m.parts[-1]
         assert len(leaves.faces) == 2 * round(a.leaf_area / (0.5 * a.leaf_length * a.leaf_width))   # 2 per blade
         assert 60_000 < m.triangles < 300_000
+
+
+def _shadow_area(vertices: np.ndarray, faces: np.ndarray, cell: float = 0.01) -> float:
+    """Area (m²) of the union of the triangles' shadows seen from straight above: the cells of ``cell``
+    metres whose centres lie in at least one triangle's x-y projection."""
+    tri = vertices[faces.astype(np.int64)][:, :, :2]
+    lo = np.floor(tri.min(1) / cell).astype(np.int64)
+    k = int(np.ceil((tri.max(1) - tri.min(1)).max() / cell)) + 2
+    di, dj = np.meshgrid(np.arange(k), np.arange(k), indexing="ij")
+    ci, cj = lo[:, None, 0] + di.ravel(), lo[:, None, 1] + dj.ravel()
+    px, py = (ci + 0.5) * cell, (cj + 0.5) * cell
+
+    def side(p, q):
+        return (q[:, None, 0] - p[:, None, 0]) * (py - p[:, None, 1]) - (q[:, None, 1] - p[:, None, 1]) * (px - p[:, None, 0])
+    s = [side(tri[:, 0], tri[:, 1]), side(tri[:, 1], tri[:, 2]), side(tri[:, 2], tri[:, 0])]
+    inside = ((s[0] >= 0) & (s[1] >= 0) & (s[2] >= 0)) | ((s[0] <= 0) & (s[1] <= 0) & (s[2] <= 0))
+    return len(np.unique((ci[inside] << 32) + cj[inside])) * cell * cell
+
+
+def test_leaf_fill_spreads_leaves_through_the_crown_volume_as_beer_lambert_says():
+    """A small pine's crown (a cone of radius R = 1.5 m and length L = 3.6 m, r(z) = R (1 - u)^0.9) with
+    the same 6 m² of leaf on its twigs (``leaf_fill`` 0), half spread (0.5) and all spread through its
+    volume (1). All spread, the leaves are a turbid medium: seen from above, a column at distance ρ from
+    the axis holds ``a · L (1 - (ρ/R)^(1/0.9))`` of projected leaf area (``a`` the blades' projected area
+    over the cone's volume π R² L / 2.8), and the crown's shadow is ∫ (1 - exp(-that)) 2πρ dρ. On the
+    twigs the leaves pile into clumps and shade less than half of that; the gap fraction within the
+    crown's footprint falls as the fill rises."""
+    base = dataclasses.replace(FAMILY_ARCHETYPES["pinus_radiata"][2], height=6.0, dbh=0.1, crown_diameter=3.0,
+                               crown_ratio=0.6, branches=12, leaf_area=6.0, leaf_length=0.06, leaf_width=0.012, lean=0.0)
+    radius, length = 1.5, 3.6
+    gaps = []
+    for fill in (0.0, 0.5, 1.0):
+        leaves = tree_model(dataclasses.replace(base, leaf_fill=fill), "t").parts[-1]
+        assert abs(len(leaves.faces) - 2 * round(6.0 / (0.5 * 0.06 * 0.012))) <= 2   # the same leaf area, to a blade
+        shadow = _shadow_area(leaves.vertices, leaves.faces)
+        gaps.append(1 - shadow / (np.pi * radius ** 2))
+    v = leaves.vertices[leaves.faces.astype(np.int64)]
+    projected = 0.5 * np.abs(np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])[:, 2]).sum()
+    a = projected / (np.pi * radius ** 2 * length / 2.8)
+    rho = np.linspace(0, radius, 4001)
+    beer_lambert = np.trapezoid((1 - np.exp(-a * length * (1 - (rho / radius) ** (1 / 0.9)))) * 2 * np.pi * rho, rho)
+    assert shadow == pytest.approx(beer_lambert, rel=0.02)
+    assert gaps[0] > gaps[1] + 0.1 > gaps[2] + 0.1 and gaps[0] > 0.75 and gaps[2] == pytest.approx(0.578, abs=0.02)
+
+
+def test_leaf_fill_zero_leaves_the_default_trees_as_they_were():
+    """``leaf_fill`` 0 (every built-in archetype's) takes the twig path alone: the blades are those of
+    ``leaves_on_twigs`` from the tree's leaf stream, bit for bit, as before the field existed; a fill
+    above 0 moves them."""
+    from mitsuforest.trees.leaves import leaves_on_twigs
+    from mitsuforest.trees.skeleton import terminal_branches
+    assert all(t.leaf_fill == 0.0 for family in FAMILY_ARCHETYPES.values() for t in family)
+    a = FAMILY_ARCHETYPES["pinus_radiata"][2]
+    twigs = [t.points for t in terminal_branches(grow(a))]
+    expected, _ = leaves_on_twigs(twigs, a.leaf_area, a.leaf_length, a.leaf_width, a.leaf_inclination,
+                                  a.leaf_clumping, np.random.default_rng(a.seed + 10_000))
+    assert np.array_equal(tree_model(a, "t").parts[-1].vertices, expected)
+    filled = tree_model(dataclasses.replace(a, leaf_fill=0.25), "t").parts[-1].vertices
+    assert len(filled) == len(expected) and not np.array_equal(filled, expected)

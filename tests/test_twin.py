@@ -86,7 +86,39 @@ def test_twin_scene_loads_and_plans_one_model_per_tree(demo_twin):
     _, _, out, report = demo_twin
     scene = load_scene(out / f"{report_name(out)}.yaml")
     plan = make_plan(scene)
-    assert len(plan.trees) == report["trees"]["count"] == len({t.model for t in plan.trees})
+    inside = [t for t in plan.trees if 0 <= t.position[0] <= scene.area.size[0] and 0 <= t.position[1] <= scene.area.size[1]]
+    assert len(inside) == report["trees"]["count"] == len({t.model for t in plan.trees})
+    assert scene.forest.surround > 0 and len(plan.trees) > len(inside)      # the stand around the plot: copies
+
+
+def test_surround_repeats_the_listed_trees_around_the_plot_with_its_period(tmp_path):
+    """``forest.surround: 15`` around a 20 x 20 m plot: a tree at (5, 5) has copies at 5 + 20 i, 5 + 20 j
+    within 15 m outside the plot (i, j in -1..1, not both 0: 8), one at (14, 12) at 14 + 20 i, 12 + 20 j
+    (-6 and 32 are within 15 m, so 8 too); same models, on the ground; the listed trees keep their ids.
+    Without a tree list the key is refused."""
+    from mitsuforest.config import load_scene
+    from mitsuforest.errors import ConfigError
+    from mitsuforest.plan import make_plan
+    from mitsuforest.twin.scene import surround_width
+    (tmp_path / "trees.csv").write_text("x,y,height,crown_radius\n1005,2005,12,2.5\n1014,2012,18,3.0\n")
+    base = ("area: {size: [20, 20]}\norigin: {offset: [1000, 2000, 0]}\n"
+            "understory: {bushes: 0, rocks: 0, deadwood: 0, stumps: 0}\n"
+            f"sensor: {ROOT / 'sensors' / 'ideal.yaml'}\nsurvey: {{lines: [[[10, -5], [10, 25]]]}}\n")
+    (tmp_path / "s.yaml").write_text(base + "forest: {trees_file: trees.csv}\n")
+    alone = make_plan(load_scene(tmp_path / "s.yaml"))
+    (tmp_path / "s.yaml").write_text(base + "forest: {trees_file: trees.csv, surround: 15}\n")
+    plan = make_plan(load_scene(tmp_path / "s.yaml"))
+    assert plan.trees[:2] == alone.trees and len(plan.trees) == 2 + 8 + 8
+    for model, (x0, y0) in (("tree01", (5.0, 5.0)), ("tree02", (14.0, 12.0))):
+        copies = sorted(t.position[:2] for t in plan.trees[2:] if t.model == model)
+        assert copies == sorted((x0 + 20 * i, y0 + 20 * j) for i in (-1, 0, 1) for j in (-1, 0, 1) if (i, j) != (0, 0))
+    assert all(t.position[2] == -0.05 for t in plan.trees)      # flat ground
+    (tmp_path / "s.yaml").write_text(base + "forest: {trees: 3, surround: 10}\n")
+    with pytest.raises(ConfigError, match="forest.surround: repeats the trees of forest.trees_file"):
+        load_scene(tmp_path / "s.yaml")
+    assert surround_width([12.0, 30.0], 140.0) == pytest.approx(round(30 * np.tan(np.radians(70)), 1))
+    assert surround_width([30.0], 60.0) == pytest.approx(round(30 * np.tan(np.radians(30)), 1))
+    assert surround_width([80.0], 160.0) == 100.0 and surround_width([], 90.0) == 0.0
 
 
 def test_tree_list_places_each_tree_grown_to_its_size(tmp_path):

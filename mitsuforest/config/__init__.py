@@ -281,6 +281,7 @@ SCENE_SPEC = {
         "archetypes": Custom(_archetypes, "default"),
         "models": Custom(_models, None),
         "trees_file": FilePath(None, nullable=True),
+        "surround": Number(0.0, ge=0, le=500),
     },
     "understory": {**{k: Number(d, integer=True, ge=0) for k, d in
                       (("bushes", 200), ("rocks", 40), ("deadwood", 25), ("stumps", 15))},
@@ -474,6 +475,8 @@ def _check_scene(scene: dict, ctx: Context):
         ctx.fail("forest.canopy_cover", f"{cover:g} is outside the {forest['type']} band {lo:g}-{hi:g}")
     if forest["trees_file"] is not None and (forest["trees"] is not None or forest["canopy_cover"] is not None):
         ctx.fail("forest.trees_file", "places the trees it lists: give it without forest.trees or forest.canopy_cover")
+    if forest["surround"] and forest["trees_file"] is None:
+        ctx.fail("forest.surround", "repeats the trees of forest.trees_file around the plot: give it with one")
     if forest["trees_file"] is not None and forest["models"]:
         ctx.fail("forest.trees_file", "grows procedural trees of the listed sizes: give it without forest.models")
     if forest["trees_file"] is None and not sum(a.weight for a in [*forest["archetypes"], *forest["models"]]) > 0:

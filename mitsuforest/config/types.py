@@ -174,6 +174,7 @@ class Forest:
     archetypes: tuple[Archetype | UniqueTrees, ...]   # unique entries: drawn per plot by the plan
     models: tuple[MeshTree | QsmTree, ...] = ()   # imported trees (specs/sources.py), treeids after the archetypes
     trees_file: str | None = None             # a tree list (plan/tree_list.py): one procedural model per row
+    surround: float = 0.0                     # m: with a tree list, its trees repeated around the plot this far (plan)
 
     @property
     def target_cover(self) -> float | None:

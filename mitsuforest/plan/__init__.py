@@ -12,6 +12,7 @@ byte for byte, when written with :func:`plan_json`.
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Callable
 
 import numpy as np
@@ -91,10 +92,11 @@ def _plan(scene, tree_shape: TreeShape) -> Plan:
     models.update(understory_models)
     ground_layer, ground_layer_models = place_ground_layer(scene.understory, size, terrain, scene.seed)
     models.update(ground_layer_models)
+    around = _surrounding_copies(trees, size, scene.forest.surround, terrain) if listed is not None else []
     return Plan(
         scene=scene.name, seed=scene.seed, area=tuple(size), forest_type=scene.forest.type,
         canopy_cover=round(cover, 6), terrain=terrain, models=models,
-        objects=tuple(_with_ids(trees + understory + ground_layer, models)),
+        objects=tuple(_with_ids(trees + understory + ground_layer + around, models)),
         legs=tuple(legs),
     )
 
@@ -218,6 +220,25 @@ def _place_listed_trees(listed, size, crowns, terrain, tilt_max, rng) -> tuple[l
         grid.add(crown_outline(apply(tree.matrix, crowns[k])))
         trees.append(tree)
     return trees, grid.fraction
+
+
+def _surrounding_copies(trees: list[PlacedObject], size, width: float, terrain) -> list[PlacedObject]:
+    """``forest.surround``: the listed trees repeated with the plot's period (shifted by whole plot widths
+    and depths) wherever a copy stands outside the plot within ``width`` m of it, each on the ground at
+    its place (the terrain's edge height beyond it) with its original's model, rotation and tilt. A plot
+    cut from a forest is seen through the stand around it: pulses at 45-70 degrees reach its ground from
+    beyond its edges, and without a stand there they pass under the crowns (README, "Twins of real plots")."""
+    if width <= 0:
+        return []
+    w, h = size
+    out = []
+    for i in range(-math.ceil(width / w), math.ceil(width / w) + 1):
+        for j in range(-math.ceil(width / h), math.ceil(width / h) + 1):
+            for t in trees if (i, j) != (0, 0) else ():
+                x, y = t.position[0] + i * w, t.position[1] + j * h
+                if -width <= x <= w + width and -width <= y <= h + width:
+                    out.append(dataclasses.replace(t, position=(x, y, float(terrain.height(x, y)) - 0.05)))
+    return out
 
 
 def _tree(archetype_index: int, xy, terrain, tilt_max, rng) -> PlacedObject:

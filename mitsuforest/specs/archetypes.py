@@ -46,6 +46,8 @@ class Archetype:
     leaf_width: float = _p(0.025, "leaf blade width (m)", 0.002, 0.2)
     leaf_inclination: float = _p(75.0, "mean leaf blade angle from horizontal (deg); 90 = hanging", 0.0, 90.0)
     leaf_clumping: float = _p(0.35, "fraction of each terminal twig, from its tip, that carries leaves", 0.05, 1.0)
+    leaf_fill: float = _p(0.0, "share of the leaf area spread through the crown envelope's volume instead of "
+                               "on the twigs (0: all on twigs)", 0.0, 1.0)
     min_radius: float = _p(0.003, "smallest twig radius (m)", 0.0002, 0.05)
     lean: float = _p(3.0, "random stem lean and sweep (deg)", 0.0, 30.0)
     seed: int = _p(0, "seed of this archetype's own random choices", 0, 2**31 - 1, True)

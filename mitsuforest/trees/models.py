@@ -14,8 +14,8 @@ import numpy as np
 from .. import seeds
 from ..classes import TREE_LEAVES, TREE_WOOD
 from ..specs.archetypes import Archetype
-from .leaves import leaf_count, leaves_on_twigs
-from .skeleton import grow, terminal_branches
+from .leaves import leaf_blades, leaf_count, leaves_on_twigs
+from .skeleton import crown_volume_points, grow, terminal_branches
 from .tubes import frustum_volume, tube
 from .volume import WoodVolume, wood_volume
 
@@ -108,8 +108,20 @@ def tree_model(archetype: Archetype, name: str) -> Model:
 
 
 def _leaves(a: Archetype, branches, rng):
+    """The leaf blades: on the terminal twigs, and with ``leaf_fill`` that share of the leaf area through
+    the crown envelope's volume (:func:`~.skeleton.crown_volume_points`), where twigs on whorled branches
+    leave gaps that no amount of leaf on them closes."""
     if not bears_leaves(a, branches):
         return None
     twigs = [t.points for t in terminal_branches(branches)]
-    return leaves_on_twigs(twigs, a.leaf_area, a.leaf_length, a.leaf_width, a.leaf_inclination,
-                           a.leaf_clumping, rng)
+    if a.leaf_fill <= 0:
+        return leaves_on_twigs(twigs, a.leaf_area, a.leaf_length, a.leaf_width, a.leaf_inclination,
+                               a.leaf_clumping, rng)
+    on_twigs = a.leaf_area * (1.0 - a.leaf_fill)
+    meshes = [leaves_on_twigs(twigs, on_twigs, a.leaf_length, a.leaf_width, a.leaf_inclination, a.leaf_clumping, rng)
+              ] if leaf_count(on_twigs, a.leaf_length, a.leaf_width) else []
+    spread = leaf_count(a.leaf_area - on_twigs, a.leaf_length, a.leaf_width)
+    anchors = crown_volume_points(a, branches[0], spread, rng)
+    meshes.append(leaf_blades(anchors, a.leaf_length, a.leaf_width, a.leaf_inclination, rng))
+    vertices, faces, _ = merge(meshes, [0] * len(meshes))
+    return vertices, faces

@@ -120,6 +120,24 @@ def crown_radius(a: Archetype, z: float) -> float:
     return radius * (1 - u ** exponent) ** (1 / exponent)
 
 
+def crown_volume_points(a: Archetype, stem: Branch, count: int, rng) -> np.ndarray:
+    """(count, 3) points uniform in the volume of the crown envelope (:func:`crown_radius` about the
+    stem's axis, from the crown base to the top), drawn by rejection from the enclosing cylinder."""
+    base, radius = a.height * (1 - a.crown_ratio), 0.5 * a.crown_diameter
+    out, have = np.empty((count, 3)), 0
+    while have < count:
+        n = 2 * (count - have) + 64
+        z = rng.uniform(base, a.height, n)
+        rho, phi = radius * np.sqrt(rng.random(n)), rng.uniform(0, 2 * np.pi, n)
+        keep = rho <= crown_radius(a, z)
+        z, rho, phi = z[keep][:count - have], rho[keep][:count - have], phi[keep][:count - have]
+        axis_x = np.interp(z, stem.points[:, 2], stem.points[:, 0])
+        axis_y = np.interp(z, stem.points[:, 2], stem.points[:, 1])
+        out[have:have + len(z)] = np.column_stack([axis_x + rho * np.cos(phi), axis_y + rho * np.sin(phi), z])
+        have += len(z)
+    return out
+
+
 def _branch_site(a: Archetype, i: int, s_lo: float, rng) -> tuple[float, float]:
     """Arc-length fraction along the parent and roll increment of first-order branch ``i``: spread
     evenly (a golden-angle spiral), or in whorls of BRANCHES_PER_WHORL for Pinus radiata."""

@@ -71,7 +71,8 @@ def analyse(scan, settings: detection.DetectionSettings | None = None) -> dict:
     gap = foliage.crown_gap_fraction(h[first], chm[row, col] >= settings.min_height)
     angle = float(np.median(np.abs(scan.scan_angle[first]))) if scan.scan_angle is not None else 0.0
     lai = foliage.effective_lai(gap, angle) if gap is not None else None
-    ratio = foliage.crown_ratio(h[first & (h >= detection.DetectionSettings().min_height)], trees.height)
+    ratio = foliage.crown_ratio(foliage.relative_heights_under_crowns(scan.x, scan.y, h, trees.x, trees.y, trees.height,
+                                                                      trees.crown_radius))
     cells = understory.shrub_cells(scan.x, scan.y, h, cx, cy,
                                    (int(frame.size[1] / understory.CELL), int(frame.size[0] / understory.CELL)))
     estimate = survey.estimate(scan, float(np.mean(dem)))

@@ -32,18 +32,46 @@ def effective_lai(gap: float, scan_angle_deg: float) -> float:
 
 
 CONE_EXPONENT = 0.9                      # Pinus radiata crown radius ~ (1 - u)^0.9 (trees/skeleton.py)
-CONE_MEDIAN_DEPTH = np.sqrt(0.5) ** (1 / CONE_EXPONENT)   # 0.68: see crown_ratio
+# Half a cone's volume lies within this share of its length from the top: its cross-section at depth s
+# (from the top, in crown lengths) goes as s^(2 · 0.9), so the volume above s as s^2.8.
+CONE_MEDIAN_DEPTH = 0.5 ** (1 / (2 * CONE_EXPONENT + 1))   # 0.781
 CROWN_RATIO_RANGE = (0.2, 0.9)
 
 
-def crown_ratio(h_first_canopy, tree_heights) -> float | None:
-    """The live-crown ratio of conical crowns that puts the median first return as deep into the crowns
-    as the scan's: seen from above, a cone of length ``L`` under its top ``H`` is first hit at
-    ``H - L · (ρ/R)^(1/0.9)``, and half a disc's area lies within ``ρ/R = √0.5``, so the median hit is
-    0.68 ``L`` below the top. ``h_first_canopy``: heights of first returns at least 2 m above the ground;
-    ``tree_heights``: the trees found. ``None`` without either; within :data:`CROWN_RATIO_RANGE`."""
-    h, tops = np.asarray(h_first_canopy, float), np.asarray(tree_heights, float)
-    if not len(h) or not len(tops):
+def relative_heights_under_crowns(x, y, h, tree_x, tree_y, tree_height, tree_radius) -> np.ndarray:
+    """Each return within its nearest tree's crown radius, its height ``h`` over that tree's height;
+    points (n,), trees (k,). Empty without trees."""
+    if not len(tree_x):
+        return np.empty(0)
+    from scipy.spatial import cKDTree
+    d, i = cKDTree(np.column_stack([tree_x, tree_y])).query(np.column_stack([x, y]))
+    under = d <= np.asarray(tree_radius)[i]
+    return np.asarray(h)[under] / np.asarray(tree_height)[i[under]]
+
+
+def foliage_profile(relative_height, canopy_from: float, step: float = 0.025) -> tuple[np.ndarray, np.ndarray]:
+    """The cumulative foliage above each relative height, by MacArthur & Horn (1969): of all returns
+    under the crowns (``relative_height``: height over the tree's own height, shape (n,)), the share
+    ``n(>z) / n`` above ``z`` were stopped there, so ``-ln(1 - n(>z)/n)`` is the leaf area above ``z``
+    in units of the extinction coefficient. Returns the heights from 1 down to ``canopy_from`` in
+    ``step`` and that profile; returns below ``canopy_from`` (ground, understory) only count as passed."""
+    rel = np.sort(np.asarray(relative_height, float))
+    z = np.arange(1.0, canopy_from - 1e-9, -step)
+    above = 1.0 - np.searchsorted(rel, z, side="right") / max(len(rel), 1)
+    return z, -np.log(np.maximum(1.0 - above, 1e-6))
+
+
+def crown_ratio(relative_height, canopy_from: float = 0.1) -> float | None:
+    """The live-crown ratio of conical crowns of uniform leaf density that hold half their foliage as
+    deep as the scan's crowns do: the relative height ``z50`` above which half the foliage lies
+    (:func:`foliage_profile`, down to ``canopy_from`` of the tree's height), and a cone holds half its
+    volume in its top :data:`CONE_MEDIAN_DEPTH` of its length, so the ratio is
+    ``(1 - z50) / 0.781``. ``relative_height``: every return under the detected crowns over its tree's
+    height. ``None`` without returns or foliage; within :data:`CROWN_RATIO_RANGE`."""
+    if not len(relative_height):
         return None
-    ratio = (1.0 - float(np.median(h)) / float(np.median(tops))) / CONE_MEDIAN_DEPTH
-    return float(np.clip(ratio, *CROWN_RATIO_RANGE))
+    z, foliage = foliage_profile(relative_height, canopy_from)
+    if foliage[-1] <= 0:
+        return None
+    z50 = float(np.interp(0.5 * foliage[-1], foliage, z))
+    return float(np.clip((1.0 - z50) / CONE_MEDIAN_DEPTH, *CROWN_RATIO_RANGE))
