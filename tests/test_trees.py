@@ -5,6 +5,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from mitsuforest import seeds
 from mitsuforest.cli import main
 from mitsuforest.plan import ModelSpec
 from mitsuforest.trees import DEFAULT_ARCHETYPES, build_model
@@ -299,7 +300,7 @@ def test_leaf_fill_zero_leaves_the_default_trees_as_they_were():
     a = FAMILY_ARCHETYPES["pinus_radiata"][2]
     twigs = [t.points for t in terminal_branches(grow(a))]
     expected, _ = leaves_on_twigs(twigs, a.leaf_area, a.leaf_length, a.leaf_width, a.leaf_inclination,
-                                  a.leaf_clumping, np.random.default_rng(a.seed + 10_000))
+                                  a.leaf_clumping, seeds.rng(a.seed, "leaves"))
     assert np.array_equal(tree_model(a, "t").parts[-1].vertices, expected)
     filled = tree_model(dataclasses.replace(a, leaf_fill=0.25), "t").parts[-1].vertices
     assert len(filled) == len(expected) and not np.array_equal(filled, expected)

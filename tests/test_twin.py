@@ -98,7 +98,7 @@ def test_surround_repeats_the_listed_trees_around_the_plot_with_its_period(tmp_p
     Without a tree list the key is refused."""
     from mitsuforest.config import load_scene
     from mitsuforest.errors import ConfigError
-    from mitsuforest.plan import make_plan
+    from mitsuforest.survey import make_plan
     from mitsuforest.twin.scene import surround_width
     (tmp_path / "trees.csv").write_text("x,y,height,crown_radius\n1005,2005,12,2.5\n1014,2012,18,3.0\n")
     base = ("area: {size: [20, 20]}\norigin: {offset: [1000, 2000, 0]}\n"
