@@ -18,14 +18,14 @@ def _device_offsets(samples, pulses=PULSES, seed=3):
     """(P, S, 2) offsets drawn by the production sampler, and the uniforms it used."""
     import drjit as dr
     import mitsuba as mi
-    table = device_cells(mi, beam_cells(samples))
+    table = device_cells(beam_cells(samples))
     lane = dr.arange(mi.UInt32, pulses * samples)
     pulse_id = mi.UInt64(lane // samples) + (1 << 33)          # ids past 32 bits use the high word
     sample = lane % samples
     key = seeds.key(seed, "beam")
-    ox, oy = device_offsets(dr, mi, table, key, pulse_id, sample)
-    radius_u, _ = uniform_pair(mi, key, pulse_id, sample)
-    rotation_u, _ = uniform_pair(mi, key, pulse_id, dr.gather(mi.UInt32, table["ring"], sample) + RING_STREAM)
+    ox, oy = device_offsets(table, key, pulse_id, sample)
+    radius_u, _ = uniform_pair(key, pulse_id, sample)
+    rotation_u, _ = uniform_pair(key, pulse_id, dr.gather(mi.UInt32, table["ring"], sample) + RING_STREAM)
     shape = (pulses, samples)
     return (np.stack([np.array(ox).reshape(shape), np.array(oy).reshape(shape)], -1),
             np.array(radius_u).reshape(shape), np.array(rotation_u).reshape(shape))

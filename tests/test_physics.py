@@ -132,7 +132,6 @@ def test_device_waveform_matches_the_numpy_reference(samples, variant):
 
 
 def _device_waveform_matches_the_numpy_reference(samples):
-    import drjit as dr
     import mitsuba as mi
 
     from mitsuforest.scan.echoes import pulse_echoes
@@ -151,7 +150,7 @@ def _device_waveform_matches_the_numpy_reference(samples):
     col = [mi.Float(np.ascontiguousarray(ranges32[:, k])) for k in range(samples)]
     pcol = [mi.Float(np.ascontiguousarray(power[:, k].astype(np.float32))) for k in range(samples)]
     off = [[mi.Float(np.full(n, k, np.float32)) for _ in range(3)] for k in range(samples)]
-    slots, returns = pulse_echoes(dr, col, pcol, off, resolving, threshold, max_returns)
+    slots, returns = pulse_echoes(col, pcol, off, resolving, threshold, max_returns)
     got = []
     for slot in slots:
         kept = np.array(slot["kept"])
@@ -175,7 +174,6 @@ def test_single_chain_shortcut_gives_the_sorted_rule_s_echo(variant):
     reference, strongest sub-ray included when powers tie (the lowest sub-ray wins, as in the twin);
     pulses with a gap wider than ΔR are left to the sorting path."""
     with variant_scope(variant):
-        import drjit as dr
         import mitsuba as mi
 
         from mitsuforest.scan.echoes import single_chain
@@ -191,7 +189,7 @@ def test_single_chain_shortcut_gives_the_sorted_rule_s_echo(variant):
         col = [mi.Float(np.ascontiguousarray(ranges[:, k].astype(np.float32))) for k in range(samples)]
         pcol = [mi.Float(np.ascontiguousarray(power[:, k].astype(np.float32))) for k in range(samples)]
         off = [[mi.Float(np.full(n, k + a, np.float32)) for a in range(3)] for k in range(samples)]
-        one, slot = single_chain(dr, col, pcol, off, resolving, 1e-5)
+        one, slot = single_chain(col, pcol, off, resolving, 1e-5)
         one, kept = np.array(one), np.array(slot["kept"])
         finite = np.isfinite(ranges)
         spread = np.where(finite, ranges, -np.inf).max(axis=1) - np.where(finite, ranges, np.inf).min(axis=1)

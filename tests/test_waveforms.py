@@ -57,7 +57,6 @@ def test_device_sampling_is_its_numpy_twin(variant):
     """Random returns (a fifth missing, one pulse without any): the device's float32 waveforms are the
     numpy twin's within 5e-5 of each pulse's peak (float32 differences of erf: 1.7e-5 here), their
     integrals within 1e-5, with the same windows."""
-    import drjit as dr
     import mitsuba as mi
     from mitsuforest.scan.waveform import device_waveforms
     from mitsuforest.scene.variant import variant_scope
@@ -69,7 +68,7 @@ def test_device_sampling_is_its_numpy_twin(variant):
     powers = np.where(np.isfinite(ranges), rng.uniform(0, 1e-3, ranges.shape), 0.0)
     sigma = pulse_sigma(C * PULSE / 2)
     with variant_scope(variant):
-        made = device_waveforms(dr, mi.Float(ranges.ravel().astype(np.float32)),
+        made = device_waveforms(mi.Float(ranges.ravel().astype(np.float32)),
                                 mi.Float(powers.ravel().astype(np.float32)), subs, sigma, H, 128)
         rows, first, wave, complete = (np.array(made[k]) for k in ("rows", "first_bin", "waveform", "complete"))
     keep = np.isfinite(ranges).any(axis=1)

@@ -9,6 +9,8 @@ does not know is flagged in ``unknown``.
 
 from __future__ import annotations
 
+import drjit as dr
+import mitsuba as mi
 import numpy as np
 
 from ..classes import GROUND
@@ -35,10 +37,6 @@ class DeviceHitTable:
     """Dr.Jit copies of a :class:`~mitsuforest.scene.HitTable`'s arrays (call under the scene's variant)."""
 
     def __init__(self, table):
-        import drjit as dr
-        import mitsuba as mi
-        self.dr, self.mi = dr, mi
-
         # One padding element each: Dr.Jit cannot gather from an empty array (a scene without objects).
         def u32(a):
             return mi.UInt32(np.append(np.asarray(a, np.uint32).reshape(-1), np.uint32(0)))
@@ -60,10 +58,10 @@ class DeviceHitTable:
         for name, values in arrays.items():
             setattr(self, name, u32(values))
 
-    def locate(self, instance, shape, shape_index, prim, active):
+    def locate(self, instance: mi.UInt32, shape: mi.UInt32, shape_index: mi.UInt32, prim: mi.UInt32,
+               active: mi.Bool) -> tuple[mi.UInt32, mi.UInt32, mi.Bool]:
         """Each hit's object row (the ground's for ground hits) and global triangle row, and the
         ``unknown`` mask (a shape that is neither the ground nor a placed object)."""
-        dr, mi = self.dr, self.mi
         on_object = active & (instance > 0)
         in_registry = on_object & (instance < self.registry_size)
         row = dr.select(in_registry, dr.gather(mi.UInt32, self.object_of_registry, instance, in_registry),
@@ -79,9 +77,8 @@ class DeviceHitTable:
         tri = dr.gather(mi.UInt32, self.part_base, part, known) + prim
         return row, tri, unknown
 
-    def class_and_normal(self, row, tri, active):
+    def class_and_normal(self, row: mi.UInt32, tri: mi.UInt32, active: mi.Bool) -> tuple[mi.UInt32, mi.Vector3f]:
         """Class (UInt32) and world-frame unit normal (Vector3f) of located hits."""
-        dr, mi = self.dr, self.mi
         cls = dr.gather(mi.UInt32, self.triangle_class, tri, active)
         local = [dr.gather(mi.Float, self.triangle_normal, tri * 3 + a, active) for a in range(3)]
         m = [dr.gather(mi.Float, self.object_rotation, row * 9 + a, active) for a in range(9)]
@@ -90,9 +87,8 @@ class DeviceHitTable:
                              m[6] * local[0] + m[7] * local[1] + m[8] * local[2])
         return cls, normal
 
-    def identities(self, row, tri, active):
+    def identities(self, row: mi.UInt32, tri: mi.UInt32, active: mi.Bool) -> dict[str, mi.UInt32]:
         """``instance``, ``object_id``, ``treeid`` and ``classification`` (UInt32 each) of located hits."""
-        dr, mi = self.dr, self.mi
         return {
             "instance": dr.gather(mi.UInt32, self.object_instance, row, active),
             "object_id": dr.gather(mi.UInt32, self.object_id_base, row, active)

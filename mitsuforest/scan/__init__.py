@@ -14,17 +14,34 @@ solution's errors (navigation.py), and carry their leg's number from 1 as ``poin
 
 from __future__ import annotations
 
+import importlib
 import time
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..fields import POINT_DTYPE
 from .navigation import NavigationModel
-from .platform import Platform
-from .tracer import POINT_DTYPE, PulseTracer
+
+if TYPE_CHECKING:
+    from .platform import Platform
+    from .tracer import PulseTracer
 
 __all__ = ["POINT_DTYPE", "NavigationModel", "Platform", "PulseTracer", "ScanResult", "default_batch",
            "navigation_model", "scan", "scan_batches"]
+
+# The Dr.Jit side imports Mitsuba: loaded on first use, so that what only reads the radiometry
+# (write, and so ``mitsuforest info`` and ``compare``) does not start it.
+_ON_DEVICE = {"Platform": "platform", "PulseTracer": "tracer"}
+
+
+def __getattr__(name):
+    if name in _ON_DEVICE:
+        value = getattr(importlib.import_module(f".{_ON_DEVICE[name]}", __name__), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 BATCH_SUB_RAYS = {"llvm": 2_000_000, "cuda": 20_000_000}   # default sub-rays per launch, by Dr.Jit backend
 MAX_BATCH_SLOTS = {"llvm": 400_000, "cuda": 1_000_000}     # ... and at most this many time slots
@@ -79,6 +96,9 @@ def scan_batches(scene, plan, scan_scene, result: ScanResult, progress: bool = T
     """:func:`scan` as a generator: each batch's points (local frame, POINT_DTYPE) in survey order, the
     pulse counts and seconds added to ``result`` as it goes (complete once exhausted); ``on_pulses`` as
     in :func:`scan`, called with a batch's pulses before its points are yielded."""
+    from .platform import Platform
+    from .tracer import PulseTracer
+
     sim = scene.simulation
     batch = sim.pulses_per_batch or default_batch(scan_scene.variant, sim.beam_samples)
     platform = Platform(scene)

@@ -9,13 +9,17 @@ from __future__ import annotations
 
 import math
 
+import drjit as dr
+import mitsuba as mi
+
 # Pulses this close outside FOV/2 still fire: far above the rounding of θ (~1e-12 rad after 10 min of
 # flight), so both twins fire the same pulses.
 FOV_TOLERANCE = 1e-9
 TWO_PI = 2 * math.pi   # constants are Python floats: a numpy scalar times a Dr.Jit array would become numpy
 
 
-def deflect(dr, sensor, t, scan_frequency: float):
+def deflect(sensor, t: mi.Float64, scan_frequency: float) -> tuple[tuple[mi.Float64, mi.Float64, mi.Float64],
+                                                                  mi.Float64, mi.Bool]:
     """Sensor-frame directions, scan angles and fired mask of pulses at times ``t``.
 
     :param sensor: a :class:`~mitsuforest.config.types.Sensor` (its deflector, field of view, prisms).

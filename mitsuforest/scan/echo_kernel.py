@@ -10,11 +10,14 @@ those of the numpy reference (:func:`mitsuforest.testing.reference.trace_referen
 
 from __future__ import annotations
 
+import drjit as dr
+import mitsuba as mi
 import numpy as np
 
 from ..labels.device import DeviceHitTable
 from .echoes import pulse_echoes, single_chain
 from .kernel import RayCaster
+from .pulses import DevicePulses
 from .waveform import device_waveforms, pulse_sigma
 from .noise import noise_key, range_sigma, speckle_gain, speckle_key, standard_normal, varies
 
@@ -41,12 +44,11 @@ class EchoKernel(RayCaster):
         are those without it.
     """
 
-    def __init__(self, mi_scene, *, weights, table, reflectance, sensor, seed: int, point_position: str = "beam_axis",
-                 record: bool = False, **beam):
+    def __init__(self, mi_scene: mi.Scene, *, weights, table, reflectance, sensor, seed: int,
+                 point_position: str = "beam_axis", record: bool = False, **beam):
         super().__init__(mi_scene, **beam)
         self.on_surface = point_position == "surface"
         self.record = record
-        mi = self.mi
         self.table = DeviceHitTable(table)
         self.weights = mi.Float(np.asarray(weights, np.float32))
         self.reflectance = mi.Float(np.asarray(reflectance, np.float32))
@@ -61,7 +63,7 @@ class EchoKernel(RayCaster):
         self.looks = int(sensor.speckle_looks)
         self.speckle_key = speckle_key(seed)
 
-    def echoes(self, pulses) -> dict:
+    def echoes(self, pulses: DevicePulses) -> dict:
         """Echoes of a batch of :class:`~mitsuforest.scan.pulses.DevicePulses`, in pulse then range order.
 
         :returns: numpy arrays (E,) of :data:`ECHO_FIELDS`: the pulse's id, GPS time and scan angle
@@ -72,7 +74,7 @@ class EchoKernel(RayCaster):
         """
         return self.echoes_and_waveforms(pulses)[0]
 
-    def echoes_and_waveforms(self, pulses) -> tuple[dict, dict | None]:
+    def echoes_and_waveforms(self, pulses: DevicePulses) -> tuple[dict, dict | None]:
         """:meth:`echoes`, and with ``record`` the batch's sampled waveforms (else None).
 
         :returns: the echoes (with ``record``, also ``energy`` (E,): the power summed over the echo's
@@ -89,12 +91,11 @@ class EchoKernel(RayCaster):
         echoes = self._echo_records(flat, returns, hit_id, pulses)
         return echoes, (self._waveforms(lane, pulses) if self.record else None)
 
-    def _waveforms(self, lane: dict, pulses) -> dict:
+    def _waveforms(self, lane: dict, pulses: DevicePulses) -> dict:
         """The sampled waveforms of a batch's pulses with a return, and their pulse data, in numpy (see
         :meth:`echoes_and_waveforms`)."""
-        dr, mi = self.dr, self.mi
         sampling = self.sensor.waveform
-        made = device_waveforms(dr, lane["t"], lane["power"], self.samples, pulse_sigma(self.resolving),
+        made = device_waveforms(lane["t"], lane["power"], self.samples, pulse_sigma(self.resolving),
                                 sampling.bin_range, sampling.samples)
         rows = made["rows"]
         out = {"pulse_id": dr.gather(mi.UInt64, pulses.pulse_id, rows),
@@ -110,11 +111,10 @@ class EchoKernel(RayCaster):
         out["samples"] = np.array(made["waveform"]).reshape(-1, sampling.samples)
         return out
 
-    def _sub_ray_returns(self, pulses):
+    def _sub_ray_returns(self, pulses: DevicePulses) -> tuple[dict, dict]:
         """Trace, label and weigh every sub-ray (lane = pulse*S + sub-ray): its range (``inf`` when it
         gave no valid return), received power and hit offset from the origin, and where it hit (object
         and triangle rows of the device hit table)."""
-        dr, mi = self.dr, self.mi
         ray, _, d, _, sample = self.subrays(pulses.origin, pulses.direction, pulses.across, pulses.pulse_id)
         pi = self.intersect(ray)
         hit = pi.is_valid()
@@ -138,41 +138,40 @@ class EchoKernel(RayCaster):
             raise RuntimeError("a ray hit a shape that is neither the ground nor a placed object")
         return lane, hit_id
 
-    def _ranked_echoes(self, lane: dict, n: int):
+    def _ranked_echoes(self, lane: dict, n: int) -> tuple[dict, mi.UInt32]:
         """The waveform per pulse (echoes.py), its echoes scattered to slots pulse*S + rank.
 
         Pulses whose returns are one chain take :func:`~mitsuforest.scan.echoes.single_chain`; only the
         others (a few in ten in a forest) are gathered again and sorted."""
-        dr, mi, S = self.dr, self.mi, self.samples
+        S = self.samples
         flat = {k: dr.zeros(mi.Float, n * S) for k in ("range", "amplitude", *("xyz" if self.on_surface else ""))}
         flat["dominant"] = dr.zeros(mi.UInt32, n * S)
         flat["kept"] = dr.zeros(mi.UInt32, n * S)
         if self.record:
             flat["energy"] = dr.zeros(mi.Float, n * S)
         pulse = dr.arange(mi.UInt32, n)
-        one, slot = single_chain(dr, *self._per_sample(lane, pulse), self.resolving, self.threshold)
+        one, slot = single_chain(*self._per_sample(lane, pulse), self.resolving, self.threshold)
         self._scatter(flat, [slot], pulse * S, one)
         returns = mi.UInt32(dr.select(one & slot["kept"], 1, 0))   # one echo at most: within any max_returns
         dr.eval(flat, returns, one)
         several = dr.compress(~one)
         if dr.width(several):
-            slots, chained = pulse_echoes(dr, *self._per_sample(lane, several), self.resolving, self.threshold,
+            slots, chained = pulse_echoes(*self._per_sample(lane, several), self.resolving, self.threshold,
                                           self.max_returns)
             self._scatter(flat, slots, several * S, True)
             dr.scatter(returns, chained, several)
             dr.eval(flat, returns)
         return flat, returns
 
-    def _per_sample(self, lane: dict, pulse):
+    def _per_sample(self, lane: dict, pulse: mi.UInt32) -> tuple[list[mi.Float], list[mi.Float], list | None]:
         """Ranges, powers and hit offsets of ``pulse``'s sub-rays, as S arrays (echoes.py's layout)."""
-        dr, mi, S = self.dr, self.mi, self.samples
+        S = self.samples
         base = pulse * S
         per_sample = {k: [dr.gather(mi.Float, v, base + s) for s in range(S)] for k, v in lane.items()}
         offset = [[per_sample[a][s] for a in "xyz"] for s in range(S)] if "x" in lane else None
         return per_sample["t"], per_sample["power"], offset
 
-    def _scatter(self, flat: dict, slots: list, base, active):
-        mi, dr = self.mi, self.dr
+    def _scatter(self, flat: dict, slots: list[dict], base: mi.UInt32, active: mi.Bool | bool):
         for slot in slots:
             at, kept = base + slot["rank"], slot["kept"] & active
             offset = zip("xyz", slot["offset"]) if slot["offset"] is not None else ()
@@ -181,10 +180,10 @@ class EchoKernel(RayCaster):
                                ("dominant", slot["dominant"]), ("kept", mi.UInt32(1))):
                 dr.scatter(flat[key], value, at, kept)
 
-    def _echo_records(self, flat: dict, returns, hit_id: dict, pulses) -> dict:
+    def _echo_records(self, flat: dict, returns: mi.UInt32, hit_id: dict, pulses: DevicePulses) -> dict:
         """The kept slots, compacted, with their points, noise, pulse data and their strongest sub-ray's
         labels, in numpy."""
-        dr, mi, S = self.dr, self.mi, self.samples
+        S = self.samples
         idx = dr.compress(flat["kept"] > 0)
         if dr.width(idx) == 0:
             return _no_echoes(self.record)
@@ -201,10 +200,10 @@ class EchoKernel(RayCaster):
         if self.sigma_varies or self.sigma > 0:
             sigma = (self._range_sigma(echo_range, axis, strongest, hit_id, pulses, echo_pulse) if self.sigma_varies
                      else self.sigma)
-            noise = sigma * standard_normal(dr, mi, self.noise_key, pulse_id, return_number)
+            noise = sigma * standard_normal(self.noise_key, pulse_id, return_number)
         amplitude = dr.gather(mi.Float, flat["amplitude"], idx)
         if self.looks:
-            amplitude = amplitude * speckle_gain(dr, mi, self.speckle_key, pulse_id, return_number, self.looks)
+            amplitude = amplitude * speckle_gain(self.speckle_key, pulse_id, return_number, self.looks)
         measured = echo_range + noise
         if self.on_surface:
             point = [start[a] + dr.gather(mi.Float, flat[name], idx) + axis[a] * noise for a, name in enumerate("xyz")]
@@ -224,14 +223,14 @@ class EchoKernel(RayCaster):
         dr.eval(out)
         return {k: np.array(v) for k, v in out.items()}
 
-    def _range_sigma(self, echo_range, axis, strongest, hit_id: dict, pulses, echo_pulse):
+    def _range_sigma(self, echo_range: mi.Float, axis: mi.Vector3f, strongest: mi.UInt32, hit_id: dict,
+                     pulses: DevicePulses, echo_pulse: mi.UInt32) -> mi.Float:
         """σ(R, θ) of each echo (noise.py), θ from the normal of its strongest sub-ray's triangle."""
-        dr, mi = self.dr, self.mi
         row, tri = (dr.gather(mi.UInt32, hit_id[k], strongest) for k in ("row", "tri"))
         _, normal = self.table.class_and_normal(row, tri, dr.full(mi.Bool, True, dr.width(row)))
         across = dr.gather(mi.Vector3f, pulses.across, echo_pulse)
         along = dr.cross(axis, across)
-        return range_sigma(dr, echo_range, dr.dot(normal, axis), dr.dot(normal, across), dr.dot(normal, along),
+        return range_sigma(echo_range, dr.dot(normal, axis), dr.dot(normal, across), dr.dot(normal, along),
                            self.sensor)
 
 

@@ -22,6 +22,9 @@ from __future__ import annotations
 import math
 from functools import cache
 
+import drjit as dr
+import mitsuba as mi
+
 FWHM_PER_SIGMA = 2.0 * math.sqrt(2.0 * math.log(2.0))
 
 
@@ -46,7 +49,8 @@ def sorting_network(n: int) -> tuple[tuple[int, int], ...]:
     return tuple((a, b) for a, b in pairs if b < n)
 
 
-def pulse_echoes(dr, t: list, power: list, offset: list, resolving: float, threshold: float, max_returns: int):
+def pulse_echoes(t: list[mi.Float], power: list[mi.Float], offset: list[list[mi.Float]] | None, resolving: float,
+                 threshold: float, max_returns: int) -> tuple[list[dict], mi.UInt32]:
     """Echoes of a batch of pulses, one lane per pulse.
 
     :param t: S arrays (P,) of sub-ray ranges, ``inf`` where a sub-ray gave no valid return.
@@ -59,18 +63,19 @@ def pulse_echoes(dr, t: list, power: list, offset: list, resolving: float, thres
         chain's summed power, for waveforms); and ``returns`` (P,) UInt32, the number of
         echoes of each pulse after ``max_returns``.
     """
-    rows = _sorted_by_range(dr, t, power, offset)
+    rows = _sorted_by_range(t, power, offset)
     valid = [dr.isfinite(r["t"]) for r in rows]
     start = [valid[0]] + [valid[k] & ~(rows[k]["t"] - rows[k - 1]["t"] <= resolving) for k in range(1, len(rows))]
     end = [valid[k] & (~valid[k + 1] | start[k + 1]) for k in range(len(rows) - 1)] + [valid[-1]]
-    totals = _chain_totals(dr, rows, start)
-    mean = _chain_means(dr, totals, end)
-    amplitude = _chain_amplitudes(dr, rows, valid, start, mean, resolving / FWHM_PER_SIGMA)
+    totals = _chain_totals(rows, start)
+    mean = _chain_means(totals, end)
+    amplitude = _chain_amplitudes(rows, valid, start, mean, resolving / FWHM_PER_SIGMA)
     detected = [end[k] & (amplitude[k] > 0) & (amplitude[k] >= threshold) for k in range(len(rows))]
-    return _ranked(dr, totals, mean, amplitude, detected, max_returns)
+    return _ranked(totals, mean, amplitude, detected, max_returns)
 
 
-def single_chain(dr, t: list, power: list, offset: list, resolving: float, threshold: float):
+def single_chain(t: list[mi.Float], power: list[mi.Float], offset: list[list[mi.Float]] | None, resolving: float,
+                 threshold: float) -> tuple[mi.Bool, dict]:
     """The echo of each pulse whose returns are one chain, found without sorting them.
 
     A pulse's returns are one chain when the farthest lies within ΔR of the nearest (then every gap
@@ -93,24 +98,24 @@ def single_chain(dr, t: list, power: list, offset: list, resolving: float, thres
     total = None
     best, dominant = Float(-1.0), UInt32(0)
     for k in range(len(t)):
-        here = _chain_terms(dr, {"t": t[k], "p": power[k], **(dict(zip("xyz", offset[k])) if offset else {})})
+        here = _chain_terms({"t": t[k], "p": power[k], **(dict(zip("xyz", offset[k])) if offset else {})})
         total = total or {key: Float(0.0) for key in here}
         total = {key: dr.select(valid[k], total[key] + here[key], total[key]) for key in here}
         stronger = valid[k] & (power[k] > best)
         best = dr.select(stronger, power[k], best)
         dominant = dr.select(stronger, UInt32(k), dominant)
-    mean = _chain_mean(dr, total)
+    mean = _chain_mean(total)
     sigma = resolving / FWHM_PER_SIGMA
     amplitude = Float(0.0)
     for k in range(len(t)):
-        amplitude = amplitude + dr.select(valid[k], power[k] * _pulse_shape(dr, t[k], mean, sigma), 0.0)
+        amplitude = amplitude + dr.select(valid[k], power[k] * _pulse_shape(t[k], mean, sigma), 0.0)
     kept = any_return & (amplitude > 0) & (amplitude >= threshold)
     slot = {"kept": kept, "rank": UInt32(0), "range": mean, "amplitude": amplitude,
-            "offset": _chain_offset(dr, total), "dominant": dominant, "energy": total["energy"]}
+            "offset": _chain_offset(total), "dominant": dominant, "energy": total["energy"]}
     return one, slot
 
 
-def _sorted_by_range(dr, t, power, offset) -> list[dict]:
+def _sorted_by_range(t: list[mi.Float], power: list[mi.Float], offset: list[list[mi.Float]] | None) -> list[dict]:
     """Each pulse's sub-ray returns in range order (a sorting network; ties keep sub-ray order)."""
     UInt32 = dr.uint32_array_t(type(t[0]))
     n = dr.width(t[0])
@@ -124,11 +129,11 @@ def _sorted_by_range(dr, t, power, offset) -> list[dict]:
     return rows
 
 
-def _chain_totals(dr, rows, start) -> list[dict]:
+def _chain_totals(rows: list[dict], start: list[mi.Bool]) -> list[dict]:
     """Forward pass: at each position, the sums over its chain so far and its strongest member."""
     totals, acc = [], None
     for k, r in enumerate(rows):
-        here = _chain_terms(dr, r)
+        here = _chain_terms(r)
         if acc is None:
             acc = {**here, "best": r["p"], "dominant": r["sample"]}
         else:
@@ -140,7 +145,7 @@ def _chain_totals(dr, rows, start) -> list[dict]:
     return totals
 
 
-def _chain_terms(dr, r: dict) -> dict:
+def _chain_terms(r: dict) -> dict:
     """One return's terms of its chain's sums (``r``: its ``t``, ``p`` and, for points on the surface,
     its ``x``, ``y``, ``z`` offset)."""
     terms = {"energy": r["p"], "weighted": r["p"] * r["t"], "count": dr.full(type(r["t"]), 1.0, dr.width(r["t"])),
@@ -150,36 +155,36 @@ def _chain_terms(dr, r: dict) -> dict:
     return terms
 
 
-def _uniform(dr, total):
+def _uniform(total: dict) -> tuple[mi.Bool, mi.Float]:
     """Chains of zero energy (all grazing) are averaged plainly; others are weighted by energy."""
     uniform = total["energy"] <= 0
     return uniform, dr.select(uniform, 1.0 / total["count"], 1.0 / dr.select(uniform, 1.0, total["energy"]))
 
 
-def _chain_means(dr, totals, end) -> list:
+def _chain_means(totals: list[dict], end: list[mi.Bool]) -> list[mi.Float]:
     """Each position's chain mean range: known at the chain's end, passed back to its members."""
-    means = [_chain_mean(dr, total) for total in totals]
+    means = [_chain_mean(total) for total in totals]
     for k in range(len(totals) - 2, -1, -1):
         means[k] = dr.select(end[k], means[k], means[k + 1])
     return means
 
 
-def _chain_mean(dr, total):
+def _chain_mean(total: dict) -> mi.Float:
     """A chain's mean range from its sums."""
-    uniform, scale = _uniform(dr, total)
+    uniform, scale = _uniform(total)
     return dr.select(uniform, total["plain"], total["weighted"]) * scale
 
 
-def _chain_offset(dr, total) -> list:
+def _chain_offset(total: dict) -> list[mi.Float] | None:
     """A chain's hit point minus the origin (3 arrays) from its sums, weighted as its mean range (None
     when the sums hold no offsets)."""
     if "px" not in total:
         return None
-    uniform, scale = _uniform(dr, total)
+    uniform, scale = _uniform(total)
     return [dr.select(uniform, total[a], total[f"p{a}"]) * scale for a in "xyz"]
 
 
-def _pulse_shape(dr, t, mean, sigma: float):
+def _pulse_shape(t: mi.Float, mean: mi.Float, sigma: float) -> mi.Float:
     """The emitted pulse's shape on the range axis at ``t`` for a chain at ``mean`` (Gaussian of σ; a
     spike at ``mean`` when σ = 0)."""
     if sigma > 0:
@@ -187,24 +192,26 @@ def _pulse_shape(dr, t, mean, sigma: float):
     return dr.select(t == mean, 1.0, 0.0)
 
 
-def _chain_amplitudes(dr, rows, valid, start, mean, sigma: float) -> list:
+def _chain_amplitudes(rows: list[dict], valid: list[mi.Bool], start: list[mi.Bool], mean: list[mi.Float],
+                      sigma: float) -> list[mi.Float]:
     """Forward pass: each chain's own returns' waveform at its mean range (Gaussian pulse of FWHM ΔR;
     other chains' returns are not included)."""
     amplitude, running = [], None
     for k, r in enumerate(rows):
-        term = dr.select(valid[k], r["p"] * _pulse_shape(dr, r["t"], mean[k], sigma), 0.0)
+        term = dr.select(valid[k], r["p"] * _pulse_shape(r["t"], mean[k], sigma), 0.0)
         running = term if running is None else dr.select(start[k], term, running + term)
         amplitude.append(running)
     return amplitude
 
 
-def _ranked(dr, totals, mean, amplitude, detected, max_returns: int):
+def _ranked(totals: list[dict], mean: list[mi.Float], amplitude: list[mi.Float], detected: list[mi.Bool],
+            max_returns: int) -> tuple[list[dict], mi.UInt32]:
     """Detected chains numbered in range order, the first ``max_returns`` kept."""
     UInt32 = dr.uint32_array_t(type(mean[0]))
     rank = dr.zeros(UInt32, dr.width(mean[0]))
     slots = []
     for k, total in enumerate(totals):
-        offset = _chain_offset(dr, total)
+        offset = _chain_offset(total)
         kept = detected[k] & ((rank < max_returns) if max_returns else True)
         slots.append({"kept": kept, "rank": rank, "range": mean[k], "amplitude": amplitude[k],
                       "offset": offset, "dominant": total["dominant"], "energy": total["energy"]})

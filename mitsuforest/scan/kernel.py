@@ -9,6 +9,8 @@ on the device.
 
 from __future__ import annotations
 
+import drjit as dr
+import mitsuba as mi
 import numpy as np
 
 from .sampling import device_cells, stratified_offsets
@@ -33,15 +35,13 @@ class RayCaster:
     keyed on ``key`` and the pulse id), scaled by ``half_divergence`` (rad, across and along).
     """
 
-    def __init__(self, mi_scene, sample_tangents: np.ndarray | None = None, *, cells=None,
+    def __init__(self, mi_scene: mi.Scene, sample_tangents: np.ndarray | None = None, *, cells=None,
                  half_divergence=(0.0, 0.0), key: int = 0):
-        import drjit as dr
-        import mitsuba as mi
-        self.dr, self.mi, self.scene = dr, mi, mi_scene
+        self.scene = mi_scene
         self.cells = None
         if cells is not None:
             self.samples = len(cells.weight)
-            self.cells = device_cells(mi, cells)
+            self.cells = device_cells(cells)
             self.half_divergence = tuple(float(h) for h in half_divergence)
             self.key = int(key)
         else:
@@ -49,7 +49,8 @@ class RayCaster:
             self.tan_x = mi.Float(aligned(sample_tangents[:, 0].astype(np.float32)))
             self.tan_y = mi.Float(aligned(sample_tangents[:, 1].astype(np.float32)))
 
-    def subrays(self, origin, direction, across, pulse_id=None):
+    def subrays(self, origin: mi.Point3f, direction: mi.Vector3f, across: mi.Vector3f,
+                pulse_id: mi.UInt64 | None = None) -> tuple[mi.Ray3f, mi.Point3f, mi.Vector3f, mi.UInt32, mi.UInt32]:
         """The sub-rays of P pulses as one Dr.Jit ray of P*S lanes, lane = pulse*S + sub-ray.
 
         :param origin: Point3f (P,) beam origins; ``direction``, ``across``: Vector3f (P,) unit beam
@@ -57,7 +58,6 @@ class RayCaster:
         :returns: ``ray`` (Ray3f), ``origin`` (Point3f), ``direction`` (Vector3f, unit), ``pulse``
             and ``sample`` (UInt32) per lane.
         """
-        dr, mi = self.dr, self.mi
         S = self.samples
         idx = dr.arange(mi.UInt32, dr.width(origin) * S)
         pulse = idx // S
@@ -70,14 +70,13 @@ class RayCaster:
         d = dr.normalize(d + tan_x * e1 + tan_y * e2)
         return mi.Ray3f(o, d), o, d, pulse, sample
 
-    def _tangents(self, pulse, sample, pulse_id):
-        dr, mi = self.dr, self.mi
+    def _tangents(self, pulse: mi.UInt32, sample: mi.UInt32, pulse_id: mi.UInt64 | None) -> tuple[mi.Float, mi.Float]:
         if self.cells is None:
             return dr.gather(mi.Float, self.tan_x, sample), dr.gather(mi.Float, self.tan_y, sample)
-        ox, oy = stratified_offsets(dr, mi, self.cells, self.key, dr.gather(mi.UInt64, pulse_id, pulse), sample)
+        ox, oy = stratified_offsets(self.cells, self.key, dr.gather(mi.UInt64, pulse_id, pulse), sample)
         return dr.tan(ox * self.half_divergence[0]), dr.tan(oy * self.half_divergence[1])
 
-    def intersect(self, ray):
+    def intersect(self, ray: mi.Ray3f) -> mi.PreliminaryIntersection3f:
         """Each lane's first surface (``PreliminaryIntersection3f``)."""
         # coherent=True traced ~7-30 % faster on CPU but returned different first hits for some
         # sub-rays of an instanced forest (Mitsuba 3.9.1 / Embree): keep incoherent, exact traversal.
@@ -90,7 +89,6 @@ class RayCaster:
         :returns: for the H sub-rays that hit: ``ray`` (H,) flat index pulse*S + sample, ``t`` (H,)
             distance, ``point`` (H, 3), ``instance``, ``shape``, ``shape_index``, ``prim`` (H,) uint32.
         """
-        dr, mi = self.dr, self.mi
         if pulses.count == 0:
             empty = np.zeros(0, np.uint32)
             return {"ray": empty, "t": np.zeros(0, np.float32), "point": np.zeros((0, 3)), "instance": empty,

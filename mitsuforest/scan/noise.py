@@ -23,6 +23,9 @@ variance 1/L), the intensity of fully developed speckle averaged over L independ
 
 from __future__ import annotations
 
+import drjit as dr
+import mitsuba as mi
+
 from .. import seeds
 from .sampling import TWO_PI, uniform_pair
 
@@ -37,14 +40,14 @@ def speckle_key(seed: int) -> int:
     return seeds.key(seed, "speckle")
 
 
-def standard_normal(dr, mi, key: int, pulse_id, return_number):
+def standard_normal(key: int, pulse_id: mi.UInt64, return_number: mi.UInt32) -> mi.Float:
     """One N(0, 1) draw per lane (Box-Muller on two counter-based uniforms)."""
-    a, b = uniform_pair(mi, key, pulse_id, return_number)
+    a, b = uniform_pair(key, pulse_id, return_number)
     return dr.sqrt(-2.0 * dr.log(1.0 - a)) * dr.cos(TWO_PI * b)      # 1 - a in (0, 1]: the log is finite
 
 
-def range_sigma(xp, range_m, n_axis, n_across, n_along, sensor):
-    """σ(R, θ) of the module docstring, per echo; ``xp`` is numpy or ``drjit``.
+def range_sigma(range_m: mi.Float, n_axis: mi.Float, n_across: mi.Float, n_along: mi.Float, sensor) -> mi.Float:
+    """σ(R, θ) of the module docstring, per echo.
 
     :param range_m: (E,) the echo's range R (m).
     :param n_axis, n_across, n_along: (E,) the surface normal's components along the beam axis d and
@@ -52,10 +55,10 @@ def range_sigma(xp, range_m, n_axis, n_across, n_along, sensor):
     :param sensor: a :class:`~mitsuforest.config.types.Sensor`.
     """
     g1, g2 = (float(g) for g in sensor.beam_divergence)
-    spread = (range_m / 4) * xp.sqrt(xp.square(g1 * n_across) + xp.square(g2 * n_along)) \
-        / xp.maximum(xp.abs(n_axis), MIN_COS)
+    spread = (range_m / 4) * dr.sqrt(dr.square(g1 * n_across) + dr.square(g2 * n_along)) \
+        / dr.maximum(dr.abs(n_axis), MIN_COS)
     k, f = float(sensor.range_precision_per_metre), float(sensor.footprint_range_noise)
-    return xp.sqrt(float(sensor.range_precision) ** 2 + xp.square(k * range_m) + xp.square(f * spread))
+    return dr.sqrt(float(sensor.range_precision) ** 2 + dr.square(k * range_m) + dr.square(f * spread))
 
 
 def varies(sensor) -> bool:
@@ -63,12 +66,12 @@ def varies(sensor) -> bool:
     return bool(sensor.range_precision_per_metre or sensor.footprint_range_noise)
 
 
-def speckle_gain(dr, mi, key: int, pulse_id, return_number, looks: int):
+def speckle_gain(key: int, pulse_id: mi.UInt64, return_number: mi.UInt32, looks: int) -> mi.Float:
     """``G ~ Gamma(L, 1/L)`` per lane: the mean of L unit exponentials, ``-Σ log(1 - u_k) / L``, from
     ``ceil(L/2)`` counter-based uniform pairs (streams ``return_number + 256·pair``)."""
     total = 0.0
     for pair in range((looks + 1) // 2):
-        a, b = uniform_pair(mi, key, pulse_id, return_number + (pair << 8))
+        a, b = uniform_pair(key, pulse_id, return_number + (pair << 8))
         total = total - dr.log(1.0 - a)
         if 2 * pair + 1 < looks:
             total = total - dr.log(1.0 - b)

@@ -11,6 +11,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import drjit as dr
+import mitsuba as mi
 import numpy as np
 
 from ..plan.trajectory import BODY_FROM_SENSOR, ENU_FROM_NED, PoseTable, euler_matrix, pose_table
@@ -25,8 +27,8 @@ class DeviceTable:
     t0: float
     step: float
     rows: int
-    origin: list
-    rotation: list
+    origin: list[mi.Float64]
+    rotation: list[mi.Float64]
 
 
 class Platform:
@@ -67,7 +69,6 @@ class Platform:
 
     def upload(self, table: PoseTable) -> DeviceTable:
         """``table`` as beam origins and rotations on the device (call under the scene's variant)."""
-        import mitsuba as mi
         origin = table.position + table.body @ self.lever_arm
         rotation = (table.body @ self.sensor_to_body).reshape(-1, 9)
         return DeviceTable(table.t0, table.step, len(origin),
@@ -75,7 +76,7 @@ class Platform:
                            [mi.Float64(aligned(rotation[:, k].copy())) for k in range(9)])
 
 
-def table_pose(dr, mi, table: DeviceTable, t):
+def table_pose(table: DeviceTable, t: mi.Float64) -> tuple[list[mi.Float64], list[mi.Float64]]:
     """Beam origins (3 Float64) and sensor-to-local rotations (9 Float64, row-major) at Float64 times ``t``,
     linear between the table's rows."""
     t0 = dr.opaque(mi.Float64, table.t0)      # opaque: a new leg must not compile a new kernel
@@ -85,7 +86,7 @@ def table_pose(dr, mi, table: DeviceTable, t):
     i = dr.minimum(mi.UInt32(dr.floor(u)), last)
     f = u - mi.Float64(i)
 
-    def lerp(column):
+    def lerp(column: mi.Float64) -> mi.Float64:
         a, b = dr.gather(mi.Float64, column, i), dr.gather(mi.Float64, column, i + 1)
         return a + f * (b - a)
 

@@ -8,31 +8,34 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import drjit as dr
+import mitsuba as mi
 import numpy as np
 
 from .deflector import deflect
 from .kernel import aligned
+from .platform import DeviceTable, table_pose
 
 
 @dataclass
 class DevicePulses:
     """A batch of pulses as Dr.Jit arrays, one lane per pulse."""
 
-    pulse_id: object     # UInt64: the pulse's number in the survey (keys its ranging noise)
-    time: object         # Float64: GPS time (s)
-    scan_angle: object   # Float: rad
-    origin: object       # Point3f, local frame
-    direction: object    # Vector3f, unit beam axis
-    across: object       # Vector3f, unit: the beam's first frame axis (divergence[0] applies along it)
+    pulse_id: mi.UInt64     # the pulse's number in the survey (keys its ranging noise)
+    time: mi.Float64        # GPS time (s)
+    scan_angle: mi.Float    # rad
+    origin: mi.Point3f      # local frame
+    direction: mi.Vector3f  # unit beam axis
+    across: mi.Vector3f     # unit: the beam's first frame axis (divergence[0] applies along it)
 
     @property
     def count(self) -> int:
-        import drjit as dr
         return dr.width(self.time)
 
 
-def reaches_box(dr, origin, direction, box, range_max: float):
-    """Whether each ray meets the axis-aligned box (2, 3) within ``range_max`` (slab test)."""
+def reaches_box(origin: list[mi.Float64], direction: list[mi.Float64], box: np.ndarray, range_max: float) -> mi.Bool:
+    """Whether each ray (origin and direction: 3 Float64 arrays each) meets the axis-aligned box (2, 3)
+    within ``range_max`` (slab test)."""
     lo, hi = dr.zeros(type(origin[0]), dr.width(origin[0])), dr.full(type(origin[0]), float(range_max), dr.width(origin[0]))
     for k in range(3):
         o, d = origin[k], direction[k]
@@ -47,7 +50,7 @@ def reaches_box(dr, origin, direction, box, range_max: float):
 
 
 def reaching_pulses(leg, sensor, pulse_frequency: float, scan_frequency: float, first: int, count: int,
-                    box: np.ndarray, first_id: int = 0, table=None, keep_fired: bool = False):
+                    box: np.ndarray, first_id: int = 0, table: DeviceTable | None = None, keep_fired: bool = False):
     """The fired pulses among time slots ``first .. first+count-1`` of a leg that can reach ``box``
     (2, 3) within the sensor's ``range_max``; call under the scene's Mitsuba variant.
 
@@ -60,8 +63,6 @@ def reaching_pulses(leg, sensor, pulse_frequency: float, scan_frequency: float, 
         fired pulses' ``pulse_id``, ``gps_time``, ``scan_angle`` (rad) (F,), ``origin`` and ``direction``
         (F, 3) (local frame).
     """
-    import drjit as dr
-    import mitsuba as mi
     Float64 = mi.Float64
 
     def leg_value(x, kind=Float64):   # opaque: a new batch or leg must not compile a new kernel
@@ -70,7 +71,7 @@ def reaching_pulses(leg, sensor, pulse_frequency: float, scan_frequency: float, 
     t0, t1 = leg_value(leg.t0), leg_value(leg.t1)
     slot = leg_value(first, mi.UInt32) + dr.arange(mi.UInt32, count)
     t = t0 + Float64(slot) / float(pulse_frequency)
-    d_sensor, angle, fired = deflect(dr, sensor, t, float(scan_frequency or 0.0))
+    d_sensor, angle, fired = deflect(sensor, t, float(scan_frequency or 0.0))
     if table is None:
         frame_np = leg.frame()
         frame = [[leg_value(x) for x in row] for row in frame_np]
@@ -79,14 +80,13 @@ def reaching_pulses(leg, sensor, pulse_frequency: float, scan_frequency: float, 
         f = (t - t0) / (t1 - t0)
         origin = [a[k] + f * (b[k] - a[k]) for k in range(3)]
     else:
-        from .platform import table_pose
-        origin, rotation = table_pose(dr, mi, table, t)
+        origin, rotation = table_pose(table, t)
         frame = [[rotation[3 * k + j] for k in range(3)] for j in range(3)]   # rows: the sensor axes, local frame
         direction = _turned(d_sensor, frame)
-    reach = fired & reaches_box(dr, origin, direction, box, sensor.range_max)
+    reach = fired & reaches_box(origin, direction, box, sensor.range_max)
     dr.eval(fired, reach)                      # one kernel for both masks, then the count and compaction
     n_fired = int(dr.count(fired)[0])
-    all_fired = _fired_table(dr, mi, fired, slot, t, angle, origin, direction, first_id) if keep_fired else None
+    all_fired = _fired_table(fired, slot, t, angle, origin, direction, first_id) if keep_fired else None
     keep = dr.compress(reach)
     if dr.width(keep) == 0:
         none = DevicePulses(mi.UInt64(), Float64(), mi.Float(), mi.Point3f(), mi.Vector3f(), mi.Vector3f())
@@ -107,7 +107,8 @@ def reaching_pulses(leg, sensor, pulse_frequency: float, scan_frequency: float, 
     return (cast, n_fired, all_fired) if keep_fired else (cast, n_fired)
 
 
-def _fired_table(dr, mi, fired, slot, t, angle, origin, direction, first_id: int) -> dict:
+def _fired_table(fired: mi.Bool, slot: mi.UInt32, t: mi.Float64, angle: mi.Float64, origin: list[mi.Float64],
+                 direction: list[mi.Float64], first_id: int) -> dict:
     """Every fired pulse of a batch in numpy (see :func:`reaching_pulses`' ``keep_fired``)."""
     keep = dr.compress(fired)
     out = {"pulse_id": np.uint64(first_id) + np.array(dr.gather(mi.UInt32, slot, keep)).astype(np.uint64),
@@ -118,14 +119,13 @@ def _fired_table(dr, mi, fired, slot, t, angle, origin, direction, first_id: int
     return out
 
 
-def _turned(d_sensor, frame) -> list:
+def _turned(d_sensor: tuple[mi.Float64, mi.Float64, mi.Float64], frame: list[list[mi.Float64]]) -> list[mi.Float64]:
     """Sensor-frame directions in the local frame: ``frame`` rows are the sensor's axes there."""
     return [d_sensor[0] * frame[0][k] + d_sensor[1] * frame[1][k] + d_sensor[2] * frame[2][k] for k in range(3)]
 
 
 def upload_pulses(pulses, first_id: int = 0) -> DevicePulses:
     """Hand-made numpy pulses (:class:`~mitsuforest.testing.reference.pulses.Pulses`) on the device."""
-    import mitsuba as mi
     cols = [mi.Float(aligned(a[:, k].astype(np.float32)))
             for a in (pulses.origin, pulses.direction, pulses.across) for k in range(3)]
     return DevicePulses(mi.UInt64(aligned((np.asarray(pulses.index, np.uint64) + np.uint64(first_id)))),

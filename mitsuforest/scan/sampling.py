@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import math
 
+import drjit as dr
+import mitsuba as mi
 import numpy as np
 
 TEA_ROUNDS = 8
@@ -19,7 +21,7 @@ TWO_PI = 2 * math.pi
 RING_STREAM = 1 << 16          # streams of ring rotations start here (sub-ray streams are 0 .. S-1)
 
 
-def uniform_pair(mi, key: int, pulse_id, stream):
+def uniform_pair(key: int, pulse_id: mi.UInt64, stream: mi.UInt32) -> tuple[mi.Float, mi.Float]:
     """Two uniforms in [0, 1) (Float, 24 bits each) per lane, keyed on ``key``, the UInt64 ``pulse_id``
     and the UInt32 ``stream``."""
     low = mi.UInt32(pulse_id & 0xFFFFFFFF)
@@ -28,7 +30,7 @@ def uniform_pair(mi, key: int, pulse_id, stream):
     return mi.Float(a >> 8) * (1.0 / 16777216.0), mi.Float(b >> 8) * (1.0 / 16777216.0)
 
 
-def device_cells(mi, cells) -> dict:
+def device_cells(cells) -> dict:
     """The columns of :class:`~mitsuforest.scan.beam.BeamCells` that :func:`stratified_offsets` reads,
     as Dr.Jit arrays (call under the scene's variant)."""
     from .kernel import aligned
@@ -38,15 +40,15 @@ def device_cells(mi, cells) -> dict:
     return table
 
 
-def stratified_offsets(dr, mi, cells: dict, key: int, pulse_id, sample):
+def stratified_offsets(cells: dict, key: int, pulse_id: mi.UInt64, sample: mi.UInt32) -> tuple[mi.Float, mi.Float]:
     """Offsets (two Float arrays, units of the 1/e² radius) of the stratified beam, one per lane.
 
     :param cells: the beam's cells as :func:`device_cells` uploads them.
     :param pulse_id: UInt64 per lane; ``sample``: UInt32 per lane, the sub-ray.
     """
     ring = dr.gather(mi.UInt32, cells["ring"], sample)
-    radius_u, _ = uniform_pair(mi, key, pulse_id, sample)
-    rotation_u, _ = uniform_pair(mi, key, pulse_id, ring + RING_STREAM)
+    radius_u, _ = uniform_pair(key, pulse_id, sample)
+    rotation_u, _ = uniform_pair(key, pulse_id, ring + RING_STREAM)
     u = dr.gather(mi.Float, cells["u_lo"], sample) - dr.log(1.0 - radius_u * dr.gather(mi.Float, cells["span"], sample))
     radius = dr.sqrt(0.5 * u)
     index = mi.Float(dr.gather(mi.UInt32, cells["index"], sample))

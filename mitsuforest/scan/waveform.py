@@ -35,6 +35,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import drjit as dr
+import mitsuba as mi
 import numpy as np
 from scipy.special import erf
 
@@ -105,7 +107,8 @@ def _bin_means(ranges, powers, valid, first_bin, sigma: float, bin_range: float,
     return np.bincount(flat, part[inside], minlength=n * samples).reshape(n, samples)
 
 
-def device_waveforms(dr, t, power, samples_per_pulse: int, sigma: float, bin_range: float, samples: int) -> dict:
+def device_waveforms(t: mi.Float, power: mi.Float, samples_per_pulse: int, sigma: float, bin_range: float,
+                     samples: int) -> dict:
     """:func:`sample_waveforms` on the device, for the P pulses of a batch, of which M have a return.
 
     :param t, power: Float (P·S,) each sub-ray's range (``inf`` without a valid return) and power,

@@ -10,6 +10,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import drjit as dr
+import mitsuba as mi
 import numpy as np
 
 from ..classes import SPECIES_CODES
@@ -59,7 +61,7 @@ class HitTable:
 
 @dataclass
 class ScanScene:
-    mitsuba: object          # mi.Scene
+    mitsuba: mi.Scene
     table: HitTable
     bbox: np.ndarray         # (2, 3) local-frame bounds of everything modelled
     variant: str
@@ -100,12 +102,9 @@ def build_scene(plan, models: dict, sensor, variant: str, legs: range | None = N
         casts the same pulses and makes the same points as over the whole survey's scene.
     :param reflectance: (256,) reflectance by class; None: ours at the sensor's wavelength.
     """
-    import mitsuba as mi
-    import drjit as dr
-
     variant = select_variant(variant)
     with variant_scope(variant):
-        return _build(mi, dr, plan, models, sensor, variant, legs, reflectance)
+        return _build(plan, models, sensor, variant, legs, reflectance)
 
 
 def _placed(plan, models) -> list[tuple]:
@@ -120,7 +119,7 @@ def _placed(plan, models) -> list[tuple]:
     return out
 
 
-def _build(mi, dr, plan, models, sensor, variant, legs, reflectance) -> ScanScene:
+def _build(plan, models, sensor, variant, legs, reflectance) -> ScanScene:
     ground_v, ground_f = plan.terrain.mesh()
     placed = _placed(plan, models)
     survey = [p for p in placed if reachable(p[2], plan.legs, sensor)]
@@ -137,7 +136,7 @@ def _build(mi, dr, plan, models, sensor, variant, legs, reflectance) -> ScanScen
                                                "to_world": mi.ScalarTransform4f(m.tolist())}
     d["ground"] = mitsuba_mesh("ground", ground_v, ground_f)
     mi_scene = mi.load_dict(d)
-    table = _hit_table(mi_scene, dr, mi, plan, models, used, keep, ground_v, ground_f, part_meshes)
+    table = _hit_table(mi_scene, plan, models, used, keep, ground_v, ground_f, part_meshes)
     all_bounds = [b for _, _, b in survey] + [np.array([ground_v.min(0), ground_v.max(0)])]
     bbox = np.array([np.min([b[0] for b in all_bounds], 0), np.max([b[1] for b in all_bounds], 0)])
     triangles = sum(models[n].triangles for n in sorted({obj.model for obj, _, _ in survey})) + len(ground_f)
@@ -145,15 +144,16 @@ def _build(mi, dr, plan, models, sensor, variant, legs, reflectance) -> ScanScen
                      reflectance)
 
 
-def _registry_ids(dr, mi, shapes) -> np.ndarray:
+def _registry_ids(shapes: list[mi.Mesh]) -> np.ndarray:
     if not shapes:
         return np.zeros(0, np.int64)
     return np.array(dr.reinterpret_array(mi.UInt32, mi.ShapePtr(shapes)), np.int64)
 
 
-def _hit_table(mi_scene, dr, mi, plan, models, used, keep, ground_v, ground_f, part_meshes) -> HitTable:
+def _hit_table(mi_scene: mi.Scene, plan, models, used, keep, ground_v, ground_f,
+               part_meshes: list[mi.Mesh]) -> HitTable:
     registry = np.array(dr.reinterpret_array(mi.UInt32, mi_scene.shapes_dr()), np.int64)
-    part_registry = _registry_ids(dr, mi, part_meshes)
+    part_registry = _registry_ids(part_meshes)
     ids = [s.id() for s in mi_scene.shapes()]
     by_instance = {obj.instance: row for row, (obj, _, _) in enumerate(keep)}
     size = int(max(registry.max(), part_registry.max(initial=0))) + 1

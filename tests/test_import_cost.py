@@ -1,0 +1,23 @@
+"""What reading point files imports. ``mitsuforest info`` and ``compare`` import write and compare, and
+write reads scan.radiometry, so the scan package is imported too; the modules that run Dr.Jit import
+``drjit`` and ``mitsuba`` at the top, so the scan package loads them (Platform, PulseTracer) on first
+use, and reading point files loads neither Mitsuba nor Dr.Jit."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+LOADED = "sorted(m for m in ('mitsuba', 'drjit') if m in sys.modules)"
+
+
+def test_reading_point_files_loads_no_mitsuba_and_the_scan_side_loads_on_first_use():
+    code = ("import sys\n"
+            "import mitsuforest.compare, mitsuforest.scan, mitsuforest.write, mitsuforest.write.info\n"
+            f"print({LOADED})\n"
+            "from mitsuforest.scan import POINT_DTYPE, Platform, PulseTracer\n"
+            "from mitsuforest.scan.tracer import POINT_DTYPE as TRACER_DTYPE\n"
+            f"print({LOADED}, Platform.__module__, PulseTracer.__module__, POINT_DTYPE is TRACER_DTYPE)\n")
+    out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True)
+    assert out.stdout.splitlines() == ["[]", "['drjit', 'mitsuba'] mitsuforest.scan.platform mitsuforest.scan.tracer True"]
