@@ -19,6 +19,8 @@ import time
 from collections import defaultdict
 from pathlib import Path
 
+import drjit as dr
+
 from mitsuforest.config import load_scene
 from mitsuforest.scan import PulseTracer, tracer as tracer_module
 from mitsuforest.scene import variant_scope
@@ -32,14 +34,14 @@ class Stopwatch:
     """Accumulates the wall and CPU time (all threads of the process) of wrapped calls, each ended by
     a device sync. CPU time is the steadier figure on a shared machine."""
 
-    def __init__(self, dr):
-        self.dr, self.seconds, self.cpu = dr, defaultdict(float), defaultdict(float)
+    def __init__(self):
+        self.seconds, self.cpu = defaultdict(float), defaultdict(float)
 
     def wrap(self, name, fn):
         def timed(*args, **kwargs):
             start, cpu = time.perf_counter(), time.process_time()
             out = fn(*args, **kwargs)
-            self.dr.sync_thread()
+            dr.sync_thread()
             self.seconds[name] += time.perf_counter() - start
             self.cpu[name] += time.process_time() - cpu
             return out
@@ -47,14 +49,13 @@ class Stopwatch:
 
 
 def profile(scene, leg_index: int, batch: int, folder: Path) -> tuple[dict, int, int]:
-    import drjit as dr
     prepared = prepare(scene)
     plan, scan_scene = prepared.plan, prepared.scan_scene
     sim = scene.simulation
     tracer = PulseTracer(scan_scene, scene.sensor, sim.beam_samples, scene.seed, sim.beam_pattern, sim.point_position)
     leg = plan.legs[leg_index]
     total = leg.pulse_count(scene.pulse_frequency)
-    watch = Stopwatch(dr)
+    watch = Stopwatch()
     caster = tracer.caster
     tracer_module.reaching_pulses = watch.wrap("pulses", tracer_module.reaching_pulses)
     for name, method in (("rays and labels", "_sub_ray_returns"), ("waveform", "_ranked_echoes"),
