@@ -13,6 +13,7 @@ while the heavy libraries load (``interrupts.deferred_signals``).
 """
 
 import importlib
+import sys
 
 __version__ = "0.1.0"
 
@@ -22,9 +23,16 @@ _API = {"load_scene": "config", "load_sensor": "config", "ConfigError": "errors"
 __all__ = [*_API, "__version__"]
 
 
-def __getattr__(name):
-    if name in _API:
-        value = getattr(importlib.import_module(f".{_API[name]}", __name__), name)
-        globals()[name] = value
-        return value
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+def _imported_on_first_use(package: str, modules: dict[str, str]):
+    """A module ``__getattr__`` for ``package``: ``name`` is imported from ``package.modules[name]`` on its
+    first use and kept in the package."""
+    def __getattr__(name):
+        if name in modules:
+            value = getattr(importlib.import_module(f".{modules[name]}", package), name)
+            setattr(sys.modules[package], name, value)
+            return value
+        raise AttributeError(f"module {package!r} has no attribute {name!r}")
+    return __getattr__
+
+
+__getattr__ = _imported_on_first_use(__name__, _API)

@@ -14,13 +14,13 @@ solution's errors (navigation.py), and carry their leg's number from 1 as ``poin
 
 from __future__ import annotations
 
-import importlib
 import time
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .. import _imported_on_first_use
 from ..fields import POINT_DTYPE
 from .navigation import NavigationModel
 
@@ -36,12 +36,7 @@ __all__ = ["POINT_DTYPE", "NavigationModel", "Platform", "PulseTracer", "ScanRes
 _ON_DEVICE = {"Platform": "platform", "PulseTracer": "tracer"}
 
 
-def __getattr__(name):
-    if name in _ON_DEVICE:
-        value = getattr(importlib.import_module(f".{_ON_DEVICE[name]}", __name__), name)
-        globals()[name] = value
-        return value
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+__getattr__ = _imported_on_first_use(__name__, _ON_DEVICE)
 
 BATCH_SUB_RAYS = {"llvm": 2_000_000, "cuda": 20_000_000}   # default sub-rays per launch, by Dr.Jit backend
 MAX_BATCH_SLOTS = {"llvm": 400_000, "cuda": 1_000_000}     # ... and at most this many time slots
