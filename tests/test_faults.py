@@ -461,7 +461,7 @@ def test_signal_at_every_stage_leaves_nothing(sig, tmp_path, monkeypatch, capsys
                 os.kill(os.getpid(), signum)
             yield batch
 
-    def commit_signalling_after_first_move(self):
+    def commit_signalling_after_first_move(self, *args, **kwargs):
         def replace(*args):
             real_replace(*args)
             if at == "commit" and not moved:
@@ -469,7 +469,7 @@ def test_signal_at_every_stage_leaves_nothing(sig, tmp_path, monkeypatch, capsys
                 os.kill(os.getpid(), signum)
         monkeypatch.setattr(os, "replace", replace)
         try:
-            return real_commit(self)
+            return real_commit(self, *args, **kwargs)
         finally:
             monkeypatch.setattr(os, "replace", real_replace)
 
