@@ -16,6 +16,7 @@ import importlib.metadata
 import platform
 import time
 from collections.abc import Callable, Iterable, Iterator
+from contextlib import ExitStack
 from dataclasses import dataclass
 
 import numpy as np
@@ -208,20 +209,12 @@ def write(prepared: PreparedSurvey, batches: Batches, staging: Staging | None, *
 
 
 def _drain(batches: Iterable[np.ndarray], sinks: list[Background]) -> None:
-    """Each batch to the first sink (the points' writer); every sink closed, even on failure."""
-    try:
+    """Each batch to the first sink (the points' writer); every sink closed in order, even on failure."""
+    with ExitStack() as closing:
+        for sink in reversed(sinks):
+            closing.callback(sink.close)
         for points in batches:
             sinks[0](points)
-    finally:
-        _close(sinks)
-
-
-def _close(sinks: list[Background]) -> None:
-    try:
-        sinks[0].close()
-    finally:
-        if sinks[1:]:
-            _close(sinks[1:])
 
 
 def versions() -> dict:

@@ -53,7 +53,7 @@ def default_batch(variant: str, beam_samples: int) -> int:
 
 @dataclass
 class ScanResult:
-    points: np.ndarray | None = None       # POINT_DTYPE, local frame (None when streamed to on_points)
+    points: np.ndarray | None = None       # POINT_DTYPE, local frame (scan; None from scan_batches)
     pulses_emitted: int = 0                # time slots flown (fired or not)
     pulses_fired: int = 0                  # inside the field of view
     pulses_cast: int = 0                   # fired and able to reach the scene
@@ -61,36 +61,29 @@ class ScanResult:
     seconds: float = 0.0
 
 
-def scan(scene, plan, scan_scene, progress: bool = True, on_points=None, legs: range | None = None,
-         on_pulses=None) -> ScanResult:
-    """Simulate the whole survey of ``plan`` over ``scan_scene`` (see module docstring).
+def scan(scene, plan, scan_scene, progress: bool = True, legs: range | None = None) -> ScanResult:
+    """Simulate the whole survey of ``plan`` over ``scan_scene`` (see module docstring), every point in
+    ``ScanResult.points``; :func:`scan_batches` streams them instead.
 
     :param scene: the :class:`~mitsuforest.config.types.Scene` (sensor, survey, simulation, seed).
-    :param on_points: called with each batch's points (local frame, POINT_DTYPE) as they are made;
-        without it, the points are collected in ``ScanResult.points``.
     :param legs: only these legs (indices into ``plan.legs``), with the same batches and pulse ids
         as in the whole survey: the batches of consecutive leg ranges, concatenated in order, are
         those of the whole survey.
-    :param on_pulses: called with each batch's :class:`~mitsuforest.scan.waveform.PulseBatch` when the
-        scene asks for ``output.waveforms`` or ``output.pulses`` (before ``on_points`` of the batch).
     """
     result = ScanResult()
-    chunks = []
-    for points in scan_batches(scene, plan, scan_scene, result, progress, legs, on_pulses):
-        if on_points is None:
-            chunks.append(points)
-        else:
-            on_points(points)
-    if on_points is None:
-        result.points = np.concatenate(chunks) if chunks else np.zeros(0, POINT_DTYPE)
+    chunks = list(scan_batches(scene, plan, scan_scene, result, progress, legs))
+    result.points = np.concatenate(chunks) if chunks else np.zeros(0, POINT_DTYPE)
     return result
 
 
 def scan_batches(scene, plan, scan_scene, result: ScanResult, progress: bool = True, legs: range | None = None,
                  on_pulses=None):
     """:func:`scan` as a generator: each batch's points (local frame, POINT_DTYPE) in survey order, the
-    pulse counts and seconds added to ``result`` as it goes (complete once exhausted); ``on_pulses`` as
-    in :func:`scan`, called with a batch's pulses before its points are yielded."""
+    pulse counts and seconds added to ``result`` as it goes (complete once exhausted).
+
+    :param on_pulses: called with each batch's :class:`~mitsuforest.scan.waveform.PulseBatch`, before its
+        points are yielded, when the scene asks for ``output.waveforms`` or ``output.pulses``.
+    """
     from .platform import Platform
     from .tracer import PulseTracer
 

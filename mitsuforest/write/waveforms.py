@@ -116,10 +116,8 @@ class PulseRecordWriter:
                  "pulse_sigma": np.float64(self.sigma)})
         if scene.output.pulses:
             self.pulses = NpzStream(staging.file("_pulses.npz"), {**beam, "echoes": ("<u2", ())})
-        self.rows = 0          # waveforms written
-        self.incomplete = 0    # ... whose returns reach past the window
-        self.fired = 0
-        self.with_echoes = 0
+        self.incomplete = 0    # waveforms whose returns reach past the window
+        self.with_echoes = 0   # fired pulses with an echo
 
     def add(self, batch) -> None:
         if self.waveforms is not None:
@@ -128,7 +126,6 @@ class PulseRecordWriter:
             fired = batch.fired
             counts = batch.echo_counts(fired["pulse_id"])
             self.pulses.append(**self._beam(fired, batch.source_id), echoes=counts)
-            self.fired += len(counts)
             self.with_echoes += int(np.count_nonzero(counts))
 
     def _beam(self, pulses: dict, source_id: int) -> dict:
@@ -141,14 +138,14 @@ class PulseRecordWriter:
         pulses = batch.cast
         first_bin, samples, complete = pulses["first_bin"], pulses["samples"], pulses["complete"]
         echoes = batch.echoes
+        written = self.waveforms.rows["samples"]
         self.waveforms.append(**self._beam(pulses, batch.source_id), echoes=batch.echo_counts(pulses["pulse_id"]),
                               first_bin=first_bin, complete=complete, samples=samples)
-        row = np.searchsorted(pulses["pulse_id"], echoes["pulse_id"]) + self.rows
+        row = np.searchsorted(pulses["pulse_id"], echoes["pulse_id"]) + written
         self.waveforms.append(echo_pulse=row, echo_return_number=np.minimum(echoes["return_number"], 255),
                               echo_range=echoes["range"],
                               echo_time=2.0 * echoes["range"].astype(np.float64) / SPEED_OF_LIGHT,
                               echo_amplitude=echoes["amplitude"], echo_energy=echo_energy(echoes["energy"], self.sigma))
-        self.rows += len(samples)
         self.incomplete += int(np.count_nonzero(~complete))
 
     def close(self) -> None:
@@ -165,12 +162,13 @@ class PulseRecordWriter:
         """The manifest's ``waveforms`` and ``pulse_records`` entries."""
         out = {}
         if self.waveforms is not None:
-            out["waveforms"] = {"file": self.waveforms.path.name, "pulses": self.rows,
+            out["waveforms"] = {"file": self.waveforms.path.name, "pulses": self.waveforms.rows["samples"],
                                 "echoes": self.waveforms.rows["echo_pulse"],
                                 "bin_size_s": self.sampling.bin_size, "samples": self.sampling.samples,
                                 "bin_range_m": self.sampling.bin_range, "pulse_sigma_m": self.sigma,
                                 "incomplete": self.incomplete}
         if self.pulses is not None:
-            out["pulse_records"] = {"file": self.pulses.path.name, "fired": self.fired,
-                                    "with_echoes": self.with_echoes, "without_echoes": self.fired - self.with_echoes}
+            fired = self.pulses.rows["pulse_id"]
+            out["pulse_records"] = {"file": self.pulses.path.name, "fired": fired,
+                                    "with_echoes": self.with_echoes, "without_echoes": fired - self.with_echoes}
         return out
