@@ -22,6 +22,7 @@ from pathlib import Path
 import drjit as dr
 
 from mitsuforest.config import load_scene
+from mitsuforest.labels import label_points
 from mitsuforest.scan import PulseTracer, tracer as tracer_module
 from mitsuforest.scene import variant_scope
 from mitsuforest.survey import prepare
@@ -58,10 +59,11 @@ def profile(scene, leg_index: int, batch: int, folder: Path) -> tuple[dict, int,
     watch = Stopwatch()
     caster = tracer.caster
     tracer_module.reaching_pulses = watch.wrap("pulses", tracer_module.reaching_pulses)
-    for name, method in (("rays and labels", "_sub_ray_returns"), ("waveform", "_ranked_echoes"),
+    for name, method in (("rays and hit lookup", "_sub_ray_returns"), ("waveform", "_ranked_echoes"),
                          ("echo records to numpy", "_echo_records")):
         setattr(caster, method, watch.wrap(name, getattr(caster, method)))
     tracer._points = watch.wrap("point array", tracer._points)
+    label = watch.wrap("labels", label_points)
     points = 0
     for run in range(2):                                  # the first run compiles
         watch.seconds.clear()
@@ -72,8 +74,9 @@ def profile(scene, leg_index: int, batch: int, folder: Path) -> tuple[dict, int,
         start, cpu = time.perf_counter(), time.process_time()
         with variant_scope(scan_scene.variant):
             for first in range(0, total, batch):
-                pts, _, _ = tracer.trace_slots(leg, scene.pulse_frequency, scene.scan_frequency, first,
-                                               min(batch, total - first))
+                pts, hits, _, _ = tracer.trace_slots(leg, scene.pulse_frequency, scene.scan_frequency, first,
+                                                     min(batch, total - first))
+                label(pts, hits, scan_scene.table)
                 add(pts)
                 points += len(pts) if run else 0
         close()

@@ -37,6 +37,7 @@ from scipy.spatial import cKDTree
 
 from mitsuforest.classes import CLASS_NAMES
 from mitsuforest.config import load_scene
+from mitsuforest.labels import labelled
 from mitsuforest.scan import PulseTracer
 from mitsuforest.scan.kernel import RayCaster
 from mitsuforest.scan.pulses import upload_pulses
@@ -74,7 +75,7 @@ def trace(scene, scan_scene, leg, samples, batch, pattern="fixed", reference_pat
 
     def run(first, count):
         if not reference_path:
-            return tracer.trace_slots(leg, f_p, f_s, first, count)[0]
+            return labelled(*tracer.trace_slots(leg, f_p, f_s, first, count)[:2], tracer.table)
         pulses, _ = reaching_pulses(leg, scene.sensor, f_p, f_s, first, count, tracer.box)
         return trace_reference(tracer, pulses)
 

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from mitsuforest.classes import ROCK, TREE_WOOD
+from mitsuforest.labels import labelled
 from mitsuforest.pipeline import render
 from mitsuforest.scan import PulseTracer
 from mitsuforest.testing.reference.echoes import pulse_echoes, waveform_maxima
@@ -33,7 +34,8 @@ RNG = np.random.default_rng(0)
 
 def _trace(setup, p, samples=1, **sensor):
     scene, _, _, scan_scene = setup
-    return PulseTracer(scan_scene, dataclasses.replace(scene.sensor, **sensor), samples).trace_pulses(p)
+    tracer = PulseTracer(scan_scene, dataclasses.replace(scene.sensor, **sensor), samples)
+    return labelled(*tracer.trace_pulses(p), tracer.table)
 
 
 def grazing(tmp, n):

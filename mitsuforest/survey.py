@@ -24,9 +24,10 @@ import numpy as np
 from . import __version__
 from .config import Scene
 from .plan import Plan, plan_scene
+from .labels import label_points
 from .realism import realism_table
 from .scan import ScanResult, scan_batches
-from .scene import ScanScene, build_scene
+from .scene import HitTable, ScanScene, build_scene
 from .trees import build_models, tree_shape
 from .write.manifest import import_report
 from .write import PointWriter, Staging, write_manifest, write_render_outputs
@@ -71,7 +72,7 @@ class PreparedSurvey:
 
 @dataclass
 class Batches:
-    """Points, batch by batch in the survey's order (POINT_DTYPE, local frame), and the counts of the
+    """Labelled points, batch by batch in the survey's order (POINT_DTYPE, local frame), and the counts of the
     scan that made them: complete once the batches are exhausted. With ``output.waveforms`` or
     ``output.pulses``, each batch's pulses (:class:`~mitsuforest.scan.waveform.PulseBatch`) go to
     ``on_pulses`` (set by :func:`write`; dropped while None)."""
@@ -162,9 +163,17 @@ def scan(prepared: PreparedSurvey, legs: range | None = None, *, progress: bool 
     result = ScanResult()
     batches = Batches(iter(()), result)
     records = prepared.scene.output.waveforms or prepared.scene.output.pulses
-    batches.points = scan_batches(prepared.scene, prepared.plan, prepared.scan_scene, result, progress, legs,
-                                  batches._pulses if records else None)
+    scanned = scan_batches(prepared.scene, prepared.plan, prepared.scan_scene, result, progress, legs,
+                           batches._pulses if records else None)
+    batches.points = _labelled(scanned, prepared.scan_scene.table)
     return batches
+
+
+def _labelled(scanned: Iterable[tuple[np.ndarray, np.ndarray]], table: HitTable) -> Iterator[np.ndarray]:
+    """The scan's batches (points, hits), each batch's points labelled (stage labels)."""
+    for points, hits in scanned:
+        label_points(points, hits, table)
+        yield points
 
 
 def write(prepared: PreparedSurvey, batches: Batches, staging: Staging | None, *, keep_points: bool = False) -> Written:

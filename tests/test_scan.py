@@ -8,6 +8,7 @@ from scipy import stats
 from helpers import ROOT, analytic_scene, plane_model, pulses, scene_file
 
 from mitsuforest.classes import GROUND, ROCK
+from mitsuforest.labels import label_points, labelled
 from mitsuforest.pipeline import render
 from mitsuforest.scan import PulseTracer, scan
 from mitsuforest.scan.radiometry import reflectance_table
@@ -25,7 +26,8 @@ def flat(tmp_path_factory, variant):
 def _trace(setup, p, samples=1, point_position="beam_axis", **sensor_changes):
     scene, _, _, scan_scene = setup
     sensor = dataclasses.replace(scene.sensor, **sensor_changes)
-    return PulseTracer(scan_scene, sensor, samples, point_position=point_position).trace_pulses(p)
+    tracer = PulseTracer(scan_scene, sensor, samples, point_position=point_position)
+    return labelled(*tracer.trace_pulses(p), tracer.table)
 
 
 def test_range_to_plane_is_exact(flat):
@@ -297,7 +299,8 @@ def test_rays_at_known_trees_return_their_ids(demo_setup):
         origins.append(at + [1.0, 0, 0])
         targets.append(at)
     d = np.array(targets) - np.array(origins)
-    pts = PulseTracer(scan_scene, dataclasses.replace(scene.sensor, range_min=0.0), 1).trace_pulses(pulses(origins, d))
+    tracer = PulseTracer(scan_scene, dataclasses.replace(scene.sensor, range_min=0.0), 1)
+    pts = labelled(*tracer.trace_pulses(pulses(origins, d)), tracer.table)
     first = pts[pts["return_number"] == 1]
     assert np.array_equal(first["instance"], [t.instance for t in trees])
     assert np.array_equal(first["treeid"], [t.treeid for t in trees])
@@ -314,8 +317,8 @@ def test_rays_at_known_leaves_are_leaves(demo_setup):
     centres = leaves.vertices[leaves.faces].mean(axis=1)[::200]
     targets = centres @ tree.matrix[:3, :3].T + tree.matrix[:3, 3]
     origins = targets + [0.0, 0.0, 0.02]            # 2 cm above each leaf centre, looking down
-    pts = PulseTracer(scan_scene, dataclasses.replace(scene.sensor, range_min=0.0), 1).trace_pulses(
-        pulses(origins, [0, 0, -1]))
+    tracer = PulseTracer(scan_scene, dataclasses.replace(scene.sensor, range_min=0.0), 1)
+    pts = labelled(*tracer.trace_pulses(pulses(origins, [0, 0, -1])), tracer.table)
     first = pts[pts["return_number"] == 1]
     assert len(first) > 0.9 * len(targets)
     assert (first["classification"] == 3).mean() > 0.95
@@ -336,7 +339,8 @@ def test_echo_kernel_matches_the_numpy_reference_in_a_forest(demo_setup, samples
     along = (tree.position[1] - leg.start[1]) / (leg.end[1] - leg.start[1])
     first = int(along * leg.pulse_count(scene.pulse_frequency)) - count // 2       # 1 s of flight over it
     tracer = PulseTracer(scan_scene, sensor, samples, pattern=pattern, point_position=position)
-    got, fired, cast = tracer.trace_slots(leg, scene.pulse_frequency, scene.scan_frequency, first, count)
+    got, hits, fired, cast = tracer.trace_slots(leg, scene.pulse_frequency, scene.scan_frequency, first, count)
+    label_points(got, hits, tracer.table)
     p, ref_fired = reaching_pulses(leg, sensor, scene.pulse_frequency, scene.scan_frequency, first, count, tracer.box)
     ref = trace_reference(tracer, p)
     assert (fired, cast) == (ref_fired, len(p.time))

@@ -10,6 +10,7 @@ import pytest
 from helpers import analytic_scene, plane_model, pulses, scene_file
 
 from mitsuforest.classes import GROUND, ROCK, TREE_WOOD
+from mitsuforest.labels import labelled
 from mitsuforest.pipeline import render
 from mitsuforest.scan import PulseTracer
 from mitsuforest.scan.beam import beam_pattern
@@ -22,7 +23,8 @@ N = 50  # pulses per case, as in the benchmark's --quick mode
 
 def _trace(setup, p, samples=1, **sensor_changes):
     scene, _, _, scan_scene = setup
-    return PulseTracer(scan_scene, dataclasses.replace(scene.sensor, **sensor_changes), samples).trace_pulses(p)
+    tracer = PulseTracer(scan_scene, dataclasses.replace(scene.sensor, **sensor_changes), samples)
+    return labelled(*tracer.trace_pulses(p), tracer.table)
 
 
 def _local_points(folder, offset):

@@ -24,7 +24,7 @@ def _records(setup, p, samples=1, divergence=0.0, **sensor_changes):
     scene, _, _, scan_scene = setup
     sensor = dataclasses.replace(scene.sensor, pulse_length=PULSE, beam_divergence=(divergence, divergence),
                                  **sensor_changes)
-    points, batch = PulseTracer(scan_scene, sensor, samples, waveforms=True).trace_pulse_records(p)
+    points, _, batch = PulseTracer(scan_scene, sensor, samples, waveforms=True).trace_pulse_records(p)
     sigma = pulse_sigma(sensor.resolving_distance)
     assert sensor.waveform.bin_range == pytest.approx(H)
     cast = batch.cast
@@ -118,7 +118,7 @@ def test_two_plates_give_two_peaks_two_echoes_and_their_energies(tmp_path, varia
 
 def test_sky_pulses_have_no_echo_and_no_waveform(tmp_path, variant):
     setup = analytic_scene(scene_file(tmp_path, variant=variant))
-    points, batch = PulseTracer(setup[3], setup[0].sensor, 1, waveforms=True).trace_pulse_records(
+    _, _, batch = PulseTracer(setup[3], setup[0].sensor, 1, waveforms=True).trace_pulse_records(
         pulses([[20.0, 20.0, 30.0], [20.0, 20.0, 30.0]], [[0, 0, -1], [0.3, 0, 1]]))
     assert batch.echo_counts(batch.fired["pulse_id"]).tolist() == [1, 0]
     assert batch.cast["pulse_id"].tolist() == [0]          # a waveform for the pulse with a return only

@@ -179,27 +179,38 @@ def test_a_bad_thread_count_is_refused_before_any_work(tmp_path, monkeypatch, ca
 
 def test_point_array_filled_by_threads_is_the_echoes(monkeypatch):
     """The scan's point array, filled by row ranges on four threads, holds each echo field in its place
-    (intensity from the amplitude, the scan angle in degrees, species by instance)."""
+    (intensity from the amplitude, the scan angle in degrees), and its hits each echo's rows; the labels
+    stage, on the same threads, gathers each label from the rows it names."""
     from types import SimpleNamespace
 
+    from mitsuforest import labels
     from mitsuforest.scan import tracer
     from mitsuforest.threads import Workers
     rng = np.random.default_rng(5)
     n = 150_001
     echoes = {k: rng.integers(0, 200, n).astype(t) for k, t in (
-        ("treeid", np.uint16), ("classification", np.uint8), ("instance", np.uint32), ("object_id", np.uint32),
-        ("number_of_returns", np.uint32), ("return_number", np.uint32), ("pulse_id", np.uint64))}
+        ("object_row", np.uint32), ("triangle", np.uint32), ("number_of_returns", np.uint32),
+        ("return_number", np.uint32), ("pulse_id", np.uint64))}
     echoes.update({k: rng.uniform(-50, 50, n).astype(np.float32) for k in ("x", "y", "z", "range", "amplitude")})
     echoes["gps_time"], echoes["scan_angle"] = rng.uniform(0, 1e3, n), rng.uniform(-1, 1, n).astype(np.float32)
-    codes = rng.integers(0, 4, 200).astype(np.uint8)
-    table = SimpleNamespace(species=lambda instance: codes[np.asarray(instance, np.int64)])
     workers = Workers(4)
     monkeypatch.setattr(tracer, "shared_workers", lambda: workers)
-    points = tracer.PulseTracer._points(echoes, table)
-    workers.close()
-    for key in ("treeid", "x", "y", "z", "classification", "instance", "object_id", "number_of_returns",
-                "return_number", "gps_time", "pulse_id", "range"):
+    monkeypatch.setattr(labels, "shared_workers", lambda: workers)
+    points, hits = tracer.PulseTracer._points(echoes)
+    for key in ("x", "y", "z", "number_of_returns", "return_number", "gps_time", "pulse_id", "range"):
         assert np.array_equal(points[key], echoes[key].astype(points.dtype[key])), key
     assert np.array_equal(points["intensity"], echoes["amplitude"])
     assert np.array_equal(points["scan_angle"], np.rad2deg(echoes["scan_angle"]))
-    assert np.array_equal(points["species"], codes[echoes["instance"]])
+    assert np.array_equal(hits["object_row"], echoes["object_row"]) and np.array_equal(hits["triangle"], echoes["triangle"])
+    assert not points["instance"].any() and not points["classification"].any()       # the scan labels nothing
+    located = {key: rng.integers(1, 250, 200).astype(t) for key, t in (
+        ("object_instance", np.uint32), ("object_id_base", np.uint32), ("object_treeid", np.uint16),
+        ("object_species", np.uint8), ("triangle_component", np.uint16), ("triangle_class", np.uint8))}
+    labels.label_points(points, hits, SimpleNamespace(located=located))
+    workers.close()
+    obj, tri = echoes["object_row"], echoes["triangle"]
+    assert np.array_equal(points["instance"], located["object_instance"][obj])
+    assert np.array_equal(points["treeid"], located["object_treeid"][obj])
+    assert np.array_equal(points["species"], located["object_species"][obj])
+    assert np.array_equal(points["object_id"], located["object_id_base"][obj] + located["triangle_component"][tri])
+    assert np.array_equal(points["classification"], located["triangle_class"][tri])

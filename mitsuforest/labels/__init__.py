@@ -1,63 +1,55 @@
-"""Stage 5: labels of ray hits, from the scene's :class:`~mitsuforest.scene.HitTable`.
+"""Stage 5: the labels of scanned points, from what each echo hit.
 
-Every hit decodes to (instance, object_id, treeid, classification) and a world-frame surface normal;
-a hit on a shape the table does not know is an error, never a silently unlabelled point.
+The scan records, for each echo, the object row and triangle row of its strongest sub-ray's hit in
+the scene's :attr:`HitTable.located <mitsuforest.scene.HitTable.located>` (``HIT_DTYPE``); here those
+rows become the point's ``instance``, ``object_id`` (the object's first id plus the triangle's
+component), ``treeid``, ``classification`` (the triangle's component's class) and ``species``. The
+lookups are gathers from small tables, done on the host's threads a batch at a time.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..classes import GROUND
+from ..threads import row_ranges, shared_workers
+
+if TYPE_CHECKING:
+    from ..scene import HitTable
+
+__all__ = ["LABEL_FIELDS", "label_points", "labelled"]
+
+LABEL_FIELDS = ("instance", "object_id", "treeid", "classification", "species")
 
 
-@dataclass
-class HitLabels:
-    instance: np.ndarray        # (n,) uint32, 0 for the ground
-    object_id: np.ndarray       # (n,) uint32
-    treeid: np.ndarray          # (n,) uint16
-    classification: np.ndarray  # (n,) uint8
-    normal: np.ndarray          # (n, 3) float32, world frame, unit
+def label_points(points: np.ndarray, hits: np.ndarray, table: HitTable) -> None:
+    """Fill the :data:`LABEL_FIELDS` of ``points`` in place.
 
-
-def label_hits(table, instance_registry, shape_registry, shape_index, prim_index) -> HitLabels:
-    """Labels and normals of hits.
-
-    :param instance_registry: (n,) registry id of the instance hit (0 when the hit is no instance).
-    :param shape_registry: (n,) registry id of the shape hit: the plain shape, or (OptiX) the mesh
-        hit inside an instance (Embree gives 0 on instance hits).
-    :param shape_index: (n,) index of the shape inside the instance's shapegroup (Embree).
-    :param prim_index: (n,) triangle index inside that shape.
+    :param points: (n,) POINT_DTYPE, as the scan made them.
+    :param hits: (n,) ``HIT_DTYPE`` (``object_row``, ``triangle``) of the same echoes.
+    :param table: the hit table of the scene the points were scanned in.
     """
-    inst = np.asarray(instance_registry, np.int64)
-    prim = np.asarray(prim_index, np.int64)
-    n = len(inst)
-    on_object = inst > 0
-    ground = ~on_object
-    if np.any(ground & (np.asarray(shape_registry) != table.ground_registry)):
-        raise RuntimeError("a ray hit a shape that is neither the ground nor a placed object")
-    row = np.full(n, -1, np.int64)
-    row[on_object] = table.object_of_registry[inst[on_object]]
-    if np.any(row[on_object] < 0):
-        raise RuntimeError("a ray hit an instance missing from the hit table")
-    r = row[on_object]
-    shape = np.asarray(shape_registry, np.int64)[on_object]
-    part_of_shape = np.where(shape < len(table.part_of_registry),
-                             table.part_of_registry[np.minimum(shape, len(table.part_of_registry) - 1)], -1)
-    part = np.where(part_of_shape >= 0, part_of_shape,
-                    table.object_part_row[r] + np.asarray(shape_index, np.int64)[on_object])
-    tri = table.part_base[part] + prim[on_object]
-    component = table.triangle_component[tri].astype(np.int64)
-    out = HitLabels(
-        instance=np.zeros(n, np.uint32), object_id=np.full(n, table.ground_object_id, np.uint32),
-        treeid=np.zeros(n, np.uint16), classification=np.full(n, GROUND, np.uint8),
-        normal=np.zeros((n, 3), np.float32))
-    out.instance[on_object] = table.object_instance[r]
-    out.object_id[on_object] = table.object_id_base[r] + component
-    out.treeid[on_object] = table.object_treeid[r]
-    out.classification[on_object] = table.component_class[table.object_class_row[r] + component]
-    out.normal[on_object] = np.einsum("nij,nj->ni", table.object_rotation[r], table.triangle_normal[tri])
-    out.normal[ground] = table.ground_normal[prim[ground]]
-    return out
+    if len(points) != len(hits):
+        raise ValueError(f"{len(points)} points but {len(hits)} hits")
+    located = table.located
+    workers = shared_workers()
+    workers.results([workers.submit(_label_rows, points, hits, located, start, stop)
+                     for start, stop in row_ranges(len(points), workers.threads)])
+
+
+def labelled(points: np.ndarray, hits: np.ndarray, table: HitTable) -> np.ndarray:
+    """:func:`label_points`, returning ``points``."""
+    label_points(points, hits, table)
+    return points
+
+
+def _label_rows(points: np.ndarray, hits: np.ndarray, located: dict, start: int, stop: int) -> None:
+    """Rows ``start:stop`` of :func:`label_points`."""
+    rows, out = hits[start:stop], points[start:stop]
+    obj, tri = rows["object_row"], rows["triangle"]
+    out["instance"] = located["object_instance"][obj]
+    out["treeid"] = located["object_treeid"][obj]
+    out["species"] = located["object_species"][obj]
+    out["object_id"] = located["object_id_base"][obj] + located["triangle_component"][tri]
+    out["classification"] = located["triangle_class"][tri]

@@ -1,11 +1,12 @@
-"""Stage 4: fly the survey and turn pulses into labelled echoes.
+"""Stage 4: fly the survey and turn pulses into echoes, each with what it hit.
 
 Per leg, time slots are processed in batches of ``simulation.pulses_per_batch`` (by default
 :func:`default_batch`: about :data:`BATCH_SUB_RAYS` sub-rays per launch for the backend, at most
 :data:`MAX_BATCH_SLOTS` time slots; a GPU wants tens of millions of rays per launch, a CPU's caches
 about two million, and few sub-rays per pulse need more slots to pay each launch's fixed cost). For each batch the :class:`~mitsuforest.scan.tracer.PulseTracer` decides on the
 device which pulses fire and can reach the scene's box, then traces them (sub-rays, radiometry,
-waveform, labels, ranging noise); only finished echoes come back to numpy. Memory is bounded by the
+waveform, ranging noise); only finished echoes come back to numpy, as points and, beside them, what
+each hit (:data:`HIT_DTYPE`), which the labels stage turns into ids. Memory is bounded by the
 batch size. Ranging noise is keyed on (seed, pulse id, return number), so the same scene and seed
 give the same points, byte for byte, whatever the batch size. Pulses leave from the leg's pose
 (platform.py: attitude, mount, a flown trajectory); the points are then placed with the navigation
@@ -28,7 +29,7 @@ if TYPE_CHECKING:
     from .platform import Platform
     from .tracer import PulseTracer
 
-__all__ = ["POINT_DTYPE", "NavigationModel", "Platform", "PulseTracer", "ScanResult", "default_batch",
+__all__ = ["HIT_DTYPE", "POINT_DTYPE", "NavigationModel", "Platform", "PulseTracer", "ScanResult", "default_batch",
            "navigation_model", "scan", "scan_batches"]
 
 # The Dr.Jit side imports Mitsuba: loaded on first use, so that what only reads the radiometry
@@ -37,6 +38,9 @@ _ON_DEVICE = {"Platform": "platform", "PulseTracer": "tracer"}
 
 
 __getattr__ = _imported_on_first_use(__name__, _ON_DEVICE)
+
+# What an echo hit: its strongest sub-ray's object row and triangle row in the scene's HitTable.located.
+HIT_DTYPE = np.dtype([("object_row", "<u4"), ("triangle", "<u4")])
 
 BATCH_SUB_RAYS = {"llvm": 2_000_000, "cuda": 20_000_000}   # default sub-rays per launch, by Dr.Jit backend
 MAX_BATCH_SLOTS = {"llvm": 400_000, "cuda": 1_000_000}     # ... and at most this many time slots
@@ -53,7 +57,8 @@ def default_batch(variant: str, beam_samples: int) -> int:
 
 @dataclass
 class ScanResult:
-    points: np.ndarray | None = None       # POINT_DTYPE, local frame (scan; None from scan_batches)
+    points: np.ndarray | None = None       # POINT_DTYPE, local frame, labels left 0 (scan; None from scan_batches)
+    hits: np.ndarray | None = None         # HIT_DTYPE, what each point hit (scan; None from scan_batches)
     pulses_emitted: int = 0                # time slots flown (fired or not)
     pulses_fired: int = 0                  # inside the field of view
     pulses_cast: int = 0                   # fired and able to reach the scene
@@ -63,7 +68,8 @@ class ScanResult:
 
 def scan(scene, plan, scan_scene, progress: bool = True, legs: range | None = None) -> ScanResult:
     """Simulate the whole survey of ``plan`` over ``scan_scene`` (see module docstring), every point in
-    ``ScanResult.points``; :func:`scan_batches` streams them instead.
+    ``ScanResult.points`` and what it hit in ``ScanResult.hits``; :func:`scan_batches` streams them
+    instead.
 
     :param scene: the :class:`~mitsuforest.config.types.Scene` (sensor, survey, simulation, seed).
     :param legs: only these legs (indices into ``plan.legs``), with the same batches and pulse ids
@@ -72,14 +78,16 @@ def scan(scene, plan, scan_scene, progress: bool = True, legs: range | None = No
     """
     result = ScanResult()
     chunks = list(scan_batches(scene, plan, scan_scene, result, progress, legs))
-    result.points = np.concatenate(chunks) if chunks else np.zeros(0, POINT_DTYPE)
+    result.points = np.concatenate([points for points, _ in chunks]) if chunks else np.zeros(0, POINT_DTYPE)
+    result.hits = np.concatenate([hits for _, hits in chunks]) if chunks else np.zeros(0, HIT_DTYPE)
     return result
 
 
 def scan_batches(scene, plan, scan_scene, result: ScanResult, progress: bool = True, legs: range | None = None,
                  on_pulses=None):
-    """:func:`scan` as a generator: each batch's points (local frame, POINT_DTYPE) in survey order, the
-    pulse counts and seconds added to ``result`` as it goes (complete once exhausted).
+    """:func:`scan` as a generator: each batch's points (local frame, POINT_DTYPE, labels left 0) and
+    hits (HIT_DTYPE) in survey order, the pulse counts and seconds added to ``result`` as it goes
+    (complete once exhausted).
 
     :param on_pulses: called with each batch's :class:`~mitsuforest.scan.waveform.PulseBatch`, before its
         points are yielded, when the scene asks for ``output.waveforms`` or ``output.pulses``.
@@ -104,14 +112,14 @@ def scan_batches(scene, plan, scan_scene, result: ScanResult, progress: bool = T
         bar = _bar(progress, total, f"leg {leg_no + 1}/{len(plan.legs)}")
         for first in range(0, total, batch):
             count = min(batch, total - first)
-            points, fired, cast, *records = tracer.trace_slots(leg, scene.pulse_frequency, scene.scan_frequency,
+            points, hits, fired, cast, *records = tracer.trace_slots(leg, scene.pulse_frequency, scene.scan_frequency,
                                                                first, count, first_id, leg_no + 1, pose)
             result.pulses_fired += fired
             result.pulses_cast += cast
             result.rays += cast * tracer.samples
             if records:
                 on_pulses(records[0])
-            yield points
+            yield points, hits
             if bar:
                 bar.update(count)
         if bar:

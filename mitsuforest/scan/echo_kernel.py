@@ -1,10 +1,13 @@
-"""The echo kernel: rays, labels, radiometry and waveform of a batch of pulses in Dr.Jit.
+"""The echo kernel: rays, radiometry and waveform of a batch of pulses in Dr.Jit.
 
 Only echoes come back to numpy, each complete (position with its ranging noise, GPS time, scan
-angle, pulse id, return numbers, intensity with its speckle, labels), so the per-sub-ray and per-echo work (hundreds of
-millions of returns in a 1 ha scan) runs vectorised on every core, or on the GPU. The stages are
-those of the numpy reference (:func:`mitsuforest.testing.reference.trace_reference`):
-:func:`~mitsuforest.labels.label_hits`, :func:`~mitsuforest.scan.radiometry.received_power` and
+angle, pulse id, return numbers, intensity with its speckle, and what it hit: the object and
+triangle rows of its strongest sub-ray, which the labels stage turns into ids), so the per-sub-ray
+and per-echo work (hundreds of millions of returns in a 1 ha scan) runs vectorised on every core, or
+on the GPU. The stages are those of the numpy reference
+(:func:`mitsuforest.testing.reference.trace_reference`): the hit lookup
+(:func:`~mitsuforest.testing.reference.labels.label_hits`),
+:func:`~mitsuforest.scan.radiometry.received_power` and
 :func:`~mitsuforest.testing.reference.echoes.pulse_echoes`.
 """
 
@@ -14,7 +17,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..labels.device import DeviceHitTable
+from ..scene.device import DeviceHitTable
 from .echoes import pulse_echoes, single_chain
 from .kernel import RayCaster
 from .pulses import DevicePulses
@@ -23,8 +26,7 @@ from .noise import noise_key, range_sigma, speckle_gain, speckle_key, standard_n
 
 ECHO_FIELDS = {"pulse_id": np.uint64, "gps_time": np.float64, "scan_angle": np.float32, "return_number": np.uint32,
                "number_of_returns": np.uint32, "range": np.float32, "amplitude": np.float32, "x": np.float32,
-               "y": np.float32, "z": np.float32, "treeid": np.uint32, "classification": np.uint32,
-               "instance": np.uint32, "object_id": np.uint32}
+               "y": np.float32, "z": np.float32, "object_row": np.uint32, "triangle": np.uint32}
 
 
 class EchoKernel(RayCaster):
@@ -69,8 +71,9 @@ class EchoKernel(RayCaster):
         :returns: numpy arrays (E,) of :data:`ECHO_FIELDS`: the pulse's id, GPS time and scan angle
             (rad); ``return_number``, ``number_of_returns``; ``range`` and ``x``, ``y``, ``z`` (local
             frame: on the beam axis at that range, or on the surface moved along the axis by the
-            ranging noise) with the echo's ranging noise; ``amplitude``; and the labels of its
-            strongest sub-ray.
+            ranging noise) with the echo's ranging noise; ``amplitude``; and the object and triangle
+            rows (:attr:`HitTable.located <mitsuforest.scene.HitTable.located>`) of its strongest
+            sub-ray's hit.
         """
         return self.echoes_and_waveforms(pulses)[0]
 
@@ -112,7 +115,7 @@ class EchoKernel(RayCaster):
         return out
 
     def _sub_ray_returns(self, pulses: DevicePulses) -> tuple[dict, dict]:
-        """Trace, label and weigh every sub-ray (lane = pulse*S + sub-ray): its range (``inf`` when it
+        """Trace, locate and weigh every sub-ray (lane = pulse*S + sub-ray): its range (``inf`` when it
         gave no valid return), received power and hit offset from the origin, and where it hit (object
         and triangle rows of the device hit table)."""
         ray, _, d, _, sample = self.subrays(pulses.origin, pulses.direction, pulses.across, pulses.pulse_id)
@@ -182,7 +185,7 @@ class EchoKernel(RayCaster):
 
     def _echo_records(self, flat: dict, returns: mi.UInt32, hit_id: dict, pulses: DevicePulses) -> dict:
         """The kept slots, compacted, with their points, noise, pulse data and their strongest sub-ray's
-        labels, in numpy."""
+        hit, in numpy."""
         S = self.samples
         idx = dr.compress(flat["kept"] > 0)
         if dr.width(idx) == 0:
@@ -190,15 +193,14 @@ class EchoKernel(RayCaster):
         echo_pulse = idx // S
         return_number = idx - echo_pulse * S + 1
         strongest = echo_pulse * S + dr.gather(mi.UInt32, flat["dominant"], idx)
-        ids = self.table.identities(*(dr.gather(mi.UInt32, hit_id[k], strongest) for k in ("row", "tri")),
-                                    dr.full(mi.Bool, True, dr.width(idx)))
+        row, tri = (dr.gather(mi.UInt32, hit_id[k], strongest) for k in ("row", "tri"))
         pulse_id = dr.gather(mi.UInt64, pulses.pulse_id, echo_pulse)
         start = dr.gather(mi.Point3f, pulses.origin, echo_pulse)
         axis = dr.gather(mi.Vector3f, pulses.direction, echo_pulse)
         echo_range = dr.gather(mi.Float, flat["range"], idx)
         noise = mi.Float(0.0)
         if self.sigma_varies or self.sigma > 0:
-            sigma = (self._range_sigma(echo_range, axis, strongest, hit_id, pulses, echo_pulse) if self.sigma_varies
+            sigma = (self._range_sigma(echo_range, axis, row, tri, pulses, echo_pulse) if self.sigma_varies
                      else self.sigma)
             noise = sigma * standard_normal(self.noise_key, pulse_id, return_number)
         amplitude = dr.gather(mi.Float, flat["amplitude"], idx)
@@ -216,17 +218,17 @@ class EchoKernel(RayCaster):
             "range": measured,
             "amplitude": amplitude,
             **dict(zip("xyz", point)),
-            **ids,
+            "object_row": row, "triangle": tri,
         }
         if self.record:
             out["energy"] = dr.gather(mi.Float, flat["energy"], idx)
         dr.eval(out)
         return {k: np.array(v) for k, v in out.items()}
 
-    def _range_sigma(self, echo_range: mi.Float, axis: mi.Vector3f, strongest: mi.UInt32, hit_id: dict,
+    def _range_sigma(self, echo_range: mi.Float, axis: mi.Vector3f, row: mi.UInt32, tri: mi.UInt32,
                      pulses: DevicePulses, echo_pulse: mi.UInt32) -> mi.Float:
-        """σ(R, θ) of each echo (noise.py), θ from the normal of its strongest sub-ray's triangle."""
-        row, tri = (dr.gather(mi.UInt32, hit_id[k], strongest) for k in ("row", "tri"))
+        """σ(R, θ) of each echo (noise.py), θ from the normal of its strongest sub-ray's triangle (at
+        object row ``row``, triangle row ``tri``)."""
         _, normal = self.table.class_and_normal(row, tri, dr.full(mi.Bool, True, dr.width(row)))
         across = dr.gather(mi.Vector3f, pulses.across, echo_pulse)
         along = dr.cross(axis, across)

@@ -1,4 +1,4 @@
-"""One batch of pulses → labelled echo points: pulses, rays, radiometry, waveform, labels and noise in Dr.Jit."""
+"""One batch of pulses → echo points and what they hit: pulses, rays, radiometry, waveform and noise in Dr.Jit."""
 
 from __future__ import annotations
 
@@ -6,6 +6,7 @@ import numpy as np
 
 from .. import seeds
 from ..fields import POINT_DTYPE
+from . import HIT_DTYPE
 from ..scene.variant import variant_scope
 from ..threads import row_ranges, shared_workers
 from .beam import beam_cells, beam_pattern
@@ -24,12 +25,14 @@ class PulseTracer:
     gets Gaussian ranging noise keyed on (seed, pulse id, return number) (noise.py). Its point is,
     with ``point_position="beam_axis"``, on the pulse's nominal beam axis at that range, as a scanner
     reports it (an echo mixing two surfaces lies between them); with ``"surface"``, the
-    energy-weighted mean of its sub-rays' hit points, moved along the beam axis by the noise. Its
-    labels are those of its strongest sub-ray.
+    energy-weighted mean of its sub-rays' hit points, moved along the beam axis by the noise. What it
+    hit is its strongest sub-ray's hit (``HIT_DTYPE``: the object and triangle rows of the scene's
+    :attr:`HitTable.located <mitsuforest.scene.HitTable.located>`), returned beside the points for
+    the labels stage (:func:`mitsuforest.labels.label_points`); the points' label fields are left 0.
 
     :meth:`trace_slots` is what a render runs; :meth:`trace_pulses` traces hand-made pulses the same
-    way. Both run on the device and return finished points. The numpy twin of the echo stage is
-    :func:`mitsuforest.testing.reference.trace_reference`.
+    way. Both run on the device and return finished points and their hits. The numpy twin of the echo
+    stage is :func:`mitsuforest.testing.reference.trace_reference`.
 
     :param sensor: a :class:`~mitsuforest.config.types.Sensor`.
     :param seed: the scene's seed (keys the ranging noise and the stratified beam).
@@ -79,7 +82,7 @@ class PulseTracer:
         return len(self.weights)
 
     def trace_slots(self, leg, pulse_frequency: float, scan_frequency: float, first: int, count: int,
-                    first_id: int = 0, source_id: int = 0, pose=None) -> tuple[np.ndarray, int, int]:
+                    first_id: int = 0, source_id: int = 0, pose=None) -> tuple[np.ndarray, np.ndarray, int, int]:
         """Points of the time slots ``first .. first+count-1`` of a leg; only pulses that fire and can
         reach the scene are cast.
 
@@ -89,8 +92,9 @@ class PulseTracer:
         :param source_id: the points' ``point_source_id`` (the leg's number from 1 in a survey).
         :param pose: the leg's :class:`~mitsuforest.plan.trajectory.PoseTable` (``Platform.table``), or
             None: level flight along its straight line.
-        :returns: the points (POINT_DTYPE, local frame, in pulse then range order), the number of
-            pulses fired and the number cast; with ``waveforms`` or ``pulse_records``, also the batch's
+        :returns: the points (POINT_DTYPE, local frame, in pulse then range order, labels left 0),
+            their hits (HIT_DTYPE), the number of pulses fired and the number cast; with ``waveforms``
+            or ``pulse_records``, also the batch's
             :class:`~mitsuforest.scan.waveform.PulseBatch`.
         """
         records = self.waveforms or self.pulse_records
@@ -102,15 +106,15 @@ class PulseTracer:
                 echoes, returns = self.caster.echoes_and_waveforms(pulses)
             else:
                 echoes = self.caster.echoes(pulses)
-            points = self._points(echoes, self.table)
+            points, hits = self._points(echoes)
         points["point_source_id"] = source_id
         if self.navigation is not None:
             self.navigation.place(points, leg, pose)
         if not records:
-            return points, fired, pulses.count
+            return points, hits, fired, pulses.count
         kept = ("pulse_id", "return_number", "range", "amplitude", *(("energy",) if self.waveforms else ()))
         batch = PulseBatch(returns, {k: echoes[k] for k in kept}, made[2] if self.pulse_records else None, source_id)
-        return points, fired, pulses.count, batch
+        return points, hits, fired, pulses.count, batch
 
     def _device_table(self, pose):
         """``pose`` on the device, uploaded once per leg."""
@@ -120,23 +124,24 @@ class PulseTracer:
             self._uploaded = (pose, self.platform.upload(pose))
         return self._uploaded[1]
 
-    def trace_pulses(self, pulses, first_id: int = 0) -> np.ndarray:
-        """Points of hand-made pulses (:class:`~mitsuforest.testing.reference.pulses.Pulses`, numpy)."""
+    def trace_pulses(self, pulses, first_id: int = 0) -> tuple[np.ndarray, np.ndarray]:
+        """Points of hand-made pulses (:class:`~mitsuforest.testing.reference.pulses.Pulses`, numpy)
+        and their hits, as :meth:`trace_slots` makes them."""
         with variant_scope(self.variant):
-            return self._points(self.caster.echoes(upload_pulses(pulses, first_id)), self.table)
+            return self._points(self.caster.echoes(upload_pulses(pulses, first_id)))
 
-    def trace_pulse_records(self, pulses, first_id: int = 0) -> tuple[np.ndarray, PulseBatch]:
-        """Points of hand-made pulses and their :class:`~mitsuforest.scan.waveform.PulseBatch` (needs
-        ``waveforms``): every hand-made pulse counts as fired and cast."""
+    def trace_pulse_records(self, pulses, first_id: int = 0) -> tuple[np.ndarray, np.ndarray, PulseBatch]:
+        """Points of hand-made pulses, their hits and their :class:`~mitsuforest.scan.waveform.PulseBatch`
+        (needs ``waveforms``): every hand-made pulse counts as fired and cast."""
         with variant_scope(self.variant):
             echoes, returns = self.caster.echoes_and_waveforms(upload_pulses(pulses, first_id))
-            points = self._points(echoes, self.table)
+            points, hits = self._points(echoes)
         fired = {"pulse_id": np.asarray(pulses.index, np.uint64) + np.uint64(first_id),
                  "gps_time": np.asarray(pulses.time, np.float64),
                  "scan_angle": np.asarray(pulses.scan_angle, np.float32),
                  "origin": np.asarray(pulses.origin, np.float32), "direction": np.asarray(pulses.direction, np.float32)}
         kept = ("pulse_id", "return_number", "range", "amplitude", "energy")
-        return points, PulseBatch(returns, {k: echoes[k] for k in kept}, fired, 0)
+        return points, hits, PulseBatch(returns, {k: echoes[k] for k in kept}, fired, 0)
 
     def cast(self, pulses, first_id: int = 0) -> dict:
         """The first hits of every sub-ray of hand-made pulses (see :meth:`RayCaster.cast`)."""
@@ -144,22 +149,24 @@ class PulseTracer:
             return self.caster.cast(upload_pulses(pulses, first_id))
 
     @staticmethod
-    def _points(echoes: dict, table) -> np.ndarray:
-        """The echoes as one POINT_DTYPE array, its row ranges filled by the host threads at once."""
+    def _points(echoes: dict) -> tuple[np.ndarray, np.ndarray]:
+        """The echoes as one POINT_DTYPE array (labels left 0) and one HIT_DTYPE array, their row ranges
+        filled by the host threads at once."""
         out = np.zeros(len(echoes["pulse_id"]), POINT_DTYPE)
+        hits = np.empty(len(out), HIT_DTYPE)
         workers = shared_workers()
-        workers.results([workers.submit(_fill_points, out, echoes, table, start, stop)
+        workers.results([workers.submit(_fill_points, out, hits, echoes, start, stop)
                          for start, stop in row_ranges(len(out), workers.threads)])
-        return out
+        return out, hits
 
 
-def _fill_points(out: np.ndarray, echoes: dict, table, start: int, stop: int) -> None:
+def _fill_points(out: np.ndarray, hits: np.ndarray, echoes: dict, start: int, stop: int) -> None:
     """Rows ``start:stop`` of :meth:`PulseTracer._points`."""
     rows = out[start:stop]
-    for key in ("treeid", "x", "y", "z", "classification", "instance", "object_id", "number_of_returns",
-                "return_number", "gps_time", "pulse_id", "range"):
+    for key in ("x", "y", "z", "number_of_returns", "return_number", "gps_time", "pulse_id", "range"):
         rows[key] = echoes[key][start:stop]
     rows["intensity"] = echoes["amplitude"][start:stop]
     np.rad2deg(echoes["scan_angle"][start:stop], out=rows["scan_angle"])
-    rows["species"] = table.species(echoes["instance"][start:stop])
     rows["reflectance"] = reflectance_db(rows["intensity"], rows["range"])
+    for key in HIT_DTYPE.names:
+        hits[key][start:stop] = echoes[key][start:stop]

@@ -1,4 +1,4 @@
-"""Stage 3: the Mitsuba scene of a plan, and the table that turns a ray hit into ids.
+"""Stage 3: the Mitsuba scene of a plan, and the table that says what a ray hit.
 
 Each model's meshes are loaded once as a ``shapegroup``; every placed object is an ``instance`` of
 it; the ground is a plain mesh. Nothing else is modelled: no emitters, no sensor, no integrator —
@@ -9,12 +9,13 @@ left out (see :func:`reachable`); a scene built for some legs loads only the obj
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..classes import SPECIES_CODES
+from ..classes import GROUND, SPECIES_CODES
 from ..plan.transforms import apply
 from .meshes import face_normals, mitsuba_mesh
 from .variant import scene_variant, select_variant, variant_scope
@@ -51,6 +52,29 @@ class HitTable:
     ground_normal: np.ndarray        # (G, 3) float32
     ground_object_id: int
     instance_species: np.ndarray | None = None   # (I,) uint8: species code by instance id (0 the ground)
+
+    @cached_property
+    def located(self) -> dict[str, np.ndarray]:
+        """The table's arrays as a located hit indexes them: by object row, the ground appended as the
+        last row (instance 0, the ground's object id, identity rotation, species 0), and by triangle
+        row, the ground's triangles after the models' (component 0, class ground).
+        :class:`~mitsuforest.scene.device.DeviceHitTable` locates hits in these rows on the device;
+        :func:`~mitsuforest.labels.label_points` turns them into labels."""
+        triangles, ground = len(self.triangle_component), len(self.ground_normal)
+        species = (np.zeros(len(self.object_instance), np.uint8) if self.instance_species is None
+                   else self.instance_species[self.object_instance.astype(np.int64)])
+        return {
+            "object_instance": np.append(self.object_instance, np.uint32(0)),
+            "object_id_base": np.append(self.object_id_base, np.uint32(self.ground_object_id)),
+            "object_treeid": np.append(self.object_treeid, np.uint16(0)),
+            "object_species": np.append(species, np.uint8(0)),
+            "object_part_row": np.append(self.object_part_row, len(self.part_base)),
+            "object_rotation": np.concatenate([self.object_rotation.reshape(-1, 9), np.eye(3).reshape(1, 9)]),
+            "part_base": np.append(self.part_base, triangles),
+            "triangle_component": np.append(self.triangle_component, np.zeros(ground, np.uint16)),
+            "triangle_class": np.append(self.triangle_class, np.full(ground, GROUND, np.uint8)),
+            "triangle_normal": np.concatenate([self.triangle_normal, self.ground_normal]),
+        }
 
     def species(self, instance: np.ndarray) -> np.ndarray:
         """(n,) uint8 species codes (classes.SPECIES_CODES) of the points of instances ``instance``."""

@@ -4,7 +4,8 @@ Used by the tests and ``benchmarks/stability.py``; handy for validating a sensor
 
     path = bare_scene_file(folder, sensors / "ideal.yaml")
     scene, plan, models, scan_scene = analytic_scene(path, [(plane_model("p", 10, ROCK), (5, 5, 2), 0, (0, 30), 0)])
-    points = PulseTracer(scan_scene, scene.sensor, 1).trace_pulses(pulses([[5, 5, 30]], [0, 0, -1]))
+    tracer = PulseTracer(scan_scene, scene.sensor, 1)
+    points = labelled(*tracer.trace_pulses(pulses([[5, 5, 30]], [0, 0, -1])), tracer.table)
 """
 
 from __future__ import annotations

@@ -9,10 +9,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...labels import label_hits
 from ...scan.radiometry import received_power, reflectance_db
 from ...scan.tracer import POINT_DTYPE
 from .echoes import pulse_echoes
+from .labels import label_hits
 from .pulses import Pulses, reaching_pulses
 
 __all__ = ["Pulses", "reaching_pulses", "pulse_echoes", "sub_ray_returns", "trace_reference"]

@@ -1,10 +1,12 @@
-"""The hit table on the device: :func:`~mitsuforest.labels.label_hits` for Dr.Jit arrays.
+"""The scene's hit table on the device: where a ray hit, and the class and normal of what it hit.
 
-Used by the echo kernel, which labels sub-ray hits without copying them back to numpy. The lookups
-are those of ``label_hits``, arranged for few gathers per sub-ray: the ground is one more object row
-(identity rotation, its triangles after the models'), so every hit is located by an object row and a
-triangle row (:meth:`DeviceHitTable.locate`), and each triangle carries its class. A hit the table
-does not know is flagged in ``unknown``.
+The echo kernel (scan) locates every sub-ray's hit by an object row and a triangle row of
+:attr:`HitTable.located <mitsuforest.scene.HitTable.located>` (the ground is one more object row, its
+triangles after the models'), reads the triangle's class (for its reflectance) and world-frame normal
+(for the incidence), and keeps each echo's rows; the labels stage turns those rows into ids
+(:func:`mitsuforest.labels.label_points`). Its numpy twin is
+:func:`mitsuforest.testing.reference.labels.label_hits`. A hit the table does not know is flagged in
+``unknown``.
 """
 
 from __future__ import annotations
@@ -13,30 +15,14 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..classes import GROUND
-
-
-def device_arrays(table) -> dict:
-    """The table's arrays as the device uses them (numpy), the ground appended as the last object row
-    (instance 0, the ground's object id, identity rotation, its triangles after the models')."""
-    triangles, ground = len(table.triangle_component), len(table.ground_normal)
-    return {
-        "object_instance": np.append(table.object_instance, 0),
-        "object_id_base": np.append(table.object_id_base, table.ground_object_id),
-        "object_treeid": np.append(table.object_treeid, 0),
-        "object_part_row": np.append(table.object_part_row, len(table.part_base)),
-        "object_rotation": np.concatenate([table.object_rotation.reshape(-1, 9), np.eye(3).reshape(1, 9)]),
-        "part_base": np.append(table.part_base, triangles),
-        "triangle_component": np.append(table.triangle_component, np.zeros(ground, np.uint16)),
-        "triangle_class": np.append(table.triangle_class, np.full(ground, GROUND, np.uint8)),
-        "triangle_normal": np.concatenate([table.triangle_normal, table.ground_normal]),
-    }
+from . import HitTable
 
 
 class DeviceHitTable:
-    """Dr.Jit copies of a :class:`~mitsuforest.scene.HitTable`'s arrays (call under the scene's variant)."""
+    """Dr.Jit copies of the arrays of a :class:`~mitsuforest.scene.HitTable` that locate a hit (call under
+    the scene's variant)."""
 
-    def __init__(self, table):
+    def __init__(self, table: HitTable):
         # One padding element each: Dr.Jit cannot gather from an empty array (a scene without objects).
         def u32(a):
             return mi.UInt32(np.append(np.asarray(a, np.uint32).reshape(-1), np.uint32(0)))
@@ -44,7 +30,7 @@ class DeviceHitTable:
         def f32(a):
             return mi.Float(np.append(np.asarray(a, np.float32).reshape(-1), np.float32(0)))
 
-        arrays = device_arrays(table)
+        arrays = table.located
         self.ground_row = len(table.object_instance)
         self.ground_registry = int(table.ground_registry)
         registry = np.asarray(table.object_of_registry)
@@ -54,9 +40,9 @@ class DeviceHitTable:
         self.part_of_registry = u32(np.where(parts >= 0, parts, len(arrays["part_base"])))     # not a part: past them
         self.parts = len(arrays["part_base"])
         for name in ("object_rotation", "triangle_normal"):
-            setattr(self, name, f32(arrays.pop(name)))
-        for name, values in arrays.items():
-            setattr(self, name, u32(values))
+            setattr(self, name, f32(arrays[name]))
+        for name in ("object_part_row", "part_base", "triangle_class"):
+            setattr(self, name, u32(arrays[name]))
 
     def locate(self, instance: mi.UInt32, shape: mi.UInt32, shape_index: mi.UInt32, prim: mi.UInt32,
                active: mi.Bool) -> tuple[mi.UInt32, mi.UInt32, mi.Bool]:
@@ -86,13 +72,3 @@ class DeviceHitTable:
                              m[3] * local[0] + m[4] * local[1] + m[5] * local[2],
                              m[6] * local[0] + m[7] * local[1] + m[8] * local[2])
         return cls, normal
-
-    def identities(self, row: mi.UInt32, tri: mi.UInt32, active: mi.Bool) -> dict[str, mi.UInt32]:
-        """``instance``, ``object_id``, ``treeid`` and ``classification`` (UInt32 each) of located hits."""
-        return {
-            "instance": dr.gather(mi.UInt32, self.object_instance, row, active),
-            "object_id": dr.gather(mi.UInt32, self.object_id_base, row, active)
-            + dr.gather(mi.UInt32, self.triangle_component, tri, active),
-            "treeid": dr.gather(mi.UInt32, self.object_treeid, row, active),
-            "classification": dr.gather(mi.UInt32, self.triangle_class, tri, active),
-        }
