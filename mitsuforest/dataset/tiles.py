@@ -8,6 +8,10 @@ core. A tile's file holds its core plus a ``buffer`` m band around it (the same 
 in the neighbours' files): its extent is ``[x0 - buffer, x1 + buffer) × [y0 - buffer, y1 + buffer)``,
 unbounded on the plot's outer sides like the core.
 
+:func:`tile_members` lists, for points batch by batch, the tiles whose files hold them: a plot split
+by flight legs has each leg task sort its points into tiles that way, so that no process holds the
+whole plot (:mod:`.tasks`).
+
 Pure functions of numpy arrays; the files are written by :mod:`.files`.
 """
 
@@ -38,10 +42,43 @@ def core_bounds(i: int, j: int, area_size, size: float) -> tuple[float, float, f
 
 def tile_extent(i: int, j: int, area_size, size: float, buffer: float) -> tuple[float, float, float, float]:
     """``(x0, y0, x1, y1)``: the tile's file extent, core plus ``buffer``, ±inf on the plot's outer sides."""
+    return tuple(float(v) for v in tile_extents(np.array(i), np.array(j), area_size, size, buffer))
+
+
+def tile_extents(i: np.ndarray, j: np.ndarray, area_size, size: float, buffer: float) -> tuple[np.ndarray, ...]:
+    """``(x0, y0, x1, y1)``, each shaped like ``i`` and ``j`` (int arrays): :func:`tile_extent` of many
+    tiles at once, the same float64 values."""
     nx, ny = tile_grid(area_size, size)
-    x0, y0, x1, y1 = core_bounds(i, j, area_size, size)
-    return (-np.inf if i == 0 else x0 - buffer, -np.inf if j == 0 else y0 - buffer,
-            np.inf if i == nx - 1 else x1 + buffer, np.inf if j == ny - 1 else y1 + buffer)
+    w, h = area_size
+    return (np.where(i == 0, -np.inf, i * size - buffer), np.where(j == 0, -np.inf, j * size - buffer),
+            np.where(i == nx - 1, np.inf, np.minimum((i + 1) * size, w) + buffer),
+            np.where(j == ny - 1, np.inf, np.minimum((j + 1) * size, h) + buffer))
+
+
+def tile_members(x: np.ndarray, y: np.ndarray, area_size, size: float, buffer: float) -> tuple[np.ndarray, np.ndarray]:
+    """Every (point, tile) pair of a point inside a tile's file extent (:func:`in_extent` of
+    :func:`tile_extent`, the test :func:`~.files.write_tiles` makes), ordered by tile then point.
+
+    :param x, y: (n,) local frame.
+    :returns: ``(tile, row)``, (m,) int64 each: the tile's flat number ``i * ny + j`` and the point's
+        row; m ≥ n less the points in no extent (none unless rounding puts one on a core's edge).
+    """
+    nx, ny = tile_grid(area_size, size)
+    ci, cj = core_tile(x, y, area_size, size)
+    reach = int(np.ceil(buffer / size)) + 1       # tiles a point's extent test can pass, and one for rounding
+    rows = np.arange(len(x))
+    tiles, members = [], []
+    for di in range(-reach, reach + 1):
+        for dj in range(-reach, reach + 1):
+            i, j = ci + di, cj + dj
+            valid = np.flatnonzero((i >= 0) & (i < nx) & (j >= 0) & (j < ny))
+            i, j = i[valid], j[valid]
+            inside = in_extent(x[valid], y[valid], tile_extents(i, j, area_size, size, buffer))
+            tiles.append((i * ny + j)[inside])
+            members.append(rows[valid][inside])
+    tile, row = np.concatenate(tiles), np.concatenate(members)
+    order = np.lexsort((row, tile))
+    return tile[order], row[order]
 
 
 def in_extent(x: np.ndarray, y: np.ndarray, extent) -> np.ndarray:
@@ -62,6 +99,22 @@ def instance_boxes(instance: np.ndarray, x: np.ndarray, y: np.ndarray, instances
             sel = order[lo:hi]
             out[row] = x[sel].min(), y[sel].min(), x[sel].max(), y[sel].max()
     return out
+
+
+def combine_boxes(ids: np.ndarray, boxes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Boxes of the same instances from several sets of points (:func:`instance_boxes` of each) as the
+    boxes of all the points: ``(unique ids, (k, 4) boxes)``, each the smallest box holding that id's
+    boxes (NaN where all of them are)."""
+    ids = np.asarray(ids, np.int64)
+    boxes = np.asarray(boxes, np.float64).reshape(-1, 4)
+    order = np.argsort(ids, kind="stable")
+    ids, boxes = ids[order], boxes[order]
+    unique, starts = np.unique(ids, return_index=True)
+    if not len(unique):
+        return unique, np.zeros((0, 4))
+    low = np.fmin.reduceat(boxes[:, :2], starts, axis=0)
+    high = np.fmax.reduceat(boxes[:, 2:], starts, axis=0)
+    return unique, np.hstack([low, high])
 
 
 def box_inside(box, extent) -> bool:
