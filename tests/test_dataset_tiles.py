@@ -77,6 +77,10 @@ def test_boxes_combine_to_those_of_all_the_points():
     ids = rng.integers(1, 40, 3000)
     x, y = rng.uniform(0, 50, 3000), rng.uniform(0, 50, 3000)
     whole = instance_boxes(ids, x, y, np.unique(ids))
+    for inst, box in zip(np.unique(ids), whole):
+        mine = ids == inst
+        assert box.tolist() == [x[mine].min(), y[mine].min(), x[mine].max(), y[mine].max()]
+    assert np.isnan(instance_boxes(ids, x, y, np.array([0, 40]))).all()      # listed, without points
     sets = np.array_split(rng.permutation(3000), 3)
     pieces = [(np.unique(ids[s]), instance_boxes(ids[s], x[s], y[s], np.unique(ids[s]))) for s in sets]
     nan = (np.array([5]), np.full((1, 4), np.nan))        # a set without points of instance 5

@@ -94,7 +94,8 @@ class TileSorter:
         self.dtype = points.dtype
         x, y = points["x"] - self.offset[0], points["y"] - self.offset[1]
         tile, row = tiling.tile_members(x, y, self.scene.area.size, self.tiles.size, self.tiles.buffer)
-        self.file.write(np.ascontiguousarray(points[row]).data)
+        records = points.view(np.dtype((np.void, points.dtype.itemsize)))     # whole records: a faster gather
+        self.file.write(np.take(records, row).data)
         ids, counts = np.unique(tile, return_counts=True)
         self.chunks += zip(ids.tolist(), counts.tolist())
         self.boxes.append(files.object_boxes(points, self.offset))
