@@ -219,8 +219,10 @@ def test_reruns_reuse_finished_parts_and_tiles_and_nothing_looks_finished_early(
     monkeypatch.setattr(survey, "scan", lambda *a, **k: pytest.fail("scanned again"))
     assert _legs(root, dataset, 1) == legs                       # every part reused
     assert parts.read_part(part, scene_sha, dataset.tiles, whole_points=True) is None   # not made for a merge
-    other = dataset.tiles.__class__(4.0, 1.0, "laz", False)
-    assert parts.read_part(part, scene_sha, other, whole_points=False) is None          # another grid
+    grid = dataset.tiles.__class__(4.0, 1.0, "laz", False)
+    assert parts.read_part(part, scene_sha, grid, whole_points=False) is None           # another grid
+    pcd = dataset.tiles.__class__(5, 1, "pcd", True)                    # other files, the same grid
+    assert parts.read_part(part, scene_sha, pcd, whole_points=False) == legs[1]
     part.with_suffix(".tiles").write_bytes(tiled[:-1])          # a killed task's file, cut short
     monkeypatch.setattr(survey, "scan", real_scan)
     again = tasks.scan_legs(str(root), NAME, 1, 2, 1, dataset.tiles)

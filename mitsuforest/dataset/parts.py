@@ -46,9 +46,13 @@ def tile_group_path(root, name: str, first: int, stop: int) -> Path:
     return parts_folder(root, name) / f"tiles-{first:05d}-{stop:05d}.json"
 
 
-def tiles_key(tiles) -> dict | None:
-    """The tile settings a part was made for (its ``.tiles`` file follows their grid), as JSON gives them back."""
-    return None if tiles is None else json.loads(json.dumps(vars(tiles)))
+GRID = ("size", "buffer")    # the tile settings a part's ``.tiles`` file follows
+
+
+def tiles_key(tiles, settings=GRID) -> dict | None:
+    """The tile ``settings`` a part (its grid) or a tile task (and its files' format) was made for, as
+    JSON gives them back."""
+    return None if tiles is None else json.loads(json.dumps({k: getattr(tiles, k) for k in settings}))
 
 
 def write_part(path: Path, batches, scene, tiles, surface, whole_points: bool) -> dict:
@@ -122,7 +126,7 @@ def _stacked(boxes: list) -> tuple[np.ndarray, np.ndarray]:
 
 
 def read_part(path: Path, scene_sha: str, tiles, whole_points: bool) -> dict | None:
-    """A finished part of the same scene, made for the same tiles and holding the scanned points when
+    """A finished part of the same scene, made for the same tile grid and holding the scanned points when
     ``whole_points`` (every file it names complete), else None."""
     try:
         info = json.loads(path.read_text())
@@ -130,7 +134,7 @@ def read_part(path: Path, scene_sha: str, tiles, whole_points: bool) -> dict | N
         return None
     if info.get("scene_sha256") != scene_sha or info.get("tiles") != tiles_key(tiles):
         return None
-    if whole_points != ("points" in info):
+    if whole_points and "points" not in info:
         return None
     sizes = {}
     if "points" in info:

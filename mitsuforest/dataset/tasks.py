@@ -19,6 +19,8 @@ from ..write import TABLES
 from . import files, parts
 from .tiles import tile_grid
 
+TILE_FILES = (*parts.GRID, "format")   # the tile settings a tile task's files follow
+
 
 def _quiet(*_):
     pass
@@ -134,19 +136,20 @@ def write_tile_group(root: str, name: str, legs: list[dict], tiles, first: int, 
     ny = tile_grid(scene.area.size, tiles.size)[1]
     records = [files.write_tile(root, scene, tiles, labels, t // ny, t % ny, reader.points(t))
                for t in range(first, stop)]
-    info = {"first": first, "stop": stop, "scene_sha256": scene_sha, "tiles": parts.tiles_key(tiles),
+    info = {"first": first, "stop": stop, "scene_sha256": scene_sha, "tiles": parts.tiles_key(tiles, TILE_FILES),
             "records": records, "task_seconds": round(time.perf_counter() - start, 3)}
     files.write_json(path, info)
     return json.loads(path.read_text())        # as a rerun reads it back
 
 
 def _read_tile_group(root, path: Path, scene_sha: str, tiles) -> dict | None:
-    """A tile task's record when it was made for this scene and tiles and its files are there unchanged."""
+    """A tile task's record when it was made for this scene and tile settings and its files are there
+    unchanged."""
     try:
         info = json.loads(path.read_text())
     except (OSError, ValueError):
         return None
-    if info.get("scene_sha256") != scene_sha or info.get("tiles") != parts.tiles_key(tiles):
+    if info.get("scene_sha256") != scene_sha or info.get("tiles") != parts.tiles_key(tiles, TILE_FILES):
         return None
     for rel, digest in ((k, v) for r in info["records"] for k, v in r["files"].items()):
         target = Path(root) / rel
@@ -168,7 +171,7 @@ def finish_split_plot(root: str, name: str, legs: list[dict], merged: dict | Non
     if groups:
         _remove_unlisted_tiles(root, name, tile_records)
     leg_rows = [{"legs": [p["first"], p["stop"]], "pulses": p["emitted"], "points": sum(p["batches"]),
-                 "scan_seconds": round(p["seconds"], 3), "task_seconds": round(p["task_seconds"], 3)}
+                 "scan_seconds": round(p["seconds"], 3), "task_seconds": round(p.get("task_seconds", p["seconds"]), 3)}
                 for p in legs]
     extra = {"merge_seconds": merged["merge_seconds"]} if "merge_seconds" in merged else {}
     if groups:
