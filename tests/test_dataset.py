@@ -180,6 +180,34 @@ def test_plot_split_by_legs_is_the_bytes_of_one_process(tmp_path, cluster):
 
 
 @pytest.mark.slow
+def test_split_plot_tiles_on_the_cluster_are_those_of_the_whole_plot(tmp_path, cluster):
+    """A plot rendered in one task and cut into tiles, split into tasks of one leg (its files merged
+    too) and into tasks of two legs with tiles only: the same tile files, listed with the same
+    checksums in the index; the tiles-only plot lists its tables and no point file."""
+    from mitsuforest.dataset import run_dataset
+    tiles = "tiles: {size: 5, buffer: 1, format: laz%s}\n"
+    runs = {"whole": "plots: 1\n" + tiles % "", "one": "plots: 1\nlegs_per_task: 1\n" + tiles % "",
+            "two": "plots: 1\nlegs_per_task: 2\n" + tiles % ", plot_files: false"}
+    rows = {}
+    for label, body in runs.items():
+        folder = tmp_path / label
+        folder.mkdir()
+        run_dataset(_dataset_file(folder, body), folder / "out", scheduler=cluster.scheduler_address,
+                    progress=False, log=lambda *_: None)
+        rows[label] = _index(folder / "out")
+        _assert_complete(folder / "out", 1)
+    tile_rows = {label: [(r["id"], r["points"], r["core_points"], r["files"], r["sha256"]) for r in index
+                         if r["kind"] == "tile"] for label, index in rows.items()}
+    assert len(tile_rows["whole"]) == 9 and tile_rows["one"] == tile_rows["whole"] == tile_rows["two"]
+    plot_files = {label: index[0]["files"].split(";") for label, index in rows.items()}
+    assert plot_files["one"] == plot_files["whole"]
+    assert plot_files["two"] == [f for f in plot_files["whole"] if f.endswith(("_volumes.csv", "_ids.csv",
+                                                                                "_plan.json", "_trajectory.csv"))]
+    record = json.loads((tmp_path / "two" / "out" / "plots" / "plot_0000" / "plot_0000_dataset.json").read_text())
+    assert [t["tiles"] for t in record["tile_tasks"]] == [[0, 4], [4, 9]] and "merge_seconds" not in record
+
+
+@pytest.mark.slow
 def test_killed_worker_and_killed_client_then_rerun(tmp_path, cluster):
     """A worker killed mid-task: its task is retried and the dataset completes. The whole command
     killed: the re-run finishes it, each plot once; a damaged file makes only its plot run again."""
@@ -247,6 +275,8 @@ def _assert_complete(out: Path, count: int) -> None:
     ("plots: 2\nvary: {forest.trees: {range: [5, 3]}}\n", "set.yaml: vary.forest.trees.range: is empty: low 5 > high 3"),
     ("plots: 2\nvary: {survey.altitude: {choice: []}}\n", "set.yaml: vary.survey.altitude.choice: must be a non-empty"),
     ("plots: 2\ntiles: {size: 0.05}\n", "set.yaml: tiles.size: 0.05 m tiles make 57,600 tiles per plot"),
+    ("plots: 2\ntiles: {size: 5, plot_files: false}\n", "set.yaml: tiles.plot_files: false needs legs_per_task"),
+    ("plots: 2\ntiles: {size: 5, plot_files: 0}\n", "set.yaml: tiles.plot_files:"),
     ("plots: 2\nvary: {forest.trees: {range: [1, 300]}}\n", "set.yaml: plot 0: forest.trees="),
     ("vary: {forest.trees: {range: [1, 3]}}\n", "set.yaml: plots: is required"),
     ("plots: 2\nsplits: {train: 0.5, validation: 0.1, test: 0.1}\n", "set.yaml: splits: the ratios must add up to 1"),
@@ -345,12 +375,13 @@ class _KeyRecorder:
         return [None] * len(futures)
 
 
-@pytest.mark.parametrize("legs_per_task", [0, 1])
-def test_task_keys_are_unique_per_dataset_and_kept_by_a_rerun(tmp_path, legs_per_task):
+@pytest.mark.parametrize("legs_per_task, tiles", [(0, ""), (1, ""), (1, "tiles: {size: 5}\n"),
+                                                  (2, "tiles: {size: 5, plot_files: false}\n")])
+def test_task_keys_are_unique_per_dataset_and_kept_by_a_rerun(tmp_path, legs_per_task, tiles):
     """Two datasets on one shared scheduler never share a task key (their plots have the same names);
     the same dataset submitted again gets the same keys, and each key names its plot."""
     from mitsuforest.dataset import load_dataset, runner
-    split = f"legs_per_task: {legs_per_task}\n" if legs_per_task else ""
+    split = (f"legs_per_task: {legs_per_task}\n" if legs_per_task else "") + tiles
     one = load_dataset(_dataset_file(tmp_path, "plots: 2\n" + split))
     other_seed = load_dataset(_dataset_file(tmp_path, "plots: 2\nseed: 7\n" + split))
 
@@ -366,6 +397,9 @@ def test_task_keys_are_unique_per_dataset_and_kept_by_a_rerun(tmp_path, legs_per
     assert not set(first) & set(keys(one, tmp_path / "b"))          # the same file into another folder
     assert not set(first) & set(keys(other_seed, tmp_path / "a"))   # another dataset into the same folder
     assert {runner._plot_of(k) for k in first} == {"plot_0000", "plot_0001"}
+    kinds = sorted({k.partition("-")[0] for k in first})
+    split_kinds = ["legs", "plot"] + ["merge"] * ("plot_files" not in tiles) + ["tiles"] * bool(tiles)
+    assert kinds == sorted(["check", *split_kinds] if legs_per_task else ["plot"])
 
 
 @pytest.mark.parametrize("fmt", ["las", "laz"])

@@ -5,7 +5,8 @@
 
 ``spec`` reads a dataset file and draws one scene per plot; ``tiles`` cuts a plot's points into
 square tiles (pure numpy); ``tasks`` is what the workers run; ``files`` writes records, tiles, the
-index and the splits; ``runner`` is the client (see README, "Datasets" and "Scaling out").
+index and the splits; ``parts`` is what a split plot's leg tasks leave for its merge and tile tasks;
+``runner`` is the client (see README, "Datasets" and "Scaling out").
 """
 
 from .runner import run_dataset

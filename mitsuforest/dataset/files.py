@@ -19,6 +19,7 @@ import csv
 import hashlib
 import json
 import shutil
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -27,10 +28,13 @@ import yaml
 from .. import seeds
 from ..classes import CLASS_NAMES, DEADWOOD, TREE_LEAVES, TREE_WOOD
 from ..config.types import to_mapping
+from ..fields import pcd_dtype
 from ..write.atomic import atomic_path, write_json, write_text
-from ..write.las import read_las_points, write_las
+from ..write.ground import fill_height, with_room_for_height
+from ..write.las import las_data_points, las_header, las_points, read_las_points, write_las
 from ..write.output_profiles import PROFILES, stem_ids_from_table, write_profile
 from ..write.pcd import pcd_header, read_pcd
+from ..write.stream import georeference
 from ..write.tables import csv_text
 from . import tiles as tiling
 
@@ -140,6 +144,78 @@ def read_volumes(path) -> dict:
     return out
 
 
+KEPT_CLASSES = (TREE_WOOD, TREE_LEAVES, DEADWOOD)   # the classes whose objects the tiles' tables list
+
+
+@dataclass(frozen=True)
+class TileLabels:
+    """What every tile of a plot needs beside its points: the plot's tree and deadwood volumes
+    (:func:`read_volumes`), the box of each one's points over the whole plot (``instances`` sorted,
+    ``boxes`` (k, 4) aligned with them, NaN for none), and the stems' object ids for an
+    ``output.profile`` that tells stems from branches (None without one)."""
+
+    volumes: dict
+    instances: np.ndarray
+    boxes: np.ndarray
+    stems: np.ndarray | None
+
+
+def tile_labels(volumes_table, ids_table, profile: str, ids: np.ndarray, boxes: np.ndarray) -> TileLabels:
+    """The :class:`TileLabels` of a plot from its ``_volumes.csv`` and ``_ids.csv`` tables and the boxes
+    of its objects' points (:func:`object_boxes`, ``ids`` sorted)."""
+    volumes = read_volumes(volumes_table)
+    instances = np.array(sorted(volumes), np.int64)
+    aligned = np.full((len(instances), 4), np.nan)
+    at = np.searchsorted(ids, instances)
+    found = at < len(ids)
+    found[found] = ids[at[found]] == instances[found]
+    aligned[found] = boxes[at[found]]
+    stems = stem_ids_from_table(ids_table) if profile in PROFILES else None
+    return TileLabels(volumes, instances, aligned, stems)
+
+
+def object_boxes(points: np.ndarray, offset) -> tuple[np.ndarray, np.ndarray]:
+    """``(ids, boxes)``: the sorted instances of the tree, leaf and deadwood points among ``points`` (as
+    :func:`read_plot_points` reads them) and the (k, 4) box ``xmin, ymin, xmax, ymax`` of each one's
+    points in the local frame. Boxes of several sets of points combine with
+    :func:`~.tiles.combine_boxes`."""
+    kept = np.isin(points["classification"], KEPT_CLASSES)
+    instance = points["instance"][kept].astype(np.int64)
+    ids = np.unique(instance)
+    x, y = _local_xy(points[kept], offset)
+    return ids, tiling.instance_boxes(instance, x, y, ids)
+
+
+def _local_xy(points: np.ndarray, offset) -> tuple[np.ndarray, np.ndarray]:
+    """x, y in the local frame (float64) of points as read back (PCD x, y include the offset when it is set)."""
+    return points["x"] - offset[0], points["y"] - offset[1]
+
+
+def points_as_read(scanned: np.ndarray, scene, surface) -> np.ndarray:
+    """A batch of scanned points (POINT_DTYPE, local frame) as :func:`read_plot_points` reads them back from
+    the plot's files once the render's writer has written them: the PCD's records (height above the
+    ``surface``, georeferenced, x, y, z float32 when local), else the LAS's (no ``pulse_id`` or ``range``,
+    coordinates to the LAS's precision).
+
+    :param surface: the plan's ground (:func:`~mitsuforest.write.ground.ground_surface`).
+    """
+    offset = np.asarray(scene.origin.offset, np.float64)
+    points = georeference(fill_height(scanned, with_room_for_height(scanned), surface), offset)
+    if "pcd" in scene.output.formats:
+        return points.astype(pcd_dtype(points.dtype, local=not np.any(offset)))
+    header = las_header(offset, scene.origin.crs, scene.sensor.intensity)
+    return las_data_points(las_points(header, points, scene.sensor.intensity))
+
+
+def tile_name(name: str, i: int, j: int, nx: int, ny: int) -> str:
+    """``NAME_xI_yJ``, I and J zero-padded to the grid's widest."""
+    return f"{name}_x{i:0{len(str(nx - 1))}d}_y{j:0{len(str(ny - 1))}d}"
+
+
+def tiles_folder(root, name: str) -> Path:
+    return plot_folder(root, name) / "tiles"
+
+
 def write_tiles(root, scene, tiles) -> list[dict]:
     """Cut a rendered plot's points into tiles (see :mod:`.tiles`): one point file and one tree table
     per tile, and the ``output.profile``'s file unless it is ``ours``, each written atomically. Returns one
@@ -147,55 +223,58 @@ def write_tiles(root, scene, tiles) -> list[dict]:
     name, folder = scene.name, plot_folder(root, scene.name)
     points = read_plot_points(folder, name, scene.output.formats)
     offset = np.asarray(scene.origin.offset, np.float64)
-    x, y = points["x"] - offset[0], points["y"] - offset[1]     # PCD x, y include the offset when it is set
-    volumes = read_volumes(folder / f"{name}_volumes.csv")
-    kept = np.isin(points["classification"], (TREE_WOOD, TREE_LEAVES, DEADWOOD))
-    instances = np.array(sorted(volumes), np.int64)
-    boxes = tiling.instance_boxes(points["instance"][kept].astype(np.int64), x[kept], y[kept], instances)
-    out_dir = folder / "tiles"
+    labels = tile_labels(folder / f"{name}_volumes.csv", folder / f"{name}_ids.csv", scene.output.profile,
+                         *object_boxes(points, offset))
+    out_dir = tiles_folder(root, name)
     shutil.rmtree(out_dir, ignore_errors=True)      # an earlier run's tiles (another layout, or damaged)
     out_dir.mkdir()
-    profile = PROFILES.get(scene.output.profile)      # None: ours only
-    stems = stem_ids_from_table(folder / f"{name}_ids.csv") if profile else None
     nx, ny = tiling.tile_grid(scene.area.size, tiles.size)
-    ci, cj = tiling.core_tile(x, y, scene.area.size, tiles.size)
-    records = []
-    for i in range(nx):
-        for j in range(ny):
-            tile_id = f"{name}_x{i:0{len(str(nx - 1))}d}_y{j:0{len(str(ny - 1))}d}"
-            extent = tiling.tile_extent(i, j, scene.area.size, tiles.size, tiles.buffer)
-            sel = tiling.in_extent(x, y, extent)
-            core = (ci[sel] == i) & (cj[sel] == j)
-            tile_points = points[sel]
-            point_file = out_dir / f"{tile_id}.{tiles.format}"
-            _write_points(point_file, tile_points, offset, scene.origin.crs, scene.sensor.intensity)
-            written = [point_file]
-            if profile:
-                written.append(out_dir / f"{tile_id}{profile.suffix}")
-                write_profile(written[-1], scene.output.profile, tile_points, offset, scene.origin.crs, stems)
-            rows = _tree_rows(tile_points, kept[sel], instances, boxes, volumes, extent, offset, x[sel], y[sel])
-            table = out_dir / f"{tile_id}_trees.csv"
-            write_text(table, csv_text(["instance", "kind", "treeid", "volume_union_m3", "points", "whole_inside"],
-                                       rows))
-            classes = np.bincount(tile_points["classification"], minlength=8)
-            records.append({
-                "tile": tile_id, "i": i, "j": j,
-                "core": list(tiling.core_bounds(i, j, scene.area.size, tiles.size)),
-                "points": int(sel.sum()), "core_points": int(core.sum()), "trees": len(rows),
-                "classes": {int(k): int(v) for k, v in enumerate(classes) if v},
-                "files": checksums(root, [*written, table]),
-            })
-    return records
+    tile, row = tiling.tile_members(*_local_xy(points, offset), scene.area.size, tiles.size, tiles.buffer)
+    bounds = np.searchsorted(tile, np.arange(nx * ny + 1))
+    return [write_tile(root, scene, tiles, labels, t // ny, t % ny, points[row[bounds[t]:bounds[t + 1]]])
+            for t in range(nx * ny)]
 
 
-def _tree_rows(points, kept, instances, boxes, volumes, extent, offset, x, y) -> list[list]:
+def write_tile(root, scene, tiles, labels: TileLabels, i: int, j: int, points: np.ndarray) -> dict:
+    """Write tile ``(i, j)`` of a plot into its ``tiles/`` folder: ``points`` (every point of the plot in the
+    tile's extent, as :func:`read_plot_points` reads them, in the plot's order) as its point file, its
+    tree table, and the ``output.profile``'s file unless it is ``ours``, each atomically. Returns the
+    tile's record (counts and the files' checksums)."""
+    name, area = scene.name, scene.area.size
+    nx, ny = tiling.tile_grid(area, tiles.size)
+    tile_id = tile_name(name, i, j, nx, ny)
+    offset = np.asarray(scene.origin.offset, np.float64)
+    x, y = _local_xy(points, offset)
+    ci, cj = tiling.core_tile(x, y, area, tiles.size)
+    out_dir = tiles_folder(root, name)
+    point_file = out_dir / f"{tile_id}.{tiles.format}"
+    _write_points(point_file, points, offset, scene.origin.crs, scene.sensor.intensity)
+    written = [point_file]
+    if labels.stems is not None:
+        written.append(out_dir / f"{tile_id}{PROFILES[scene.output.profile].suffix}")
+        write_profile(written[-1], scene.output.profile, points, offset, scene.origin.crs, labels.stems)
+    rows = _tree_rows(points, labels, tiling.tile_extent(i, j, area, tiles.size, tiles.buffer))
+    table = out_dir / f"{tile_id}_trees.csv"
+    write_text(table, csv_text(["instance", "kind", "treeid", "volume_union_m3", "points", "whole_inside"], rows))
+    classes = np.bincount(points["classification"], minlength=8)
+    return {
+        "tile": tile_id, "i": i, "j": j,
+        "core": list(tiling.core_bounds(i, j, area, tiles.size)),
+        "points": len(points), "core_points": int(((ci == i) & (cj == j)).sum()), "trees": len(rows),
+        "classes": {int(k): int(v) for k, v in enumerate(classes) if v},
+        "files": checksums(root, [*written, table]),
+    }
+
+
+def _tree_rows(points, labels: TileLabels, extent) -> list[list]:
+    kept = np.isin(points["classification"], KEPT_CLASSES)
     ids, counts = np.unique(points["instance"][kept], return_counts=True)
     rows = []
     for inst, count in zip(ids.tolist(), counts.tolist()):
-        if inst not in volumes:
+        if inst not in labels.volumes:
             continue
-        kind, treeid, volume = volumes[inst]
-        box = boxes[np.searchsorted(instances, inst)]
+        kind, treeid, volume = labels.volumes[inst]
+        box = labels.boxes[np.searchsorted(labels.instances, inst)]
         rows.append([inst, kind, treeid, f"{volume:.9g}", count, int(tiling.box_inside(box, extent))])
     return rows
 

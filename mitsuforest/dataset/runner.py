@@ -2,7 +2,7 @@
 index, the splits and the manifest.
 
 All scheduling is Dask's: one future per plot (or per range of a large plot's legs, then one
-merging them), retried on another worker when a worker dies (``retries``). With no scheduler
+merging them, the tile tasks and the record's), retried on another worker when a worker dies (``retries``). With no scheduler
 address an embedded ``LocalCluster`` (one process per worker, one Dask thread each) starts and
 stops with the command.
 """
@@ -16,11 +16,14 @@ import os
 import time
 from pathlib import Path
 
+import numpy as np
+
 from ..errors import UserError
 from ..interrupts import StoppedWithWorkKept, Terminated, deferred_signals
 from ..write import check_output_folder
 from . import files, tasks
 from .spec import Dataset, load_dataset
+from .tiles import tile_grid
 
 RETRIES = 2            # a task is tried this many more times after failing (a dead worker is not counted)
 INDEX_EVERY_S = 10.0   # the index is rewritten at most this often while plots finish
@@ -163,8 +166,12 @@ def dataset_token(dataset: Dataset, root: str) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
+NUMBERED = ("legs", "tiles")   # kinds of task whose key ends in a number (their first leg or tile)
+
+
 def task_key(kind: str, token: str, plot: str, *rest) -> str:
-    """A Dask key, ``KIND-TOKEN-PLOT[-REST...]`` (kind: ``plot``, ``check`` or ``legs``)."""
+    """A Dask key, ``KIND-TOKEN-PLOT[-REST...]`` (kind: ``plot``, ``check``, ``legs``, ``merge`` or ``tiles``);
+    a plot's record comes from its ``plot`` task."""
     return "-".join([kind, token, plot, *map(str, rest)])
 
 
@@ -172,7 +179,7 @@ def _plot_of(key: str) -> str:
     """The plot a task key names (a plot's name may hold ``-``; the token never does)."""
     kind, _, rest = key.partition("-")
     plot = rest.partition("-")[2]
-    return plot.rsplit("-", 1)[0] if kind == "legs" else plot
+    return plot.rsplit("-", 1)[0] if kind in NUMBERED else plot
 
 
 def _submit_plots(client, dataset: Dataset, root: str, threads) -> list:
@@ -183,11 +190,14 @@ def _submit_plots(client, dataset: Dataset, root: str, threads) -> list:
 
 
 def _submit_split_plots(client, dataset: Dataset, root: str, threads):
-    """Per plot not finished yet: one task per ``legs_per_task`` legs, then one merging them (Dask runs it
-    when they are done). Returns (futures, records of the finished plots)."""
+    """Per plot not finished yet: one task per ``legs_per_task`` legs; when they are done (Dask runs the
+    next tasks then), one merging them into the plot's files unless ``tiles.plot_files`` is false, and
+    with tiles as many tile tasks as leg tasks, each writing a run of the plot's tiles from the parts;
+    then one writing the record. Returns (futures, records of the finished plots)."""
     token = dataset_token(dataset, root)
     checks = client.gather([client.submit(tasks.check_plot, root, p.name, key=task_key("check", token, p.name),
                                           pure=False) for p in dataset.plots])
+    tiles = dataset.tiles
     futures, kept = [], []
     for plot, record in zip(dataset.plots, checks):
         if record is not None:
@@ -195,11 +205,30 @@ def _submit_split_plots(client, dataset: Dataset, root: str, threads):
             continue
         legs = len(_legs(plot.scene))
         parts = [client.submit(tasks.scan_legs, root, plot.name, first, min(first + dataset.legs_per_task, legs),
-                               threads, key=task_key("legs", token, plot.name, first), retries=RETRIES, pure=False)
+                               threads, tiles, key=task_key("legs", token, plot.name, first), retries=RETRIES,
+                               pure=False)
                  for first in range(0, legs, dataset.legs_per_task)]
-        futures += [*parts, client.submit(tasks.merge_plot, root, plot.name, parts, dataset.tiles, threads,
-                                          key=task_key("plot", token, plot.name), retries=RETRIES, pure=False)]
+        merged = None
+        if tiles is None or tiles.plot_files:
+            merged = client.submit(tasks.merge_plot, root, plot.name, parts, threads,
+                                   key=task_key("merge", token, plot.name), retries=RETRIES, pure=False)
+        groups = [client.submit(tasks.write_tile_group, root, plot.name, parts, tiles, first, stop, threads,
+                                key=task_key("tiles", token, plot.name, first), retries=RETRIES, pure=False)
+                  for first, stop in tile_groups(plot.scene.area.size, tiles, len(parts))]
+        futures += [*parts, *([merged] if merged else []), *groups,
+                    client.submit(tasks.finish_split_plot, root, plot.name, parts, merged, groups,
+                                  key=task_key("plot", token, plot.name), retries=RETRIES, pure=False)]
     return futures, kept
+
+
+def tile_groups(area_size, tiles, count: int) -> list[tuple[int, int]]:
+    """``count`` runs ``(first, stop)`` of a plot's tile numbers, as even as can be (fewer when there are
+    fewer tiles; none without tiles)."""
+    if tiles is None:
+        return []
+    nx, ny = tile_grid(area_size, tiles.size)
+    bounds = np.linspace(0, nx * ny, min(count, nx * ny) + 1).round().astype(int)
+    return list(zip(bounds[:-1].tolist(), bounds[1:].tolist()))
 
 
 def _follow(futures, records: list, dataset: Dataset, root: str, splits, bars) -> dict:
@@ -223,6 +252,7 @@ def _follow(futures, records: list, dataset: Dataset, root: str, splits, bars) -
             continue
         if future.key.startswith("legs-"):
             bars.pulses(result["emitted"])
+        if not future.key.startswith("plot-"):
             continue
         records.append(_with_values(result, dataset))
         bars.plot(1, 0 if dataset.legs_per_task else result["pulses"])   # a split plot's legs counted its pulses

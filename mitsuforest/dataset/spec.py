@@ -19,7 +19,7 @@ import numpy as np
 
 from .. import seeds
 from ..config import SCENE_SPEC, load_scene, read_yaml
-from ..config.schema import REQUIRED, Context, Custom, FilePath, Number, Text, name_problem, parse_mapping
+from ..config.schema import REQUIRED, Context, Custom, FilePath, Flag, Number, Text, name_problem, parse_mapping
 from ..config.types import Scene
 from ..errors import ConfigError
 from .tiles import tile_grid
@@ -45,6 +45,7 @@ TILES_SPEC = {
     "size": Number(REQUIRED, gt=0),
     "buffer": Number(0.0, ge=0),
     "format": Text("laz", choices=("pcd", "las", "laz")),
+    "plot_files": Flag(True),
 }
 
 
@@ -53,6 +54,7 @@ class Tiles:
     size: float
     buffer: float
     format: str
+    plot_files: bool = True    # false: a plot split by legs gets its tiles and tables, no point files of its own
 
 
 @dataclass(frozen=True)
@@ -116,6 +118,9 @@ def load_dataset(path) -> Dataset:
         values.setdefault("seed", int(rng.integers(0, 2**31 - 1)))
         name_i = f"plot_{i:0{width}d}"
         plots.append(PlotSpec(name_i, values, _plot_scene(base, {**values, "name": name_i}, ctx, i)))
+    if tiles and not tiles.plot_files and not parsed["legs_per_task"]:
+        ctx.fail("tiles.plot_files", "false needs legs_per_task: a plot rendered in one task is cut into tiles "
+                 "from its own files")
     if parsed["legs_per_task"] and any(p.scene.output.waveforms or p.scene.output.pulses for p in plots):
         ctx.fail("legs_per_task", "cannot split plots whose scene asks for output.waveforms or output.pulses "
                  "(their records are written by the process that scans the whole plot)")

@@ -30,7 +30,7 @@ from .tables import write_ids, write_trajectory, write_volumes
 
 __all__ = ["Staging", "check_output_folder", "output_lock", "PointWriter", "georeference", "output_files", "existing_outputs",
            "earlier_results", "refuse_finished_render", "write_plan", "read_pcd", "write_las", "write_render_outputs",
-           "write_manifest"]
+           "write_tables", "TABLES", "write_manifest"]
 
 PLAN, MANIFEST = "_plan.json", "_manifest.json"
 SUFFIXES = (".pcd", ".las", ".laz", ".copc.laz", "_volumes.csv", "_ids.csv", PLAN, "_trajectory.csv",
@@ -207,13 +207,22 @@ class Staging:
             raise
 
 
+TABLES = ("_volumes.csv", "_ids.csv", PLAN, "_trajectory.csv")   # what a render writes without its points
+
+
+def write_tables(file, *, scene, plan, models) -> None:
+    """Write the tables, plan and trajectory of a render (:data:`TABLES`), each atomically, to
+    ``file(suffix)`` (a :class:`Staging`'s, or a dataset leg task's folder's)."""
+    offset = scene.origin.offset
+    write_volumes(file("_volumes.csv"), plan, models, offset)
+    write_ids(file("_ids.csv"), plan, models, offset)
+    write_text(file(PLAN), plan.to_json())
+    write_trajectory(file("_trajectory.csv"), scene, plan)
+
+
 def write_render_outputs(staging: Staging, *, scene, plan, models, writer) -> None:
     """Write the tables, plan, trajectory and quick looks of one render into ``staging``."""
-    offset = scene.origin.offset
-    write_volumes(staging.file("_volumes.csv"), plan, models, offset)
-    write_ids(staging.file("_ids.csv"), plan, models, offset)
-    write_text(staging.file(PLAN), plan.to_json())
-    write_trajectory(staging.file("_trajectory.csv"), scene, plan)
+    write_tables(staging.file, scene=scene, plan=plan, models=models)
     if not scene.output.pictures:
         return
     classes = [int(c) for c in np.flatnonzero(writer.classes)]

@@ -318,7 +318,11 @@ def read_las_points(path) -> np.ndarray:
     z georeferenced. No ``pulse_id`` or ``range``, which the LAS file does not hold; a dimension that a
     file of an earlier version lacks reads 0 (``species``) or NaN (``reflectance``,
     ``height_above_ground``)."""
-    las = laspy.read(str(path))
+    return las_data_points(laspy.read(str(path)))
+
+
+def las_data_points(las: laspy.LasData) -> np.ndarray:
+    """:func:`read_las_points` of points in memory (:func:`las_points`): what a file of them reads back."""
     held = set(las.point_format.dimension_names)
     out = np.zeros(len(las.points), LAS_READ_DTYPE)
     for field in LAS_FIELDS:

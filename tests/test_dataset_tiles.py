@@ -1,0 +1,247 @@
+"""Tiles written by a split plot's leg tasks (issue 30): the tile test done batch by batch, the points
+as the plot's files read them back, the bytes that cutting the whole plot gives whatever the legs per
+task, reruns that reuse finished parts and tiles, and a tiles-only plot.
+
+The task functions run in this process, without Dask, on a tiny plot (12 m, 3 legs, thin beam); the
+cluster runs are in ``test_dataset.py``.
+"""
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from conftest import ROOT
+
+BASE = f"""
+name: tiny
+seed: 3
+area: {{size: [12, 12]}}
+forest: {{type: open, trees: 2, min_spacing: 4}}
+understory: {{bushes: 2, rocks: 1, deadwood: 1, stumps: 1}}
+sensor: {ROOT}/sensors/riegl_vux-1uav22.yaml
+survey: {{altitude: 30, speed: 20, pulse_frequency: 100000, line_spacing: 6, margin: 2}}
+simulation: {{beam_samples: 1, beam_pattern: fixed, variant: llvm_ad_mono}}
+output: {{formats: [pcd, laz], pictures: false}}
+"""
+NAME = "plot_0000"
+
+
+# --- the grid, batch by batch ---------------------------------------------------------------------
+
+def _members_one_tile_at_a_time(x, y, area, size, buffer):
+    """(tile, row) pairs as :func:`write_tiles` selected them before issue 30: each tile's extent tested
+    on every point."""
+    from mitsuforest.dataset.tiles import in_extent, tile_extent, tile_grid
+    nx, ny = tile_grid(area, size)
+    tiles, rows = [], []
+    for i in range(nx):
+        for j in range(ny):
+            sel = np.flatnonzero(in_extent(x, y, tile_extent(i, j, area, size, buffer)))
+            tiles.append(np.full(len(sel), i * ny + j))
+            rows.append(sel)
+    return np.concatenate(tiles), np.concatenate(rows)
+
+
+@pytest.mark.parametrize("area, size, buffer", [
+    ((12, 12), 5.0, 1.0),          # the last row and column shorter
+    ((10, 7.5), 2.5, 3.0),         # a buffer wider than a tile: a point in up to 25 files
+    ((20, 20), 4.0, 0.0),          # no buffer: every point in one file
+    ((0.7, 0.3), 0.1, 0.05),       # edges that decimal sizes put off the grid by rounding
+])
+def test_tile_members_are_the_extent_test_of_every_tile(area, size, buffer):
+    from mitsuforest.dataset.tiles import core_tile, tile_grid, tile_members
+    rng = np.random.default_rng(7)
+    w, h = area
+    x, y = rng.uniform(-3, w + 3, 4000), rng.uniform(-3, h + 3, 4000)
+    edges = np.concatenate([np.arange(0, w + size, size), np.arange(0, w + size, size) + buffer,
+                            np.arange(0, w + size, size) - buffer, [w, 0.3, 0.6]])
+    x = np.concatenate([x, np.repeat(edges, len(edges)), rng.uniform(0, w, 50)])
+    y = np.concatenate([y, np.tile(edges, len(edges)), np.full(50, h)])
+    tile, row = tile_members(x, y, area, size, buffer)
+    expected_tile, expected_row = _members_one_tile_at_a_time(x, y, area, size, buffer)
+    assert np.array_equal(tile, expected_tile) and np.array_equal(row, expected_row)
+    ny = tile_grid(area, size)[1]
+    ci, cj = core_tile(x, y, area, size)
+    in_own_core = set(zip(tile.tolist(), row.tolist())) >= set(zip((ci * ny + cj).tolist(), range(len(x))))
+    assert in_own_core                                     # every point is in its core tile's file
+    if buffer == 0:
+        assert np.array_equal(np.sort(row), np.arange(len(x)))     # and in no other
+
+
+def test_boxes_combine_to_those_of_all_the_points():
+    from mitsuforest.dataset.tiles import combine_boxes, instance_boxes
+    rng = np.random.default_rng(2)
+    ids = rng.integers(1, 40, 3000)
+    x, y = rng.uniform(0, 50, 3000), rng.uniform(0, 50, 3000)
+    whole = instance_boxes(ids, x, y, np.unique(ids))
+    for inst, box in zip(np.unique(ids), whole):
+        mine = ids == inst
+        assert box.tolist() == [x[mine].min(), y[mine].min(), x[mine].max(), y[mine].max()]
+    assert np.isnan(instance_boxes(ids, x, y, np.array([0, 40]))).all()      # listed, without points
+    sets = np.array_split(rng.permutation(3000), 3)
+    pieces = [(np.unique(ids[s]), instance_boxes(ids[s], x[s], y[s], np.unique(ids[s]))) for s in sets]
+    nan = (np.array([5]), np.full((1, 4), np.nan))        # a set without points of instance 5
+    got_ids, got = combine_boxes(np.concatenate([p[0] for p in [*pieces, nan]]),
+                                 np.concatenate([p[1] for p in [*pieces, nan]]))
+    assert np.array_equal(got_ids, np.unique(ids)) and np.array_equal(got, whole)
+
+
+@pytest.mark.parametrize("area, size, count", [((12, 12), 5, 3), ((12, 12), 5, 20), ((300, 300), 20, 27)])
+def test_tile_groups_hold_every_tile_once(area, size, count):
+    from mitsuforest.dataset.runner import tile_groups
+    from mitsuforest.dataset.spec import Tiles
+    from mitsuforest.dataset.tiles import tile_grid
+    groups = tile_groups(area, Tiles(size, 0.0, "laz"), count)
+    n = np.prod(tile_grid(area, size))
+    assert [t for a, b in groups for t in range(a, b)] == list(range(n))
+    assert len(groups) == min(count, n)
+    assert max(b - a for a, b in groups) - min(b - a for a, b in groups) <= 1
+    assert tile_groups(area, None, count) == []
+
+
+@pytest.mark.parametrize("formats, offset", [(("pcd", "laz"), (0, 0, 0)), (("pcd",), (500000.123, 6100000.456, 12.5)),
+                                             (("laz",), (500000.123, 6100000.456, 12.5)), (("las",), (0, 0, 0))])
+def test_points_as_read_are_what_the_plot_files_read_back(tmp_path, formats, offset):
+    """Batches through the render's writer, then read back as tiles are cut from them: the same bytes
+    as the batches turned into what they read back one by one (PCD: float32 local or float64
+    georeferenced; LAS: its precision, no pulse_id or range)."""
+    from mitsuforest.config import load_scene
+    from mitsuforest.dataset.files import points_as_read, read_plot_points
+    from mitsuforest.scan import POINT_DTYPE
+    from mitsuforest.write import PointWriter, Staging
+    from mitsuforest.write.ground import ground_surface
+    scene = load_scene(ROOT / "scenes" / "demo.yaml").with_({"origin.offset": list(offset),
+                                                             "output.formats": list(formats)})
+    rng = np.random.default_rng(4)
+    batches = []
+    for n in (300, 0, 1, 250):
+        p = np.zeros(n, POINT_DTYPE)
+        for field in POINT_DTYPE.names:
+            p[field] = rng.integers(1, 6, n)
+        p["x"], p["y"], p["z"] = rng.uniform(-1, 21, n), rng.uniform(-1, 21, n), rng.uniform(0, 30, n)
+        p["intensity"], p["range"] = rng.uniform(0, 0.08, n), rng.uniform(1, 60, n)
+        p["gps_time"], p["scan_angle"] = rng.uniform(0, 100, n), rng.uniform(-60, 60, n)
+        p["reflectance"] = rng.uniform(-30, 5, n)
+        batches.append(p)
+    staging = Staging(tmp_path, scene.name)
+    writer = PointWriter(staging, scene, threads=1)
+    for batch in batches:
+        writer.add(batch)
+    writer.close()
+    staging.commit()
+    read = read_plot_points(tmp_path, scene.name, formats)
+    converted = np.concatenate([points_as_read(b, scene, ground_surface(None)) for b in batches])
+    assert converted.dtype == read.dtype and converted.tobytes() == read.tobytes()
+    assert ("pulse_id" in read.dtype.names) == ("pcd" in formats)
+
+
+# --- the task functions on a tiny plot --------------------------------------------------------------
+
+def _dataset(folder: Path, body: str):
+    """A one-plot dataset's scene file in ``folder/out`` (as the client writes it); the dataset."""
+    from mitsuforest.dataset import files, load_dataset
+    folder.mkdir(exist_ok=True)
+    (folder / "base.yaml").write_text(BASE)
+    (folder / "set.yaml").write_text("base: base.yaml\nplots: 1\nlegs_per_task: 1\n" + body)
+    dataset = load_dataset(folder / "set.yaml")
+    root = folder / "out"
+    scene = dataset.plots[0].scene.with_({"output.dir": str(files.plot_folder(root, NAME))})
+    files.write_scene_file(files.scene_file(root, NAME), scene)
+    return root, dataset
+
+
+def _legs(root, dataset, per_task: int) -> list[dict]:
+    from mitsuforest.dataset import runner, tasks
+    count = len(runner._legs(dataset.plots[0].scene))
+    return [tasks.scan_legs(str(root), NAME, a, min(a + per_task, count), 1, dataset.tiles)
+            for a in range(0, count, per_task)]
+
+
+def _tile_groups(root, dataset, legs) -> list[dict]:
+    from mitsuforest.dataset import runner, tasks
+    return [tasks.write_tile_group(str(root), NAME, legs, dataset.tiles, a, b, 1)
+            for a, b in runner.tile_groups(dataset.plots[0].scene.area.size, dataset.tiles, len(legs))]
+
+
+def _split_plot(root, dataset, per_task: int) -> dict:
+    """What the client's tasks for a split plot do, in order, in this process; the plot's record."""
+    from mitsuforest.dataset import tasks
+    legs = _legs(root, dataset, per_task)
+    merged = tasks.merge_plot(str(root), NAME, legs, 1) if dataset.tiles.plot_files else None
+    return tasks.finish_split_plot(str(root), NAME, legs, merged, _tile_groups(root, dataset, legs))
+
+
+@pytest.mark.parametrize("tiles", [
+    "tiles: {size: 5, buffer: 1, format: laz}\n",
+    # a plot written as LAZ only (tiles from its LAS records), georeferenced, with a profile's files too
+    "tiles: {size: 2.5, buffer: 3, format: pcd}\ngrid: {output.formats: [[laz]], "
+    "origin.offset: [[500000.0, 4000000.0, 100.0]], output.profile: [for-instance]}\n",
+])
+def test_leg_tasks_write_the_tiles_cut_from_the_whole_plot(tmp_path, tiles):
+    """Tiles from tasks of one leg (with the plot's files merged) and of two legs (tiles only): every
+    record and file the same as those cut from the merged plot's files, which tiles-only leaves out."""
+    from mitsuforest.dataset import files
+    root, dataset = _dataset(tmp_path / "one", tiles)
+    one = _split_plot(root, dataset, 1)
+    scene = dataset.plots[0].scene.with_({"output.dir": str(files.plot_folder(root, NAME))})
+    cut = json.loads(json.dumps(files.write_tiles(root, scene, dataset.tiles)))   # as a record holds them
+    assert cut == one["tiles"]                                # cut again from the merged files
+
+    two_root, tiles_only = _dataset(tmp_path / "two", tiles.replace("}\n", ", plot_files: false}\n", 1))
+    two = _split_plot(two_root, tiles_only, 2)
+    assert [r["legs"] for r in two["leg_tasks"]] == [[0, 2], [2, 3]]
+    assert two["tiles"] == one["tiles"]
+    assert (two["points"], two["classes"], two["pulses"]) == (one["points"], one["classes"], one["pulses"])
+    assert sum(t["core_points"] for t in two["tiles"]) == two["points"]        # every point in one core
+    tables = {k: v for k, v in one["files"].items() if k.endswith(("_volumes.csv", "_ids.csv", "_plan.json",
+                                                                     "_trajectory.csv"))}
+    assert two["files"] == tables and len(tables) == 4            # a tiles-only plot: its tables, no points
+    folder = files.plot_folder(two_root, NAME)
+    assert sorted(p.name for p in folder.iterdir()) == sorted([*(Path(k).name for k in tables), "tiles",
+                                                               f"{NAME}_dataset.json"])
+    assert files.valid_record(two_root, NAME) is not None and not (folder / ".parts").exists()
+
+
+def test_reruns_reuse_finished_parts_and_tiles_and_nothing_looks_finished_early(tmp_path, monkeypatch):
+    from mitsuforest import survey
+    from mitsuforest.dataset import files, parts, tasks
+    root, dataset = _dataset(tmp_path, "tiles: {size: 5, buffer: 1, format: laz, plot_files: false}\n")
+    legs = _legs(root, dataset, 1)
+    scene_sha = files.sha256(files.scene_file(root, NAME))
+    part = parts.part_path(root, NAME, 1, 2)
+    tiled = part.with_suffix(".tiles").read_bytes()
+    assert not part.with_suffix(".points").exists()              # tiles only: no points for a merge
+
+    real_scan = survey.scan
+    monkeypatch.setattr(survey, "scan", lambda *a, **k: pytest.fail("scanned again"))
+    assert _legs(root, dataset, 1) == legs                       # every part reused
+    assert parts.read_part(part, scene_sha, dataset.tiles, whole_points=True) is None   # not made for a merge
+    grid = dataset.tiles.__class__(4.0, 1.0, "laz", False)
+    assert parts.read_part(part, scene_sha, grid, whole_points=False) is None           # another grid
+    pcd = dataset.tiles.__class__(5, 1, "pcd", True)                    # other files, the same grid
+    assert parts.read_part(part, scene_sha, pcd, whole_points=False) == legs[1]
+    part.with_suffix(".tiles").write_bytes(tiled[:-1])          # a killed task's file, cut short
+    monkeypatch.setattr(survey, "scan", real_scan)
+    again = tasks.scan_legs(str(root), NAME, 1, 2, 1, dataset.tiles)
+    assert part.with_suffix(".tiles").read_bytes() == tiled and again["tile_chunks"] == legs[1]["tile_chunks"]
+
+    groups = _tile_groups(root, dataset, legs)
+    assert files.valid_record(root, NAME) is None               # tiles written, no record yet
+    monkeypatch.setattr(files, "write_tile", lambda *a, **k: pytest.fail("tile written again"))
+    assert _tile_groups(root, dataset, legs) == groups          # reused: their files are unchanged
+    monkeypatch.undo()
+    damaged = root / next(iter(groups[0]["records"][0]["files"]))
+    damaged.write_bytes(b"damaged")
+    assert _tile_groups(root, dataset, legs)[0]["records"] == groups[0]["records"]     # redone, same bytes
+
+    stale = [files.tiles_folder(root, NAME) / n for n in (f"{NAME}_x9_y9.laz", f"{NAME}_x0_y0.laz.tmp-host-1")]
+    for path in stale:
+        path.write_bytes(b"an earlier layout's tile, a killed task's temporary file")
+    record = tasks.finish_split_plot(str(root), NAME, legs, None, groups)
+    assert files.valid_record(root, NAME) == json.loads(json.dumps(record)) and not any(p.exists() for p in stale)
+    listed = {root / rel for t in record["tiles"] for rel in t["files"]}
+    assert set(files.tiles_folder(root, NAME).iterdir()) == listed
+    assert not parts.parts_folder(root, NAME).exists()
