@@ -288,3 +288,20 @@ def test_pulse_rate_from_coarse_gps_stamps_counts_the_full_stamps():
     coarse = [np.full(50, 0.012 * k) for k in range(20)] + [np.full(50, 0.012 * k + 0.003) for k in range(20)]
     assert stamped_pulse_rate(coarse) is None            # one stamp a scan line (UAS_Clip's line 106): no inner stamps
     assert stamped_pulse_rate([np.repeat(np.arange(5) * 1e-3, 20)]) is None   # a 1 ms step is no burst's inside
+
+
+def test_tree_list_crown_ratio_column_sets_each_trees_crown(tmp_path):
+    """An empty cell keeps the template's ratio; a ratio outside the archetype's 0.1-0.95 is refused in one line."""
+    from mitsuforest.config import load_scene
+    from mitsuforest.errors import UserError
+    from mitsuforest.survey import make_plan
+    (tmp_path / "s.yaml").write_text(
+        "area: {size: [20, 20]}\nforest: {trees_file: trees.csv, archetypes: [{species: pinus_radiata, base: 1, "
+        "crown_ratio: 0.45}]}\nunderstory: {bushes: 0, rocks: 0, deadwood: 0, stumps: 0}\n"
+        f"sensor: {ROOT / 'sensors' / 'ideal.yaml'}\nsurvey: {{lines: [[[10, -5], [10, 25]]]}}\n")
+    (tmp_path / "trees.csv").write_text("x,y,height,crown_radius,crown_ratio\n5,5,22,2.5,0.8\n14,12,22,3,\n")
+    plan = make_plan(load_scene(tmp_path / "s.yaml"))
+    assert [plan.models[t.model].archetype.crown_ratio for t in plan.trees] == [0.8, 0.45]
+    (tmp_path / "trees.csv").write_text("x,y,height,crown_radius,crown_ratio\n5,5,22,2.5,0.99\n")
+    with pytest.raises(UserError, match=r"trees.csv: line 2: crown_ratio must be within 0.1-0.95, got 0.99"):
+        make_plan(load_scene(tmp_path / "s.yaml"))
