@@ -112,3 +112,31 @@ def test_relative_heights_are_taken_under_each_tree_s_own_crown():
                                         [0.0, 10.0], [0.0, 0.0], [20.0, 30.0], [1.0, 2.0])
     assert rel.tolist() == [0.5, 0.5]                            # the third point is under neither crown
     assert len(relative_heights_under_crowns([1.0], [1.0], [1.0], [], [], [], [])) == 0
+
+
+def _cone_returns(ratio, n, rng, total=2.0):
+    """Relative heights of ``n`` pulses' returns from a cone crown of ``ratio`` and uniform leaf density
+    (foliage within relative depth s of the top ``total (s / ratio)^2.8``; see the test above)."""
+    stopped_at = rng.exponential(1.0, n)
+    hit = stopped_at < total
+    return np.where(hit, 1.0 - ratio * (np.minimum(stopped_at, total) / total) ** (1 / 2.8), 0.0)
+
+
+def test_each_tree_gets_its_own_crown_ratio_where_it_has_returns_enough():
+    """Three trees 10 m apart (radius 3 m): a shallow crown (0.3 of its 20 m), a deep one (0.7 of 30 m),
+    both with thousands of returns, and one with a few hundred, which takes the stand's ratio."""
+    from mitsuforest.twin.foliage import MIN_TREE_RETURNS, tree_crown_ratios
+    rng = np.random.default_rng(11)
+    trees_x, trees_y, heights = np.array([0.0, 10.0, 20.0]), np.zeros(3), np.array([20.0, 30.0, 25.0])
+    x, y, h = [], [], []
+    for k, (ratio, n) in enumerate(((0.3, 20_000), (0.7, 20_000), (0.5, MIN_TREE_RETURNS // 2))):
+        rel = _cone_returns(ratio, n, rng)
+        r, phi = 2.9 * np.sqrt(rng.random(n)), rng.uniform(0, 2 * np.pi, n)
+        x.append(trees_x[k] + r * np.cos(phi))
+        y.append(r * np.sin(phi))
+        h.append(rel * heights[k])
+    ratios = tree_crown_ratios(np.concatenate(x), np.concatenate(y), np.concatenate(h), trees_x, trees_y, heights,
+                               np.full(3, 3.0), stand=0.42)
+    assert ratios[:2] == pytest.approx([0.3, 0.7], abs=0.015)
+    assert ratios[2] == 0.42
+    assert np.isnan(tree_crown_ratios([50.0], [0.0], [1.0], trees_x, trees_y, heights, np.full(3, 3.0), None)).all()

@@ -256,3 +256,52 @@ def test_tree_list_leaf_area_column_sets_each_trees_leaves(tmp_path):
     template = min(DEFAULT_ARCHETYPES, key=lambda a: abs(a.height - 18))    # the nearest Eucalyptus in height
     volume = (6.0 / template.crown_diameter) ** 2 * 18 / template.height
     assert second.leaf_area == pytest.approx(template.leaf_area * volume, abs=0.01)   # by crown volume
+
+
+def _stamped_bursts(prf, step, pulses, bursts, lost_stretch, rng):
+    """First-return times of ``bursts`` scan lines (12 ms apart) of ``pulses`` pulses at ``prf``, each burst
+    starting at a random phase and losing one contiguous stretch of ``lost_stretch`` of its pulses (their
+    first returns outside the file), stamped down to multiples of ``step`` (s)."""
+    out = []
+    for k in range(bursts):
+        t = 0.012 * k + rng.uniform(0, step) + np.arange(pulses) / prf
+        start = rng.integers(0, pulses)
+        keep = np.ones(pulses, bool)
+        keep[start:start + int(lost_stretch * pulses)] = False
+        out.append(np.floor(t[keep] / step) * step)
+    return out
+
+
+def test_pulse_rate_from_coarse_gps_stamps_counts_the_full_stamps():
+    """UAS_Clip's GPS times are stamps 7.6-122 µs apart, each holding up to 100 pulses: a stamp inside a
+    burst holds the pulse rate times the step, whatever stretches of pulses a burst lost elsewhere; a
+    burst's pulses over its length count those losses and its two partial stamps against the rate."""
+    from mitsuforest.twin.survey import pulse_rate, stamped_pulse_rate
+    rng = np.random.default_rng(5)
+    for prf, step in ((830_000.0, 2 ** -15), (830_000.0, 2 ** -13), (500_000.0, 2 ** -16)):
+        bursts_ = _stamped_bursts(prf, step, 400, 200, 0.3, rng)
+        assert pulse_rate(bursts_) == pytest.approx(prf, rel=0.02)
+        whole = np.median([(len(b) - 1) / (b[-1] - b[0]) for b in bursts_])
+        assert whole < 0.9 * prf                         # the estimate this replaces: the losses count
+    fine = [0.012 * k + np.arange(300) / 600_000.0 for k in range(20)]
+    assert pulse_rate(fine) == pytest.approx(600_000.0, rel=1e-9)   # times that tell pulses apart: their spacing
+    coarse = [np.full(50, 0.012 * k) for k in range(20)] + [np.full(50, 0.012 * k + 0.003) for k in range(20)]
+    assert stamped_pulse_rate(coarse) is None            # one stamp a scan line (UAS_Clip's line 106): no inner stamps
+    assert stamped_pulse_rate([np.repeat(np.arange(5) * 1e-3, 20)]) is None   # a 1 ms step is no burst's inside
+
+
+def test_tree_list_crown_ratio_column_sets_each_trees_crown(tmp_path):
+    """An empty cell keeps the template's ratio; a ratio outside the archetype's 0.1-0.95 is refused in one line."""
+    from mitsuforest.config import load_scene
+    from mitsuforest.errors import UserError
+    from mitsuforest.survey import make_plan
+    (tmp_path / "s.yaml").write_text(
+        "area: {size: [20, 20]}\nforest: {trees_file: trees.csv, archetypes: [{species: pinus_radiata, base: 1, "
+        "crown_ratio: 0.45}]}\nunderstory: {bushes: 0, rocks: 0, deadwood: 0, stumps: 0}\n"
+        f"sensor: {ROOT / 'sensors' / 'ideal.yaml'}\nsurvey: {{lines: [[[10, -5], [10, 25]]]}}\n")
+    (tmp_path / "trees.csv").write_text("x,y,height,crown_radius,crown_ratio\n5,5,22,2.5,0.8\n14,12,22,3,\n")
+    plan = make_plan(load_scene(tmp_path / "s.yaml"))
+    assert [plan.models[t.model].archetype.crown_ratio for t in plan.trees] == [0.8, 0.45]
+    (tmp_path / "trees.csv").write_text("x,y,height,crown_radius,crown_ratio\n5,5,22,2.5,0.99\n")
+    with pytest.raises(UserError, match=r"trees.csv: line 2: crown_ratio must be within 0.1-0.95, got 0.99"):
+        make_plan(load_scene(tmp_path / "s.yaml"))

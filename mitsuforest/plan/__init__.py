@@ -206,7 +206,7 @@ def _listed_tree_models(scene, listed, tree_shape: TreeShape) -> dict[str, tuple
         template = nearest_template(t.species or default_species, t.height, archetypes)
         a = grown_to(template, t.height, 2 * t.crown_radius,
                      seed=seeds.key(scene.seed, "listed-tree", i, bits=31),
-                     leaf_area=t.leaf_area)
+                     leaf_area=t.leaf_area, crown_ratio=t.crown_ratio)
         crown, components = tree_shape(a)
         out[f"tree{i + 1:02d}"] = crown, ModelSpec("tree", components, archetype=a)
     return out

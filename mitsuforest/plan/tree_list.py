@@ -2,8 +2,9 @@
 
 A CSV file with a header; columns ``x``, ``y`` (in the frame of ``origin``: the local frame plus
 ``origin.offset``, as a DEM's), ``height`` and ``crown_radius`` (m), and optionally ``species`` (one of
-the procedural families; by default the scene's) and ``leaf_area`` (m², one-sided; by default the
-template's, in proportion to the crown volume). Each refusal is a
+the procedural families; by default the scene's), ``leaf_area`` (m², one-sided; by default the
+template's, in proportion to the crown volume) and ``crown_ratio`` (live crown length over height; by
+default the template's). An empty cell takes the default. Each refusal is a
 :class:`~mitsuforest.errors.UserError` whose text the plan reports as ``FILE: forest.trees_file: reason``.
 """
 
@@ -15,8 +16,10 @@ from dataclasses import dataclass
 
 from ..classes import TREE_SPECIES
 from ..errors import UserError
+from ..specs.archetypes import FIELDS
 
 COLUMNS = ("x", "y", "height", "crown_radius")
+CROWN_RATIO = (FIELDS["crown_ratio"].metadata["lo"], FIELDS["crown_ratio"].metadata["hi"])
 
 
 @dataclass(frozen=True)
@@ -29,6 +32,7 @@ class ListedTree:
     crown_radius: float
     species: str | None
     leaf_area: float | None = None
+    crown_ratio: float | None = None
 
 
 def read_tree_list(path, offset=(0.0, 0.0, 0.0)) -> list[ListedTree]:
@@ -44,7 +48,7 @@ def read_tree_list(path, offset=(0.0, 0.0, 0.0)) -> list[ListedTree]:
     missing = [c for c in COLUMNS if c not in header]
     if missing:
         raise UserError(f"{path}: the tree list lacks the column(s) {', '.join(missing)} (header: {','.join(header)})")
-    at = {c: header.index(c) for c in (*COLUMNS, "species", "leaf_area") if c in header}
+    at = {c: header.index(c) for c in (*COLUMNS, "species", "leaf_area", "crown_ratio") if c in header}
     out = []
     for line, row in enumerate(rows[1:], start=2):
         if not row or not "".join(row).strip():
@@ -62,8 +66,14 @@ def read_tree_list(path, offset=(0.0, 0.0, 0.0)) -> list[ListedTree]:
             leaf_area = _number(row[at["leaf_area"]], path, line, "leaf_area")
             if leaf_area < 0:
                 raise UserError(f"{path}: line {line}: leaf_area must be >= 0")
+        crown_ratio = None
+        if "crown_ratio" in at and row[at["crown_ratio"]].strip():
+            crown_ratio = _number(row[at["crown_ratio"]], path, line, "crown_ratio")
+            if not CROWN_RATIO[0] <= crown_ratio <= CROWN_RATIO[1]:
+                raise UserError(f"{path}: line {line}: crown_ratio must be within {CROWN_RATIO[0]:g}-{CROWN_RATIO[1]:g}, "
+                                f"got {crown_ratio:g}")
         out.append(ListedTree(values["x"] - offset[0], values["y"] - offset[1], values["height"],
-                              values["crown_radius"], species or None, leaf_area))
+                              values["crown_radius"], species or None, leaf_area, crown_ratio))
     return out
 
 

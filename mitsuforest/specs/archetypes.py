@@ -118,8 +118,9 @@ def _within(name: str, value: float) -> float:
 
 
 def grown_to(template: Archetype, height: float, crown_diameter: float, seed: int,
-             leaf_area: float | None = None) -> Archetype:
-    """``template`` at another ``height`` and ``crown_diameter`` (m), with the skeleton ``seed``.
+             leaf_area: float | None = None, crown_ratio: float | None = None) -> Archetype:
+    """``template`` at another ``height`` and ``crown_diameter`` (m), with the skeleton ``seed`` (and, where
+    given, its own ``crown_ratio``).
 
     The stem diameter scales as ``(height · crown_diameter) ** ALLOMETRY_EXPONENT`` (Jucker et al.), and
     the leaf area (unless given, m²) with the crown's volume (width² × height), so leaf area density
@@ -131,7 +132,8 @@ def grown_to(template: Archetype, height: float, crown_diameter: float, seed: in
     leaf_area = template.leaf_area * crown_volume if leaf_area is None else leaf_area
     return dataclasses.replace(template, height=round(height, 3), crown_diameter=round(crown_diameter, 3),
                                dbh=round(_within("dbh", template.dbh * size ** ALLOMETRY_EXPONENT), 4),
-                               leaf_area=round(_within("leaf_area", leaf_area), 2), seed=int(seed), weight=1.0)
+                               leaf_area=round(_within("leaf_area", leaf_area), 2), seed=int(seed), weight=1.0,
+                               **({} if crown_ratio is None else {"crown_ratio": _within("crown_ratio", crown_ratio)}))
 
 
 @dataclass(frozen=True)

@@ -73,12 +73,13 @@ def analyse(scan, settings: detection.DetectionSettings | None = None) -> dict:
     lai = foliage.effective_lai(gap, angle) if gap is not None else None
     ratio = foliage.crown_ratio(foliage.relative_heights_under_crowns(scan.x, scan.y, h, trees.x, trees.y, trees.height,
                                                                       trees.crown_radius))
+    tree_ratios = foliage.tree_crown_ratios(scan.x, scan.y, h, trees.x, trees.y, trees.height, trees.crown_radius, ratio)
     cells = understory.shrub_cells(scan.x, scan.y, h, cx, cy,
                                    (int(frame.size[1] / understory.CELL), int(frame.size[0] / understory.CELL)))
     estimate = survey.estimate(scan, float(np.mean(dem)))
     pulses = float(np.sum(1.0 / scan.number_of_returns))
     return {"frame": frame, "dem": dem, "dem_origin": (x0, y0), "ground_source": ground_source, "trees": trees,
-            "crown_gap_fraction": gap, "scan_angle": angle, "crown_lai": lai, "crown_ratio": ratio,
+            "crown_gap_fraction": gap, "scan_angle": angle, "crown_lai": lai, "crown_ratio": ratio, "tree_crown_ratios": tree_ratios,
             "bushes": understory.bush_count(cells), "shrub_area_m2": float(cells.sum() * understory.CELL ** 2),
             "survey": estimate, "pulse_density": pulses / (frame.size[0] * frame.size[1]), "notes": notes,
             "settings": settings}

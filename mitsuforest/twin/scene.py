@@ -155,15 +155,20 @@ def _write_dem(path: Path, dem: np.ndarray, x0: float, y0: float, crs: str | Non
         dataset.write(north_up, 1)
 
 
-def _write_trees(path: Path, trees, species: tuple[str, ...], lai: float | None) -> None:
-    """``trees.csv``; with a crown LAI, each tree's leaf area is it times the tree's crown area."""
+def _write_trees(path: Path, trees, species: tuple[str, ...], lai: float | None, ratios) -> None:
+    """``trees.csv``; with a crown LAI, each tree's leaf area is it times the tree's crown area; with crown
+    ratios (k,), each tree's own (:func:`~.foliage.tree_crown_ratios`; a nan leaves the template's)."""
+    ratios = np.asarray(ratios, float) if ratios is not None else np.full(len(trees.x), np.nan)
+    with_ratio = bool(np.isfinite(ratios).any())
     with open(path, "w", newline="") as f:
         out = csv.writer(f)
-        out.writerow(["x", "y", "height", "crown_radius", "species"] + (["leaf_area"] if lai is not None else []))
+        out.writerow(["x", "y", "height", "crown_radius", "species"] + (["leaf_area"] if lai is not None else [])
+                     + (["crown_ratio"] if with_ratio else []))
         for i in range(len(trees.x)):
             leaf = [f"{lai * np.pi * trees.crown_radius[i] ** 2:.2f}"] if lai is not None else []
+            ratio = ([f"{ratios[i]:.3f}" if np.isfinite(ratios[i]) else ""] if with_ratio else [])
             out.writerow([f"{trees.x[i]:.3f}", f"{trees.y[i]:.3f}", f"{trees.height[i]:.3f}",
-                          f"{trees.crown_radius[i]:.3f}", species[i % len(species)]] + leaf)
+                          f"{trees.crown_radius[i]:.3f}", species[i % len(species)]] + leaf + ratio)
 
 
 def write_twin(analysis: dict, scan, out: Path, name: str, species: tuple[str, ...], sensor, log) -> dict:
@@ -196,6 +201,7 @@ def write_twin(analysis: dict, scan, out: Path, name: str, species: tuple[str, .
                   "species": list(species), "crown_gap_fraction": analysis["crown_gap_fraction"],
                   "median_scan_angle": analysis["scan_angle"], "crown_lai": analysis["crown_lai"],
                   "crown_ratio": analysis.get("crown_ratio"),
+                  "own_crown_ratios": _own_ratios(analysis.get("tree_crown_ratios"), analysis.get("crown_ratio")),
                   "leaf_area": "crown LAI (Beer-Lambert, G = 0.5) x crown area" if analysis["crown_lai"] is not None
                   else "the species template's, in proportion to crown volume"},
         "understory": {"bushes": analysis["bushes"], "shrub_area_m2": analysis["shrub_area_m2"],
@@ -208,7 +214,7 @@ def write_twin(analysis: dict, scan, out: Path, name: str, species: tuple[str, .
     try:
         x0, y0 = analysis["dem_origin"]
         _write_dem(staging / f"{name}_dem.tif", analysis["dem"], x0, y0, crs)
-        _write_trees(staging / "trees.csv", trees, species, analysis["crown_lai"])
+        _write_trees(staging / "trees.csv", trees, species, analysis["crown_lai"], analysis.get("tree_crown_ratios"))
         (staging / f"{name}.yaml").write_text(f"# A twin of {Path(scan.path).name} written by mitsuforest twin; "
                                               "see twin.json for what was estimated.\n"
                                               + yaml.safe_dump(scene, sort_keys=False, width=120))
@@ -225,6 +231,14 @@ def write_twin(analysis: dict, scan, out: Path, name: str, species: tuple[str, .
     for note in analysis["notes"]:
         log(f"twin: {note}")
     return report
+
+
+def _own_ratios(ratios, stand) -> int:
+    """How many trees have a crown ratio of their own (not the stand's; :func:`~.foliage.tree_crown_ratios`)."""
+    if ratios is None:
+        return 0
+    ratios = np.asarray(ratios, float)
+    return int(np.count_nonzero(np.isfinite(ratios) & (ratios != stand)))
 
 
 def _shown(value) -> str:

@@ -8,8 +8,9 @@
   lines (linear least squares): altitude above the ground, speed and heading follow.
 * Scan rate: a rotating or oscillating mirror crosses the plot once per scan line, so the returns come
   in bursts one scan period apart: the period is the median spacing of burst starts.
-* Pulse rate: one over the median spacing of first returns in a burst (or, where GPS times are too
-  coarse to tell pulses apart, the burst's pulses over its duration).
+* Pulse rate: one over the median spacing of first returns in a burst; where GPS times are too coarse
+  to tell pulses apart, they are stamps a fixed step apart, and a stamp inside a burst holds every pulse
+  fired in it: the fullest stamps hold the pulse rate times the step (:func:`stamped_pulse_rate`).
 * Field of view: at least twice the largest scan angle seen.
 
 What cannot be estimated (no GPS time, no pulse with two returns, too few bursts) is left ``None``
@@ -127,14 +128,43 @@ def scan_period(groups: list[np.ndarray]) -> float | None:
 def pulse_rate(groups_first: list[np.ndarray]) -> float | None:
     """Pulses per second inside bursts of first-return times (bursts of at least 10 pulses): one over the
     median spacing of consecutive pulses, which pulses without a return do not bias; where the GPS time
-    is too coarse to tell pulses apart (more than 5 % share a time), the pulses of a burst over its length."""
+    is too coarse to tell pulses apart (more than 5 % share a time), :func:`stamped_pulse_rate`."""
     bursts_ = [b for b in groups_first if len(b) >= 10 and b[-1] > b[0]]
     if not bursts_:
         return None
     spacing = np.concatenate([np.diff(b) for b in bursts_])
     if np.mean(spacing == 0) <= 0.05:
         return float(1.0 / np.median(spacing[spacing > 0]))
-    return float(np.median([(len(b) - 1) / (b[-1] - b[0]) for b in bursts_]))
+    return stamped_pulse_rate(bursts_)
+
+
+def stamped_pulse_rate(bursts_: list[np.ndarray]) -> float | None:
+    """Pulses per second from bursts of first-return times stamped at a coarse, fixed step (the median
+    positive spacing of stamps within bursts). A stamp with a stamp one step before and after it lies
+    inside the burst, so it holds every pulse fired in its step that left a first return in the file.
+    Pulses are lost in stretches (first returns outside a clipped plot, on the stand around it; sky), which
+    only ever empty stamps, so the full stamps are the fullest: those within one pulse of the 90th
+    percentile of the inner stamps' counts, and the rate is their mean count over the step. Counting a
+    whole burst over its length instead counts each pulse lost, and the burst's partial first and last
+    stamps, against the rate (UAS_Clip: 590 kHz, where its full stamps say 820-830 kHz on every line).
+    ``None`` without inner stamps, or where the step is not well inside a burst (over :data:`BURST_GAP`)."""
+    stamps = [np.unique(b, return_counts=True) for b in bursts_]
+    steps = np.concatenate([np.diff(t) for t, _ in stamps])
+    if not len(steps):
+        return None
+    step = float(np.median(steps))
+    if step <= 0 or step > BURST_GAP:
+        return None
+    inner = []
+    for t, counts in stamps:
+        gaps = np.diff(t)
+        one_step = np.abs(gaps - step) <= 0.5 * step
+        inner.append(counts[1:-1][one_step[:-1] & one_step[1:]])
+    inner = np.concatenate(inner)
+    if not len(inner):
+        return None
+    full = inner[inner >= np.percentile(inner, 90) - 1]
+    return float(np.mean(full) / step)
 
 
 @dataclass(frozen=True)
