@@ -5,6 +5,7 @@ twin rendered and compared with its real scan.
     python benchmarks/twin.py --no-render         # twins and tree detection only (seconds)
     python benchmarks/twin.py --calibrate 3       # calibrate each twin's crowns in up to 3 renders first
     python benchmarks/twin.py --scans UAS_Clip.laz   # one scan only
+    python benchmarks/twin.py --factors 2.7 1.07  # one render at fixed calibration factors (leaf area, radius)
     python benchmarks/twin.py --out DIR           # where twins and renders go (default benchmarks/out/twin)
     python benchmarks/twin.py --real DIR          # the real scans' folder (default ../shared/data/real)
 
@@ -98,8 +99,12 @@ def main() -> None:
     p.add_argument("--variant", help="Mitsuba variant for the renders (default: auto)")
     p.add_argument("--calibrate", type=int, default=0, metavar="N",
                    help="calibrate each twin's crowns against its scan in up to N renders (mitsuforest twin --calibrate)")
+    p.add_argument("--factors", nargs=2, type=float, metavar=("LEAF", "RADIUS"),
+                   help="instead of calibrating: leaf area per crown area and crown radius times these, one render")
     p.add_argument("--scans", nargs="+", default=list(SCANS), metavar="NAME", help="which scans (default: both)")
     args = p.parse_args()
+    if args.factors and args.calibrate:
+        p.error("--factors and --calibrate: choose one")
     from mitsuforest.twin import make_twin
     for name in args.scans:
         path = args.real / name
@@ -110,6 +115,11 @@ def main() -> None:
         start = time.perf_counter()
         report = make_twin(path, folder, log=lambda msg: print("  " + msg),
                            calibrate=0 if args.no_render else args.calibrate, variant=args.variant)
+        if args.factors:
+            from mitsuforest.twin.calibrate import rescale_trees
+            capped = rescale_trees(folder / "trees.csv", *args.factors)
+            print(f"  trees.csv: leaf area per crown area x{args.factors[0]:g}, crown radius x{args.factors[1]:g}"
+                  + (f" ({capped} trees at the leaf area cap)" if capped else ""))
         print(f"{name}: twin with {report['trees']['count']} trees, {report['understory']['bushes']} bushes in "
               f"{time.perf_counter() - start:.1f} s -> {folder}")
         for key, item in report["survey"].items():
