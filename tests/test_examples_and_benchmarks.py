@@ -118,7 +118,7 @@ def test_full_scenes_benchmark_quick(tmp_path):
 def test_profile_leg_benchmark():
     stdout = _run([str(ROOT / "benchmarks" / "profile_leg.py"), "--scene", str(ROOT / "scenes" / "demo.yaml"),
                    "--leg", "1"], ROOT)
-    assert "rays and labels" in stdout and "points/s" in stdout
+    assert "rays and hit lookup" in stdout and "labels" in stdout and "points/s" in stdout
 
 
 def test_helios_compare_without_helios_says_so(tmp_path):

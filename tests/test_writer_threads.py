@@ -191,7 +191,8 @@ def test_point_array_filled_by_threads_is_the_echoes(monkeypatch):
     echoes = {k: rng.integers(0, 200, n).astype(t) for k, t in (
         ("object_row", np.uint32), ("triangle", np.uint32), ("number_of_returns", np.uint32),
         ("return_number", np.uint32), ("pulse_id", np.uint64))}
-    echoes.update({k: rng.uniform(-50, 50, n).astype(np.float32) for k in ("x", "y", "z", "range", "amplitude")})
+    echoes.update({k: rng.uniform(-50, 50, n).astype(np.float32) for k in ("x", "y", "z")})
+    echoes.update({k: rng.uniform(0.1, 50, n).astype(np.float32) for k in ("range", "amplitude")})
     echoes["gps_time"], echoes["scan_angle"] = rng.uniform(0, 1e3, n), rng.uniform(-1, 1, n).astype(np.float32)
     workers = Workers(4)
     monkeypatch.setattr(tracer, "shared_workers", lambda: workers)
