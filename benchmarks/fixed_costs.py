@@ -10,6 +10,7 @@ task. The first plot pays for imports and kernel compilation and is shown apart.
     python benchmarks/fixed_costs.py                   # 8 plots
     python benchmarks/fixed_costs.py --plots 4 --no-pictures
     python benchmarks/fixed_costs.py --profile 20      # also cProfile plots 2.., the 20 costliest functions
+    python benchmarks/fixed_costs.py --quick           # 2 small plots, one line, a thin beam (CI)
 """
 
 from __future__ import annotations
@@ -98,13 +99,16 @@ def _owner(dotted: str):
         return getattr(importlib.import_module(module), cls)
 
 
-def make_plots(folder: Path, plots: int, pictures: bool) -> list[str]:
+def make_plots(folder: Path, plots: int, pictures: bool, quick: bool = False) -> list[str]:
     """The scene files of ``benchmarks/dataset.py``'s demo-size plots in ``folder``; their names."""
     from mitsuforest.dataset import files
     from mitsuforest.dataset.spec import load_dataset
     base = yaml.safe_load((ROOT / "scenes" / "demo.yaml").read_text())
     base["sensor"] = str(ROOT / "sensors" / "riegl_vux-1uav22.yaml")
     base["output"] = {"pictures": pictures}
+    if quick:
+        base["survey"].update({"lines": [[[10, -2], [10, 22]]], "pulse_frequency": 100000})
+        base["simulation"] = {"beam_samples": 1, "beam_pattern": "fixed"}
     (folder / "demo_base.yaml").write_text(yaml.safe_dump(base, sort_keys=False))
     (folder / "demo_plots.yaml").write_text(yaml.safe_dump(
         {"name": "demo_plots", "base": "demo_base.yaml", "plots": plots, "vary": {"forest.trees": {"range": [3, 7]}}}))
@@ -122,7 +126,10 @@ def main() -> None:
     p.add_argument("--profile", type=int, default=0, metavar="N", help="cProfile plots 2..: the N costliest functions")
     p.add_argument("--sort", default="tottime", help="cProfile sort key (tottime, cumulative)")
     p.add_argument("--dump", type=Path, help="also write the profile here (pstats)")
+    p.add_argument("--quick", action="store_true", help="2 small plots: one line, a thin beam (CI)")
     args = p.parse_args()
+    if args.quick:
+        args.plots = 2
     os.environ.setdefault("MITSUFOREST_CACHE", str(Path.home() / ".cache" / "mitsuforest"))
     start = time.process_time()
     from mitsuforest.dataset import tasks
@@ -132,7 +139,7 @@ def main() -> None:
     profiler = cProfile.Profile() if args.profile else None
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
-        names = make_plots(Path(tmp), args.plots, not args.no_pictures)
+        names = make_plots(Path(tmp), args.plots, not args.no_pictures, args.quick)
         for i, name in enumerate(names):
             if profiler and i == 1:
                 profiler.enable()
