@@ -42,7 +42,7 @@ def model_area_by_class(model) -> np.ndarray:
     classes = np.array([c.classification for c in model.components], np.int64)
     out = np.zeros(256)
     for part in model.parts:
-        np.add.at(out, classes[part.component], triangle_areas(part.vertices, part.faces))
+        np.add.at(out, classes[part.component], part.of_mesh(triangle_areas))
     return out
 
 

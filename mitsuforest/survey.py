@@ -12,6 +12,7 @@ the leg tasks saved, in leg order: the same bytes as one render.
 
 from __future__ import annotations
 
+import functools
 import importlib.metadata
 import platform
 import time
@@ -227,7 +228,13 @@ def _drain(batches: Iterable[np.ndarray], sinks: list[Background]) -> None:
 
 
 def versions() -> dict:
-    """The versions of mitsuforest, Python and the libraries it runs on (None: not installed)."""
+    """The versions of mitsuforest, Python and the libraries it runs on (None: not installed), read once
+    per process (a dataset worker writes them into every plot's manifest)."""
+    return dict(_versions())
+
+
+@functools.cache
+def _versions() -> dict:
     out = {"mitsuforest": __version__, "python": platform.python_version()}
     for dist in DEPENDENCIES:
         try:

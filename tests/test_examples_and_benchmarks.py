@@ -259,3 +259,9 @@ def test_learning_curve_benchmark_smallest():
     assert [r[0].strip() for r in rows] == ["1", "2"]
     scores = np.array([[float(x) for x in r[1:]] for r in rows])   # balanced accuracy, wood F1, per condition
     assert scores.shape == (2, 4) and scores[:, [0, 2]].min() > 0.7 and scores.max() <= 1
+
+
+@pytest.mark.slow
+def test_fixed_costs_benchmark_quick():
+    stdout = _run([str(ROOT / "benchmarks" / "fixed_costs.py"), "--quick", "--profile", "3"], ROOT)
+    assert "| plot_0001 |" in stdout and "fixed costs" in stdout and "function calls" in stdout, stdout

@@ -90,3 +90,26 @@ def test_heights_above_a_ground_given_only_as_a_mesh():
     ground = SimpleNamespace(mesh=lambda: (vertices, np.array([[0, 1, 2], [0, 2, 3]])), mean_height=5.0)
     counts = ReturnCounts(ground, (10, 10))
     assert np.allclose(counts.ground(np.array([3.0, 7.0]), np.array([4.0, 9.5])), [4.5, 7.25])
+
+
+def test_a_picture_is_drawn_once_into_the_bytes_savefig_writes(tmp_path, monkeypatch):
+    """The pictures are laid out and drawn once (savefig draws a constrained-layout figure twice) into
+    the same PNG bytes as ``savefig``: the tile with its legends, and the returns chart's log axis."""
+    from matplotlib.figure import Figure
+
+    from mitsuforest.write import figures
+    p = points([(5, 10, 0.1, GROUND, 0, 1), (8, 12, 14.0, TREE_LEAVES, 2, 1), (9, 12, 9.0, TREE_WOOD, 2, 2)])
+    tile, counts = SideTile((20, 20)), ReturnCounts(None, (20, 20))
+    tile.add(p)
+    counts.add(p)
+    draws = []
+    draw = Figure.draw
+    monkeypatch.setattr(Figure, "draw", lambda fig, renderer: draws.append(fig) or draw(fig, renderer))
+    for name, make in (("side", lambda: figures.tile_figure(tile)),
+                       ("returns", lambda: figures.returns_figure(np.array([5, 2, 1]), counts))):
+        figures._save(make(), tmp_path / f"{name}.png")
+        assert len(draws) == 1
+        make().savefig(tmp_path / f"{name}_savefig.png", format="png", dpi=figures.DPI)
+        assert len(draws) == 3
+        assert (tmp_path / f"{name}.png").read_bytes() == (tmp_path / f"{name}_savefig.png").read_bytes()
+        draws.clear()

@@ -74,3 +74,16 @@ def test_batches_scanned_leg_by_leg_and_written_together_are_the_render(narrow, 
     assert written.points.tobytes() == rendered.points.tobytes()
     assert written.manifest["scene_objects"] == rendered.manifest["scene_objects"]
     assert written.manifest["classes"] == rendered.manifest["classes"]
+
+
+def test_versions_are_read_once_and_each_caller_gets_its_own_copy(monkeypatch):
+    """A dataset worker writes the library versions into every plot's manifest: they are read from the
+    installed packages once per process, and a manifest that changes its copy changes no other."""
+    import importlib.metadata
+
+    from mitsuforest import survey
+    first = survey.versions()
+    assert first["numpy"] == importlib.metadata.version("numpy") and first["python"]
+    monkeypatch.setattr(importlib.metadata, "version", lambda dist: 1 / 0)    # not read again
+    first["numpy"] = "changed"
+    assert survey.versions()["numpy"] == importlib.metadata.distribution("numpy").version

@@ -304,3 +304,35 @@ def test_leaf_fill_zero_leaves_the_default_trees_as_they_were():
     assert np.array_equal(tree_model(a, "t").parts[-1].vertices, expected)
     filled = tree_model(dataclasses.replace(a, leaf_fill=0.25), "t").parts[-1].vertices
     assert len(filled) == len(expected) and not np.array_equal(filled, expected)
+
+
+def test_a_cached_models_normals_are_computed_once_a_plot_and_a_new_seed_gets_its_own():
+    """A dataset worker asks for a model's face normals (scene) and triangle areas (realism table) for
+    each plot: copies of a cached model share them, computed once; a rock of another seed, or a mesh
+    that may still change (writable), gets its own."""
+    from mitsuforest.realism import triangle_areas
+    from mitsuforest.scene.meshes import face_normals
+    calls = []
+
+    def normals(vertices, faces):
+        calls.append(len(faces))
+        return face_normals(vertices, faces)
+
+    first, again = (build_model("rock001", ModelSpec("rock", 1, seed=11)) for _ in range(2))
+    other = build_model("rock002", ModelSpec("rock", 1, seed=12))
+    assert first is not again and first.parts[0] is again.parts[0]      # copies over the same part
+    kept = first.parts[0].of_mesh(normals)
+    assert again.parts[0].of_mesh(normals) is kept and len(calls) == 1
+    assert not kept.flags.writeable
+    np.testing.assert_array_equal(kept, face_normals(first.parts[0].vertices, first.parts[0].faces))
+    assert not np.array_equal(other.parts[0].of_mesh(normals), kept) and len(calls) == 2
+    # Another function is another value: the areas, not the normals.
+    np.testing.assert_array_equal(first.parts[0].of_mesh(triangle_areas),
+                                  triangle_areas(first.parts[0].vertices, first.parts[0].faces))
+    fresh = rock_model(11, "rock001").parts[0]                         # built here: writable, not kept
+    assert fresh.vertices.flags.writeable
+    before = fresh.of_mesh(normals)
+    fresh.vertices[:, 2] *= 2.0                                         # taller: other normals
+    after = fresh.of_mesh(normals)
+    assert len(calls) == 4 and not np.array_equal(after, before)
+    np.testing.assert_array_equal(after, face_normals(fresh.vertices, fresh.faces))

@@ -200,7 +200,7 @@ def _hit_table(mi_scene: mi.Scene, plan, models, used, keep, ground_v, ground_f,
             part_base.append(tri_count)
             comps.append(p.component)
             tri_classes.append(model_classes[p.component])
-            normals.append(face_normals(p.vertices, p.faces))
+            normals.append(p.of_mesh(face_normals))
             tri_count += len(p.faces)
         classes += [c.classification for c in model.components]
         comp_count += len(model.components)

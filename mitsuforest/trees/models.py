@@ -26,6 +26,20 @@ class Part:
     vertices: np.ndarray   # (n, 3) float64, model frame: base at the origin, +z up
     faces: np.ndarray      # (m, 3) uint32
     component: np.ndarray  # (m,) uint16, index into Model.components
+    _derived: dict = field(default_factory=dict, init=False, repr=False, compare=False)   # see of_mesh
+
+    def of_mesh(self, compute):
+        """``compute(vertices, faces)``, an array; kept with the part while its mesh is read-only (a cached
+        model's, whose copies share their parts: a dataset worker computes its archetypes' normals and
+        areas once, not once a plot), computed anew each call otherwise (a mesh that may still change).
+        The array kept is read-only."""
+        if self.vertices.flags.writeable or self.faces.flags.writeable:
+            return compute(self.vertices, self.faces)
+        if compute not in self._derived:
+            value = compute(self.vertices, self.faces)
+            value.flags.writeable = False
+            self._derived[compute] = value
+        return self._derived[compute]
 
 
 @dataclass

@@ -7,13 +7,17 @@ the same for a thousand points or forty million. Figures are made with the objec
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from ..classes import TREE_LEAVES, TREE_WOOD, class_name
 from .atomic import atomic_path
-from .quicklook import CLASS_COLOURS, WOODY_CLASSES, front_view, instance_palette
+from .quicklook import CLASS_COLOURS, WOODY_CLASSES, front_points, instance_palette, paint
 
 DPI = 100
+_WOODY = np.isin(np.arange(256), WOODY_CLASSES)          # by class code
+_TREE = np.isin(np.arange(256), (TREE_WOOD, TREE_LEAVES))
 NON_TREE_GREY = 200
 LEGEND_DROP_IN = 0.5   # inches from an axes' bottom edge down to a legend under it: clear of tick labels and x label
 
@@ -24,10 +28,32 @@ def _figure(width_in: float, height_in: float):
 
 
 def _save(fig, path) -> None:
+    """Draw ``fig`` once and write it as a PNG: the bytes ``fig.savefig(path, dpi=DPI)`` writes, without
+    its first pass (with a layout engine, savefig lays out and draws the figure twice)."""
+    import matplotlib.image
+    canvas = _canvas_class()(fig)
+    canvas.draw()
     with atomic_path(path) as tmp:
-        # The constrained layout already makes room for legends outside the axes; bbox_inches="tight"
-        # drew every figure twice for the same frame (a third of the pictures' time).
-        fig.savefig(tmp, format="png", dpi=DPI)
+        # The constrained layout already makes room for legends outside the axes (no bbox_inches="tight").
+        matplotlib.image.imsave(tmp, canvas.buffer_rgba(), format="png", origin="upper", dpi=DPI)
+
+
+@functools.cache
+def _canvas_class():
+    """An Agg canvas whose renderers share the process's one mathtext parser: the log axes' tick labels
+    (``$10^{3}$``) are parsed once, not once a picture (each renderer had a parser, and its cache, of
+    its own)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.mathtext import MathTextParser
+    parser = MathTextParser("path")     # what RendererAgg makes; its cache is thread-safe
+
+    class Canvas(FigureCanvasAgg):
+        def get_renderer(self):
+            renderer = super().get_renderer()
+            renderer.mathtext_parser = parser
+            return renderer
+
+    return Canvas
 
 
 def _class_legend(ax, codes, **kwargs) -> None:
@@ -83,22 +109,27 @@ def tile_figure(tile):
     pts = tile.points()
     x_range, z_range = tile.x_range, tile_z_range(pts)
     cls = pts["classification"]
-    woody = np.isin(cls, WOODY_CLASSES)
-    is_tree = np.isin(cls, (TREE_WOOD, TREE_LEAVES))
+    present = _codes(np.bincount(cls, minlength=256))
+    woody = _WOODY[cls]
+    is_tree = _TREE[cls]
     palette = instance_palette(int(pts["instance"].max(initial=0)))
-    by_instance = np.where(is_tree[:, None], palette[pts["instance"]], np.uint8(NON_TREE_GREY))
+    # Only the points in front are coloured; the first and last panels show the same points.
+    shape, pixels, front = front_points(pts, x_range, z_range)
+    by_instance = np.where(is_tree[front, None], palette[pts["instance"][front]], np.uint8(NON_TREE_GREY))
+    woody_shape, woody_pixels, woody_front = front_points(pts[woody], x_range, z_range)
     panels = [
-        ("by class", pts, CLASS_COLOURS[cls], _present(cls)),
-        ("woody parts only", pts[woody], CLASS_COLOURS[cls[woody]], _present(cls[woody])),
-        ("trees by instance", pts, by_instance, None),
+        ("by class", paint(shape, pixels, CLASS_COLOURS[cls[front]]), present),
+        ("woody parts only", paint(woody_shape, woody_pixels, CLASS_COLOURS[cls[woody][woody_front]]),
+         [c for c in present if _WOODY[c]]),
+        ("trees by instance", paint(shape, pixels, by_instance), None),
     ]
     panel_in = 3.6                                   # width of one panel's tile, inches
     height_in = panel_in * (z_range[1] - z_range[0]) / tile.tile
-    rows = max(len(_present(cls)), 10) / 2          # legend rows (two columns; the instances' legend has up to 10)
+    rows = max(len(present), 10) / 2          # legend rows (two columns; the instances' legend has up to 10)
     fig = _figure(3 * (panel_in + 0.45) + 0.4, height_in + 0.7 + LEGEND_DROP_IN + 0.25 * rows)   # title, ticks, legend
     axes = fig.subplots(1, 3, sharey=True)
-    for ax, (title, p, colours, codes) in zip(axes, panels):
-        ax.imshow(front_view(p, x_range, z_range, colours), extent=(*x_range, *z_range), interpolation="nearest")
+    for ax, (title, image, codes) in zip(axes, panels):
+        ax.imshow(image, extent=(*x_range, *z_range), interpolation="nearest")
         ax.set(title=f"{tile.tile:g} m tile from the south: {title}", xlabel="x (m)",
                xticks=np.arange(np.ceil(x_range[0] / 5) * 5, x_range[1] - 1, 5))   # no label at the shared edges
         ax.title.set_fontsize(9)
@@ -106,7 +137,7 @@ def tile_figure(tile):
         if codes is not None:
             _class_legend(ax, codes, ncol=2, **_below(ax))
         else:
-            _instance_legend(ax, pts[is_tree], palette)
+            _instance_legend(ax, pts["instance"][is_tree], _field(pts, "treeid", is_tree), palette)
     axes[0].set_ylabel("z (m)")
     return fig
 
@@ -118,9 +149,9 @@ def tile_z_range(points) -> tuple[float, float]:
     return float(points["z"].min()) - 0.5, float(points["z"].max()) + 1.0
 
 
-def _present(cls) -> list[int]:
-    """The class codes among points of classes ``cls``."""
-    return _codes(np.bincount(cls, minlength=256))
+def _field(points, name: str, rows):
+    """``points[name][rows]``, or None when the points have no such field."""
+    return points[name][rows] if name in points.dtype.names else None
 
 
 def _codes(by_class) -> list[int]:
@@ -128,13 +159,22 @@ def _codes(by_class) -> list[int]:
     return [int(c) for c in np.flatnonzero(by_class)]
 
 
-def _instance_legend(ax, trees, palette, most: int = 8) -> None:
+def _instance_legend(ax, instance, treeid, palette, most: int = 8) -> None:
+    """The legend of the trees-by-instance panel: the ``most`` instances with the most points, by name.
+
+    :param instance: (n,) the instance ids of the tree points; ``treeid`` (n,) their treeids, or None.
+    """
     from matplotlib.patches import Patch
-    ids, counts = np.unique(trees["instance"], return_counts=True)
-    treeid = {int(i): int(t) for i, t in zip(trees["instance"], trees["treeid"])} if "treeid" in trees.dtype.names \
-        else {}
+    by_id = np.bincount(instance)
+    ids = np.flatnonzero(by_id)
+    counts = by_id[ids]
+    names = {}
+    if treeid is not None:    # each instance's treeid at its last point
+        last = np.full(len(by_id), -1, np.int64)
+        np.maximum.at(last, instance, np.arange(len(instance)))
+        names = dict(zip(ids.tolist(), treeid[last[ids]].tolist()))
     shown = ids[np.argsort(-counts)][:most]
-    handles = [Patch(color=palette[i] / 255, label=instance_label(int(i), treeid.get(int(i)))) for i in shown]
+    handles = [Patch(color=palette[i] / 255, label=instance_label(int(i), names.get(int(i)))) for i in shown]
     if len(ids) > most:
         handles.append(Patch(color="white", label=f"... {len(ids) - most} more"))
     handles.append(Patch(color=np.full(3, NON_TREE_GREY / 255), label="not a tree"))
@@ -151,6 +191,11 @@ def instance_label(instance: int, treeid: int | None) -> str:
 
 
 def write_profile_figure(path, counts) -> None:
+    """Write :func:`profile_figure` to ``path``."""
+    _save(profile_figure(counts), path)
+
+
+def profile_figure(counts):
     """Returns by height above the ground and class (log scale: the ground outnumbers the canopy).
 
     :param counts: a :class:`~.profile.ReturnCounts`.
@@ -171,10 +216,15 @@ def write_profile_figure(path, counts) -> None:
            title="Vertical profile: returns by height and class")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="upper right")
-    _save(fig, path)
+    return fig
 
 
 def write_returns_figure(path, pulses_by_returns: np.ndarray, counts) -> None:
+    """Write :func:`returns_figure` to ``path``."""
+    _save(returns_figure(pulses_by_returns, counts), path)
+
+
+def returns_figure(pulses_by_returns: np.ndarray, counts):
     """Left: pulses by their number of returns; right: each return number's points split by class.
 
     :param pulses_by_returns: (k,) pulses with 0, 1, ... returns (entry 0 is not drawn).
@@ -202,4 +252,4 @@ def write_returns_figure(path, pulses_by_returns: np.ndarray, counts) -> None:
     right.set(xlabel="return number", ylabel="share of the points (%)", ylim=(0, 100),
               title="Classes by return number")
     right.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
-    _save(fig, path)
+    return fig

@@ -108,18 +108,32 @@ class SideTile:
 def front_view(points, x_range, z_range, colours: np.ndarray, pixels_per_m: float = 20.0) -> np.ndarray:
     """Points seen from the south (x across, z up; each pixel shows its nearest point, smallest y), as an
     (h, w, 3) uint8 image over ``x_range`` x ``z_range``; ``colours`` is (n, 3), one per point."""
+    shape, pixels, rows = front_points(points, x_range, z_range, pixels_per_m)
+    return paint(shape, pixels, colours[rows])
+
+
+def front_points(points, x_range, z_range, pixels_per_m: float = 20.0) -> tuple[tuple[int, int], np.ndarray, np.ndarray]:
+    """What :func:`front_view` draws: the image's (h, w), and the points in front (the nearest of their
+    pixel), as their flat pixel indices (k,) and their rows in ``points`` (k,), in the points' order.
+    Views of the same points in other colours share them (:func:`paint`)."""
     (x0, x1), (z0, z1) = x_range, z_range
     w, h = max(int((x1 - x0) * pixels_per_m), 2), max(int((z1 - z0) * pixels_per_m), 2)
-    img = np.full((h, w, 3), 255, np.uint8)
     if len(points) == 0:
-        return img
+        return (h, w), np.zeros(0, np.int64), np.zeros(0, np.int64)
     i = np.clip(((points["x"] - x0) * pixels_per_m).astype(np.int64), 0, w - 1)
     j = np.clip(((z1 - points["z"]) * pixels_per_m).astype(np.int64), 0, h - 1)
     pix = j * w + i
     nearest = np.full(h * w, np.inf)
     np.minimum.at(nearest, pix, points["y"].astype(np.float64))
-    front = points["y"] <= nearest[pix]
-    img.reshape(-1, 3)[pix[front]] = colours[front]
+    rows = np.flatnonzero(points["y"] <= nearest[pix])
+    return (h, w), pix[rows], rows
+
+
+def paint(shape: tuple[int, int], pixels: np.ndarray, colours: np.ndarray) -> np.ndarray:
+    """An (h, w, 3) uint8 white image with ``colours`` (k, 3) at the flat ``pixels`` (k,) (where two share
+    a pixel, the later one)."""
+    img = np.full((*shape, 3), 255, np.uint8)
+    img.reshape(-1, 3)[pixels] = colours
     return img
 
 

@@ -176,14 +176,12 @@ class PointWriter:
 
     def statistics(self) -> dict:
         """Density over the plot, mean nearest-neighbour spacing, class and returns counts."""
-        from scipy.spatial import cKDTree
         plot_area = float(self.area[0] * self.area[1])
         spacings = []
         for bucket in self._tile_points:
             xyz = np.vstack(bucket) if bucket else np.zeros((0, 3))
             if len(xyz) > 1:
-                d, _ = cKDTree(xyz).query(xyz, k=2)
-                spacings.append(d[:, 1])
+                spacings.append(nearest_distances(xyz))
         return {
             "points": int(self.count),
             "density_per_m2": self.count / plot_area if plot_area else 0.0,
@@ -192,6 +190,22 @@ class PointWriter:
             "returns_histogram": {int(k): int(v) for k, v in enumerate(self.returns) if v},
             "mean_spacing_m": float(np.concatenate(spacings).mean()) if spacings else None,
         }
+
+
+def nearest_distances(xyz: np.ndarray, cell: float = 0.25) -> np.ndarray:
+    """(n,) the distance from each of the points ``xyz`` (n, 3), n >= 2, to its nearest other one.
+
+    The points go into the k-d tree and its queries in the order of ``cell``-sized squares (by y, then
+    x), so that neighbours lie near each other in memory: half the time of the scan's order. Each
+    distance is the same number in any order (that of the same pair of points, computed alike).
+    """
+    from scipy.spatial import cKDTree
+    square = np.floor(xyz[:, :2] / cell).astype(np.int64)
+    order = np.lexsort((square[:, 0], square[:, 1]))
+    near = xyz[order]
+    distances = np.empty(len(xyz))
+    distances[order] = cKDTree(near, balanced_tree=False).query(near, k=2)[0][:, 1]
+    return distances
 
 
 def georeference(points: np.ndarray, offset) -> np.ndarray:
