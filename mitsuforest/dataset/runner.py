@@ -103,7 +103,12 @@ class DatasetIncomplete(UserError):
 
 
 def _stop(client, cluster) -> None:
-    """Close the client and the embedded cluster (again: a no-op), with Ctrl-C and SIGTERM held."""
+    """Close the client and the embedded cluster (again: a no-op), with Ctrl-C and SIGTERM held.
+
+    Dask's own loggers are silenced first and left so: LocalCluster's ``silence_logs`` ends with the
+    cluster, and closing connections to workers that a signal stopped logs tracebacks (``Batched Comm
+    Closed``) on the command's stderr, after the cluster, on Dask's event-loop thread."""
+    logging.getLogger("distributed").setLevel(logging.CRITICAL)
     with deferred_signals(ignore=True):
         client.close()
         if cluster is not None:
