@@ -15,6 +15,22 @@ def scene_file(tmp_path, sensor="ideal.yaml", variant="llvm_ad_mono", **sections
     return bare_scene_file(tmp_path, sensor if isinstance(sensor, dict) else SENSORS / sensor, variant, **sections)
 
 
+def tiny_scene(trees: int, bushes: int, rocks: int, deadwood: int, stumps: int, thin_beam: bool = True,
+               output: str | None = None) -> str:
+    """The YAML text of a 12 m plot (seed 3, the VUX-1UAV22 at 100 kHz, lines 6 m apart) with these
+    understory counts; ``thin_beam``: one fixed sub-ray on ``llvm_ad_mono``; ``output``: the output
+    section as YAML flow text (``{formats: [laz]}``)."""
+    lines = ["name: tiny", "seed: 3", "area: {size: [12, 12]}", f"forest: {{type: open, trees: {trees}, min_spacing: 4}}",
+             f"understory: {{bushes: {bushes}, rocks: {rocks}, deadwood: {deadwood}, stumps: {stumps}}}",
+             f"sensor: {ROOT}/sensors/riegl_vux-1uav22.yaml",
+             "survey: {altitude: 30, speed: 20, pulse_frequency: 100000, line_spacing: 6, margin: 2}"]
+    if thin_beam:
+        lines.append("simulation: {beam_samples: 1, beam_pattern: fixed, variant: llvm_ad_mono}")
+    if output is not None:
+        lines.append(f"output: {output}")
+    return "\n" + "\n".join(lines) + "\n"
+
+
 def write_obj(path, pieces, scale: float = 1.0, y_up: bool = False) -> Path:
     """An OBJ with one ``o``/``g`` group and material per piece: ``{name: (vertices, faces, material)}``.
 

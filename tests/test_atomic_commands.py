@@ -7,17 +7,9 @@ from pathlib import Path
 
 import pytest
 
-from conftest import ROOT
+from helpers import tiny_scene
 
-SCENE = f"""
-name: tiny
-seed: 3
-area: {{size: [12, 12]}}
-forest: {{type: open, trees: 1, min_spacing: 4}}
-understory: {{bushes: 0, rocks: 0, deadwood: 0, stumps: 0}}
-sensor: {ROOT}/sensors/riegl_vux-1uav22.yaml
-survey: {{altitude: 30, speed: 20, pulse_frequency: 100000, line_spacing: 6, margin: 2}}
-"""
+SCENE = tiny_scene(1, 0, 0, 0, 0, thin_beam=False)
 ENOSPC = OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))    # as a failing write raises it: no file named
 
 

@@ -18,19 +18,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import ROOT
+from helpers import tiny_scene
 
-BASE = f"""
-name: tiny
-seed: 3
-area: {{size: [12, 12]}}
-forest: {{type: open, trees: 2, min_spacing: 4}}
-understory: {{bushes: 2, rocks: 1, deadwood: 1, stumps: 1}}
-sensor: {ROOT}/sensors/riegl_vux-1uav22.yaml
-survey: {{altitude: 30, speed: 20, pulse_frequency: 100000, line_spacing: 6, margin: 2}}
-simulation: {{beam_samples: 1, beam_pattern: fixed, variant: llvm_ad_mono}}
-output: {{formats: [pcd, laz]}}
-"""
+BASE = tiny_scene(2, 2, 1, 1, 1, output="{formats: [pcd, laz]}")
 SKIP_COMPARE = ("_manifest.json",)   # times and machine
 
 

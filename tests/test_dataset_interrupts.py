@@ -19,18 +19,9 @@ from pathlib import Path
 import pytest
 
 from conftest import ROOT
+from helpers import tiny_scene
 
-BASE = f"""
-name: tiny
-seed: 3
-area: {{size: [12, 12]}}
-forest: {{type: open, trees: 1, min_spacing: 4}}
-understory: {{bushes: 1, rocks: 0, deadwood: 0, stumps: 0}}
-sensor: {ROOT}/sensors/riegl_vux-1uav22.yaml
-survey: {{altitude: 30, speed: 20, pulse_frequency: 100000, line_spacing: 6, margin: 2}}
-simulation: {{beam_samples: 1, beam_pattern: fixed, variant: llvm_ad_mono}}
-output: {{formats: [laz]}}
-"""
+BASE = tiny_scene(1, 1, 0, 0, 0, output="{formats: [laz]}")
 
 
 def _dataset_file(folder: Path, plots: int) -> Path:
