@@ -67,7 +67,9 @@ def write_yaml(path: Path, data: dict) -> Path:
     return path
 
 
-def many_plots(folder: Path, plots: int, worker_counts, quick: bool, pictures: bool = True) -> list[dict]:
+def demo_dataset(folder: Path, plots: int, pictures: bool = True, quick: bool = False) -> Path:
+    """``folder/demo_plots.yaml``: ``plots`` demo-size plots of 3-7 trees on ``folder/demo_base.yaml`` (the
+    demo scene with the VUX-1UAV22; ``quick``: one line, a thin beam); returns the dataset file."""
     base = yaml.safe_load((ROOT / "scenes" / "demo.yaml").read_text())
     base["sensor"] = str(ROOT / "sensors" / "riegl_vux-1uav22.yaml")
     base["output"] = {"pictures": pictures}
@@ -75,8 +77,12 @@ def many_plots(folder: Path, plots: int, worker_counts, quick: bool, pictures: b
         base["survey"].update({"lines": [[[10, -2], [10, 22]]], "pulse_frequency": 100000})
         base["simulation"] = {"beam_samples": 1, "beam_pattern": "fixed"}
     write_yaml(folder / "demo_base.yaml", base)
-    dataset = write_yaml(folder / "demo_plots.yaml", {"name": "demo_plots", "base": "demo_base.yaml",
-                                                      "plots": plots, "vary": {"forest.trees": {"range": [3, 7]}}})
+    return write_yaml(folder / "demo_plots.yaml", {"name": "demo_plots", "base": "demo_base.yaml",
+                                                   "plots": plots, "vary": {"forest.trees": {"range": [3, 7]}}})
+
+
+def many_plots(folder: Path, plots: int, worker_counts, quick: bool, pictures: bool = True) -> list[dict]:
+    dataset = demo_dataset(folder, plots, pictures, quick)
     rows = []
     for workers in worker_counts:
         r = run(dataset, folder / f"plots_{workers}w", workers)

@@ -28,8 +28,6 @@ import time
 from collections import defaultdict
 from pathlib import Path
 
-import yaml
-
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
@@ -140,16 +138,8 @@ def make_plots(folder: Path, plots: int, pictures: bool, quick: bool = False) ->
     """The scene files of ``benchmarks/dataset.py``'s demo-size plots in ``folder``; their names."""
     from mitsuforest.dataset import files
     from mitsuforest.dataset.spec import load_dataset
-    base = yaml.safe_load((ROOT / "scenes" / "demo.yaml").read_text())
-    base["sensor"] = str(ROOT / "sensors" / "riegl_vux-1uav22.yaml")
-    base["output"] = {"pictures": pictures}
-    if quick:
-        base["survey"].update({"lines": [[[10, -2], [10, 22]]], "pulse_frequency": 100000})
-        base["simulation"] = {"beam_samples": 1, "beam_pattern": "fixed"}
-    (folder / "demo_base.yaml").write_text(yaml.safe_dump(base, sort_keys=False))
-    (folder / "demo_plots.yaml").write_text(yaml.safe_dump(
-        {"name": "demo_plots", "base": "demo_base.yaml", "plots": plots, "vary": {"forest.trees": {"range": [3, 7]}}}))
-    dataset = load_dataset(folder / "demo_plots.yaml")
+    from dataset import demo_dataset
+    dataset = load_dataset(demo_dataset(folder, plots, pictures, quick))
     for plot in dataset.plots:
         scene = plot.scene.with_({"output.dir": str(files.plot_folder(folder, plot.name))})
         files.write_scene_file(files.scene_file(folder, plot.name), scene)
