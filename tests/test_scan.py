@@ -13,6 +13,7 @@ from mitsuforest.pipeline import render
 from mitsuforest.scan import PulseTracer, scan
 from mitsuforest.scan.radiometry import reflectance_table
 from mitsuforest.testing.reference import reaching_pulses, trace_reference
+from mitsuforest.testing.reference.pulses import aimed_at
 
 RNG = np.random.default_rng(0)
 
@@ -330,7 +331,8 @@ def test_rays_at_known_leaves_are_leaves(demo_setup):
 def test_echo_kernel_matches_the_numpy_reference_in_a_forest(demo_setup, samples, pattern, position):
     """The device path (pulses, rays, labels, radiometry, waveform in Dr.Jit) against the numpy
     reference (pulses in numpy, sub-ray hits copied back, then label_hits, received_power,
-    pulse_echoes) over the demo trees."""
+    pulse_echoes) over the demo trees. The reference traces every pulse that can reach the scene's box,
+    the device only those aimed at an object's box: the same points."""
     scene, plan, _, scan_scene = demo_setup
     sensor = dataclasses.replace(scene.sensor, range_precision=0.0, footprint_range_noise=0.0,
                                  range_precision_per_metre=0.0, speckle_looks=0)
@@ -343,8 +345,9 @@ def test_echo_kernel_matches_the_numpy_reference_in_a_forest(demo_setup, samples
     label_points(got, hits, tracer.table)
     p, ref_fired = reaching_pulses(leg, sensor, scene.pulse_frequency, scene.scan_frequency, first, count, tracer.box)
     ref = trace_reference(tracer, p)
-    assert (fired, cast) == (ref_fired, len(p.time))
-    assert len(got) == len(ref) > 10_000
+    aimed = aimed_at(p, tracer.targets, tracer.box, sensor.range_max)
+    assert fired == ref_fired and cast == aimed.sum() < 0.8 * len(p.time)   # the pulses aimed at no object's box are not cast
+    assert len(got) == len(ref) > 10_000                                     # and every pulse's points are made
     assert (ref["classification"] != GROUND).mean() > 0.2          # the pulses see trees, not just ground
     if samples > 1:
         assert (ref["number_of_returns"] > 1).mean() > 0.02
@@ -355,6 +358,33 @@ def test_echo_kernel_matches_the_numpy_reference_in_a_forest(demo_setup, samples
     assert np.allclose(got["intensity"], ref["intensity"], rtol=1e-4)
     assert np.abs(got["gps_time"] - ref["gps_time"]).max() < 1e-9          # float64 rounding of t0 + k/f
     assert np.abs(got["scan_angle"] - ref["scan_angle"]).max() < 1e-4
+
+
+def test_only_pulses_aimed_at_an_object_box_are_cast(variant):
+    """``box_mesh`` closes each box (volume and area its own), and ``aimed_at`` keeps a pulse whose axis
+    meets a box within range, drops one that passes 1 cm beside it or whose box lies beyond range, and keeps
+    every pulse fired from inside the scene's box, whatever its aim."""
+    import trimesh
+    from mitsuforest.scan.pulses import aimed_at as cast_only, box_mesh, upload_pulses
+    from mitsuforest.scene.meshes import mitsuba_mesh
+    from mitsuforest.scene.variant import variant_scope
+    from mitsuforest.testing.reference.pulses import Pulses
+    boxes = np.array([[[0, 0, 0], [1, 2, 3]], [[5, 0, 0], [6, 1, 0.5]]], float)
+    v, f = box_mesh(boxes)
+    for k in range(2):
+        mesh = trimesh.Trimesh(v[8 * k:8 * k + 8], f[12 * k:12 * k + 12] - 8 * k)
+        assert mesh.is_watertight and abs(mesh.volume) == pytest.approx(np.prod(boxes[k, 1] - boxes[k, 0]))
+    down, up = [0, 0, -1], [0, 0, 1]
+    origin = np.array([[0.5, 1, 10], [1.01, 1, 10], [5.5, 0.5, 10], [5.5, 0.5, 30], [0.5, 1, 1], [7, 1, 0.2]], float)
+    direction = np.array([down, down, down, down, up, up], float)
+    made = Pulses(np.arange(6), np.zeros(6), origin, direction, np.tile([1.0, 0, 0], (6, 1)), np.zeros(6))
+    scene_box = np.array([[-1, -1, -1], [8, 3, 4]], float)
+    with variant_scope(variant):
+        import mitsuba as mi
+        targets = mi.load_dict({"type": "scene", "boxes": mitsuba_mesh("boxes", v, f)})
+        kept = cast_only(upload_pulses(made), targets, scene_box, range_max=20.0)
+        assert kept.pulse_id.numpy().tolist() == [0, 2, 4, 5]
+    assert np.flatnonzero(aimed_at(made, boxes, scene_box, 20.0)).tolist() == [0, 2, 4, 5]
 
 
 def test_ranging_noise_is_gaussian_with_the_sensor_sigma(flat):

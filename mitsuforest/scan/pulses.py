@@ -1,4 +1,5 @@
-"""Pulses in Dr.Jit: the pulses of a batch of time slots that fire and can reach the scene.
+"""Pulses in Dr.Jit: the pulses of a batch of time slots that fire and can reach the scene, and those
+among them aimed at one of its objects.
 
 A batch's time slots never pass through numpy: times and angles are float64, rays float32. The
 numpy twin, :mod:`mitsuforest.testing.reference.pulses`, is the tests' reference.
@@ -132,3 +133,35 @@ def upload_pulses(pulses, first_id: int = 0) -> DevicePulses:
                         mi.Float64(aligned(np.asarray(pulses.time, np.float64))),
                         mi.Float(aligned(np.asarray(pulses.scan_angle, np.float32))),
                         mi.Point3f(*cols[0:3]), mi.Vector3f(*cols[3:6]), mi.Vector3f(*cols[6:9]))
+
+
+def box_mesh(boxes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The surfaces of ``k`` axis-aligned boxes (k, 2, 3): vertices (8k, 3) and faces (12k, 3)."""
+    corner = np.array([[i & 1, (i >> 1) & 1, (i >> 2) & 1] for i in range(8)])          # (8, 3) of 0/1
+    vertices = np.where(corner[None], boxes[:, None, 1], boxes[:, None, 0]).reshape(-1, 3)
+    quads = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
+    faces = np.array([t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))])       # (12, 3)
+    return vertices, (faces[None] + 8 * np.arange(len(boxes))[:, None, None]).reshape(-1, 3)
+
+
+def aimed_at(pulses: DevicePulses, targets: mi.Scene, box: np.ndarray, range_max: float) -> DevicePulses:
+    """The pulses whose beam axis meets a surface of ``targets`` (boxes, :func:`box_mesh`) within
+    ``range_max``, and every pulse fired from inside ``box`` (2, 3), where a beam may start inside a target
+    and leave range before its faces; call under the scene's Mitsuba variant.
+
+    With each object's box grown by the widest sub-ray's spread at ``range_max``, a pulse that misses
+    them all has no sub-ray that can hit anything: dropping it changes no point, only the rays traced.
+    """
+    if pulses.count == 0:
+        return pulses
+    ray = mi.Ray3f(pulses.origin, pulses.direction)
+    ray.maxt = mi.Float(range_max)
+    inside = dr.full(mi.Bool, True, pulses.count)
+    for k in range(3):
+        inside &= (pulses.origin[k] >= float(box[0, k])) & (pulses.origin[k] <= float(box[1, k]))
+    keep = dr.compress(inside | targets.ray_test(ray, active=~inside))
+    if dr.width(keep) == pulses.count:
+        return pulses
+    return DevicePulses(dr.gather(mi.UInt64, pulses.pulse_id, keep), dr.gather(mi.Float64, pulses.time, keep),
+                        dr.gather(mi.Float, pulses.scan_angle, keep), dr.gather(mi.Point3f, pulses.origin, keep),
+                        dr.gather(mi.Vector3f, pulses.direction, keep), dr.gather(mi.Vector3f, pulses.across, keep))

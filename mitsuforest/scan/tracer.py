@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import mitsuba as mi
 import numpy as np
 
 from .. import seeds
@@ -11,7 +12,8 @@ from ..scene.variant import variant_scope
 from ..threads import row_ranges, shared_workers
 from .beam import beam_cells, beam_pattern
 from .echo_kernel import EchoKernel
-from .pulses import reaching_pulses, upload_pulses
+from ..scene.meshes import mitsuba_mesh
+from .pulses import aimed_at, box_mesh, reaching_pulses, upload_pulses
 from .radiometry import reflectance_db, reflectance_table
 from .waveform import PulseBatch
 
@@ -72,7 +74,10 @@ class PulseTracer:
         reach = 1.5 if pattern == "fixed" else 3.0
         margin = sensor.range_max * max(half) * reach + 0.01
         self.box = scan_scene.bbox + [[-margin] * 3, [margin] * 3]
+        boxes = scan_scene.boxes if scan_scene.boxes is not None else scan_scene.bbox[None]
+        self.targets = boxes + np.array([[-margin] * 3, [margin] * 3])
         with variant_scope(self.variant):
+            self.target_scene = mi.load_dict({"type": "scene", "boxes": mitsuba_mesh("boxes", *box_mesh(self.targets))})
             self.caster = EchoKernel(scan_scene.mitsuba, weights=self.weights, table=self.table,
                                      reflectance=self.reflectance, sensor=sensor, seed=seed,
                                      point_position=point_position, record=waveforms, **beam)
@@ -102,6 +107,7 @@ class PulseTracer:
             made = reaching_pulses(leg, self.sensor, pulse_frequency, scan_frequency, first, count, self.box,
                                    first_id, self._device_table(pose), keep_fired=self.pulse_records)
             pulses, fired = made[:2]
+            pulses = aimed_at(pulses, self.target_scene, self.box, self.sensor.range_max)
             if records:
                 echoes, returns = self.caster.echoes_and_waveforms(pulses)
             else:

@@ -71,3 +71,12 @@ def reaches_box(origin: np.ndarray, direction: np.ndarray, box: np.ndarray, rang
         lo = np.maximum(lo, np.where(parallel, np.where(inside, -np.inf, np.inf), np.minimum(t0, t1)))
         hi = np.minimum(hi, np.where(parallel, np.where(inside, np.inf, -np.inf), np.maximum(t0, t1)))
     return lo <= hi
+
+
+def aimed_at(pulses: Pulses, targets: np.ndarray, box: np.ndarray, range_max: float) -> np.ndarray:
+    """(P,) whether each pulse's beam axis meets one of the boxes ``targets`` (k, 2, 3) within
+    ``range_max``, or starts inside ``box`` (2, 3): the pulses the tracer casts."""
+    inside = np.all((pulses.origin >= box[0]) & (pulses.origin <= box[1]), axis=1)
+    for target in targets:
+        inside |= reaches_box(pulses.origin, pulses.direction, target, range_max)
+    return inside
