@@ -96,14 +96,14 @@ def merge_plot(root: str, name: str, legs: list[dict], threads: int | None = Non
     same bytes as a render of the whole plot in one process. Returns the files' checksums, the counts
     and the seconds it took (:func:`finish_split_plot` makes the record)."""
     set_threads(threads)
-    from ..config import load_scene
     from ..pipeline import write_files
-    from ..survey import prepare
+    from ..survey import prepare_plan
     start = time.perf_counter()
     files.remove_record(root, name)
     legs = sorted(legs, key=lambda p: p["first"])
-    scene = load_scene(files.scene_file(root, name), output_dir=files.plot_folder(root, name))
-    prepared = prepare(scene, legs=range(0))     # plan and models for the tables; no object loaded
+    scene, plan, models = _plot_setup(files.scene_file(root, name))   # planned already where this worker scanned legs
+    scene = scene.with_({"output.dir": str(files.plot_folder(root, name))})
+    prepared = prepare_plan(scene, plan, models, legs=range(0))       # plan and models for the tables; no object loaded
     result = write_files(prepared, parts.part_batches(parts.parts_folder(root, name), legs), overwrite=True)
     manifest = result.manifest
     return {"files": files.checksums(root, sorted(result.files)), "points": manifest["points"],
