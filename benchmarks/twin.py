@@ -6,6 +6,7 @@ twin rendered and compared with its real scan.
     python benchmarks/twin.py --calibrate 3       # calibrate each twin's crowns in up to 3 renders first
     python benchmarks/twin.py --scans UAS_Clip.laz   # one scan only
     python benchmarks/twin.py --factors 2.7 1.07  # one render at fixed calibration factors (leaf area, radius)
+    python benchmarks/twin.py --factors 3.31 1.09 --archetype leaf_lift=0.5   # ... with the twin's archetypes changed
     python benchmarks/twin.py --out DIR           # where twins and renders go (default benchmarks/out/twin)
     python benchmarks/twin.py --real DIR          # the real scans' folder (default ../shared/data/real)
 
@@ -91,6 +92,27 @@ def print_comparison(result: dict) -> None:
             print(f"  {key:16s} {value:>24.4g}" if isinstance(value, (int, float)) else f"  {key:16s} {value!s:>24}")
 
 
+def archetype_change(item: str, parser) -> tuple[str, float]:
+    """``FIELD=VALUE`` of ``--archetype``: a numeric archetype field and its value."""
+    from mitsuforest.specs.archetypes import FIELDS
+    key, _, value = item.partition("=")
+    if key not in FIELDS or FIELDS[key].metadata["choices"]:
+        parser.error(f"--archetype: {key!r} is not a numeric archetype field")
+    try:
+        return key, float(value)
+    except ValueError:
+        parser.error(f"--archetype: {item!r} is not FIELD=NUMBER")
+
+
+def change_archetypes(scene_file: Path, changes: dict) -> None:
+    """Set ``changes`` on every archetype of the twin's scene file."""
+    import yaml
+    doc = yaml.safe_load(scene_file.read_text())
+    for archetype in doc["forest"].get("archetypes", []):
+        archetype.update(changes)
+    scene_file.write_text(yaml.safe_dump(doc, sort_keys=False))
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "out" / "twin")
@@ -101,10 +123,15 @@ def main() -> None:
                    help="calibrate each twin's crowns against its scan in up to N renders (mitsuforest twin --calibrate)")
     p.add_argument("--factors", nargs=2, type=float, metavar=("LEAF", "RADIUS"),
                    help="instead of calibrating: leaf area per crown area and crown radius times these, one render")
+    p.add_argument("--archetype", nargs="+", default=[], metavar="FIELD=VALUE",
+                   help="with --factors: set these archetype fields of the twin's trees (e.g. leaf_lift=0.5)")
     p.add_argument("--scans", nargs="+", default=list(SCANS), metavar="NAME", help="which scans (default: both)")
     args = p.parse_args()
     if args.factors and args.calibrate:
         p.error("--factors and --calibrate: choose one")
+    if args.archetype and not args.factors:
+        p.error("--archetype needs --factors")
+    changes = dict(archetype_change(item, p) for item in args.archetype)
     from mitsuforest.twin import make_twin
     for name in args.scans:
         path = args.real / name
@@ -120,6 +147,9 @@ def main() -> None:
             capped = rescale_trees(folder / "trees.csv", *args.factors)
             print(f"  trees.csv: leaf area per crown area x{args.factors[0]:g}, crown radius x{args.factors[1]:g}"
                   + (f" ({capped} trees at the leaf area cap)" if capped else ""))
+            if changes:
+                change_archetypes(folder / f"{path.stem}.yaml", changes)
+                print("  archetypes: " + ", ".join(f"{k} {v:g}" for k, v in changes.items()))
         print(f"{name}: twin with {report['trees']['count']} trees, {report['understory']['bushes']} bushes in "
               f"{time.perf_counter() - start:.1f} s -> {folder}")
         for key, item in report["survey"].items():

@@ -336,3 +336,24 @@ def test_a_cached_models_normals_are_computed_once_a_plot_and_a_new_seed_gets_it
     after = fresh.of_mesh(normals)
     assert len(calls) == 4 and not np.array_equal(after, before)
     np.testing.assert_array_equal(after, face_normals(fresh.vertices, fresh.faces))
+
+
+def test_crown_exponent_sets_how_blunt_a_pine_crown_is():
+    """Pinus radiata's envelope r(z) = R (1 - u)^e: at mid-crown R · 0.5^e, for the default cone (0.9) and a
+    blunter crown (0.6). Leaves spread through it stay inside it; evenly through its volume (``leaf_lift``
+    0), 1 - 0.5^(2e + 1) of them lie below mid-crown; with a lift, a metre of crown holds leaves in
+    proportion to its cross-section to the power 1 - lift (1: as many in every metre)."""
+    from mitsuforest.trees.skeleton import crown_volume_points
+    a = FAMILY_ARCHETYPES["pinus_radiata"][2]
+    base, mid = a.height * (1 - a.crown_ratio), a.height * (1 - a.crown_ratio / 2)
+    for e, lift in ((0.9, 0.0), (0.6, 0.0), (0.6, 0.5), (0.9, 1.0)):
+        b = dataclasses.replace(a, crown_exponent=e, leaf_lift=lift)
+        assert crown_radius(b, mid) == pytest.approx(a.crown_diameter / 2 * 0.5 ** e)
+        stem = grow(b)[0]
+        points = crown_volume_points(b, stem, 20_000, np.random.default_rng(1))
+        u = (points[:, 2] - base) / (a.height - base)
+        axis = [np.interp(points[:, 2], stem.points[:, 2], stem.points[:, k]) for k in (0, 1)]
+        radial = np.hypot(points[:, 0] - axis[0], points[:, 1] - axis[1])
+        assert np.all(radial <= crown_radius(b, points[:, 2]) + 1e-9)
+        k = 2 * e * (1 - lift) + 1      # points a metre ∝ cross-section^(1 - lift) = (1 - u)^(2e(1 - lift))
+        assert np.mean(u < 0.5) == pytest.approx(1 - 0.5 ** k, abs=0.015)

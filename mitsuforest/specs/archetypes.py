@@ -33,6 +33,8 @@ class Archetype:
     taper: float = _p(0.9, "stem form exponent: r(z) ~ (1 - z/H)^taper (1 cone, 0.5 paraboloid)", 0.2, 2.0)
     crown_ratio: float = _p(0.45, "live crown length / height (crown starts at (1 - ratio) * height)", 0.1, 0.95)
     crown_diameter: float = _p(9.0, "target crown width (m)", 0.5, 40.0)
+    crown_exponent: float = _p(0.9, "Pinus radiata's crown: radius ~ (depth below the top / crown length)^exponent "
+                                    "(1 a cone, 0.5 a paraboloid: blunter)", 0.3, 1.5)
     fork_height: float = _p(0.65, "relative height of the fork into co-dominant leaders (0 = none)", 0.0, 0.95)
     forks: int = _p(2, "co-dominant leaders above the fork, the stem included", 1, 5, True)
     branches: int = _p(14, "first-order branches on the stem and leaders", 0, 200, True)
@@ -48,6 +50,8 @@ class Archetype:
     leaf_clumping: float = _p(0.35, "fraction of each terminal twig, from its tip, that carries leaves", 0.05, 1.0)
     leaf_fill: float = _p(0.0, "share of the leaf area spread through the crown envelope's volume instead of "
                                "on the twigs (0: all on twigs)", 0.0, 1.0)
+    leaf_lift: float = _p(0.0, "leaves spread through the crown (leaf_fill): 0 evenly through its volume, 1 as much in each "
+                               "metre of its length (denser towards a narrow top)", 0.0, 1.0)
     min_radius: float = _p(0.003, "smallest twig radius (m)", 0.0002, 0.05)
     lean: float = _p(3.0, "random stem lean and sweep (deg)", 0.0, 30.0)
     seed: int = _p(0, "seed of this archetype's own random choices", 0, 2**31 - 1, True)

@@ -107,13 +107,14 @@ def crown_radius(a: Archetype, z: float) -> float:
     """Crown radius available at height z: the family's envelope over the live crown.
 
     Eucalyptus a half-ellipse widest just below mid-crown; Acacia a flatter, broader superellipse
-    widest at 60 % of the crown; Pinus radiata a cone from the crown base to the top.
+    widest at 60 % of the crown; Pinus radiata a cone from the crown base to the top, blunter as
+    ``crown_exponent`` falls below 1.
     """
     base = a.height * (1 - a.crown_ratio)
     radius = 0.5 * a.crown_diameter
     if a.species == "pinus_radiata":
         u = np.clip((z - base) / (a.height - base), 0, 1)
-        return radius * (1.0 - u) ** 0.9
+        return radius * (1.0 - u) ** a.crown_exponent
     widest, exponent = (0.6, 3.0) if a.species == "acacia" else (0.45, 2.0)
     mid, half = base + widest * (a.height - base), 0.5 * (a.height - base)
     u = np.clip(np.abs(z - mid) / (half * 1.1), 0, 1)
@@ -124,6 +125,8 @@ def crown_volume_points(a: Archetype, stem: Branch, count: int, rng) -> np.ndarr
     """(count, 3) points uniform in the volume of the crown envelope (:func:`crown_radius` about the
     stem's axis, from the crown base to the top), drawn by rejection from the enclosing cylinder."""
     base, radius = a.height * (1 - a.crown_ratio), 0.5 * a.crown_diameter
+    if a.leaf_lift > 0:
+        return _lifted_crown_points(a, stem, count, rng)
     out, have = np.empty((count, 3)), 0
     while have < count:
         n = 2 * (count - have) + 64
@@ -136,6 +139,24 @@ def crown_volume_points(a: Archetype, stem: Branch, count: int, rng) -> np.ndarr
         out[have:have + len(z)] = np.column_stack([axis_x + rho * np.cos(phi), axis_y + rho * np.sin(phi), z])
         have += len(z)
     return out
+
+
+def _lifted_crown_points(a: Archetype, stem: Branch, count: int, rng) -> np.ndarray:
+    """(count, 3) points through the crown envelope, as many in a metre of crown as its cross-section to
+    the power ``1 - a.leaf_lift`` (``leaf_lift`` 1: the same number in every metre): heights by rejection,
+    then uniform over the envelope's disc there."""
+    base, radius = a.height * (1 - a.crown_ratio), 0.5 * a.crown_diameter
+    z, have = np.empty(count), 0
+    while have < count:
+        n = 2 * (count - have) + 64
+        zs = rng.uniform(base, a.height, n)
+        keep = zs[rng.random(n) <= (crown_radius(a, zs) / radius) ** (2 * (1 - a.leaf_lift))][:count - have]
+        z[have:have + len(keep)] = keep
+        have += len(keep)
+    rho, phi = crown_radius(a, z) * np.sqrt(rng.random(count)), rng.uniform(0, 2 * np.pi, count)
+    axis_x = np.interp(z, stem.points[:, 2], stem.points[:, 0])
+    axis_y = np.interp(z, stem.points[:, 2], stem.points[:, 1])
+    return np.column_stack([axis_x + rho * np.cos(phi), axis_y + rho * np.sin(phi), z])
 
 
 def _branch_site(a: Archetype, i: int, s_lo: float, rng) -> tuple[float, float]:
