@@ -345,7 +345,7 @@ def test_echo_kernel_matches_the_numpy_reference_in_a_forest(demo_setup, samples
     label_points(got, hits, tracer.table)
     p, ref_fired = reaching_pulses(leg, sensor, scene.pulse_frequency, scene.scan_frequency, first, count, tracer.box)
     ref = trace_reference(tracer, p)
-    aimed = aimed_at(p, tracer.targets, tracer.box, sensor.range_max)
+    aimed = aimed_at(p, tracer.targets, tracer.bounds, tracer.box, sensor.range_max)
     assert fired == ref_fired and cast == aimed.sum() < 0.8 * len(p.time)   # the pulses aimed at no object's box are not cast
     assert len(got) == len(ref) > 10_000                                     # and every pulse's points are made
     assert (ref["classification"] != GROUND).mean() > 0.2          # the pulses see trees, not just ground
@@ -361,10 +361,13 @@ def test_echo_kernel_matches_the_numpy_reference_in_a_forest(demo_setup, samples
 
 
 def test_only_pulses_aimed_at_an_object_box_are_cast(variant):
-    """``box_mesh`` closes each box (volume and area its own), and ``aimed_at`` keeps a pulse whose axis
-    meets a box within range, drops one that passes 1 cm beside it or whose box lies beyond range, and keeps
-    every pulse fired from inside the scene's box, whatever its aim."""
+    """``box_mesh`` closes each box (volume its own), and ``aimed_at`` keeps a pulse whose axis meets a box
+    within range, drops one that passes 1 cm beside it or whose box lies beyond range, and keeps every
+    pulse fired from inside the scene's box, whatever its aim. With two sets of boxes, grown by 0 m for
+    pulses within 30 m of every corner of the geometry and by 0.5 m for the rest: a pulse 0.2 m beside a
+    box is dropped from 10 m up and kept from 40 m up, where the wider boxes test it."""
     import trimesh
+    import mitsuba as mi
     from mitsuforest.scan.pulses import aimed_at as cast_only, box_mesh, upload_pulses
     from mitsuforest.scene.meshes import mitsuba_mesh
     from mitsuforest.scene.variant import variant_scope
@@ -375,16 +378,20 @@ def test_only_pulses_aimed_at_an_object_box_are_cast(variant):
         mesh = trimesh.Trimesh(v[8 * k:8 * k + 8], f[12 * k:12 * k + 12] - 8 * k)
         assert mesh.is_watertight and abs(mesh.volume) == pytest.approx(np.prod(boxes[k, 1] - boxes[k, 0]))
     down, up = [0, 0, -1], [0, 0, 1]
-    origin = np.array([[0.5, 1, 10], [1.01, 1, 10], [5.5, 0.5, 10], [5.5, 0.5, 30], [0.5, 1, 1], [7, 1, 0.2]], float)
-    direction = np.array([down, down, down, down, up, up], float)
-    made = Pulses(np.arange(6), np.zeros(6), origin, direction, np.tile([1.0, 0, 0], (6, 1)), np.zeros(6))
-    scene_box = np.array([[-1, -1, -1], [8, 3, 4]], float)
+    origin = np.array([[0.5, 1, 10], [1.01, 1, 10], [5.5, 0.5, 10], [5.5, 0.5, 30], [0.5, 1, 1], [7, 1, 0.2],
+                       [1.2, 1, 10], [1.2, 1, 40]], float)
+    direction = np.array([down, down, down, down, up, up, down, down], float)
+    made = Pulses(np.arange(8), np.zeros(8), origin, direction, np.tile([1.0, 0, 0], (8, 1)), np.zeros(8))
+    bounds, scene_box = np.array([[0, 0, 0], [6, 2, 3]], float), np.array([[-1, -1, -1], [8, 3, 4]], float)
+    sets = [(30.0, boxes), (50.0, boxes + np.array([[-0.5] * 3, [0.5] * 3]))]
+    expected = [0, 2, 3, 4, 5, 7]
     with variant_scope(variant):
-        import mitsuba as mi
-        targets = mi.load_dict({"type": "scene", "boxes": mitsuba_mesh("boxes", v, f)})
-        kept = cast_only(upload_pulses(made), targets, scene_box, range_max=20.0)
-        assert kept.pulse_id.numpy().tolist() == [0, 2, 4, 5]
-    assert np.flatnonzero(aimed_at(made, boxes, scene_box, 20.0)).tolist() == [0, 2, 4, 5]
+        targets = [(r, mi.load_dict({"type": "scene", "boxes": mitsuba_mesh("boxes", *box_mesh(b))})) for r, b in sets]
+        kept = cast_only(upload_pulses(made), targets, bounds, scene_box, range_max=50.0)
+        assert kept.pulse_id.numpy().tolist() == expected
+        one = cast_only(upload_pulses(made), targets[:1], bounds, scene_box, range_max=20.0)
+        assert one.pulse_id.numpy().tolist() == [0, 2, 4, 5]     # one set for all; pulse 3 out of its 20 m range
+    assert np.flatnonzero(aimed_at(made, sets, bounds, scene_box, 50.0)).tolist() == expected
 
 
 def test_ranging_noise_is_gaussian_with_the_sensor_sigma(flat):

@@ -144,22 +144,37 @@ def box_mesh(boxes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return vertices, (faces[None] + 8 * np.arange(len(boxes))[:, None, None]).reshape(-1, 3)
 
 
-def aimed_at(pulses: DevicePulses, targets: mi.Scene, box: np.ndarray, range_max: float) -> DevicePulses:
-    """The pulses whose beam axis meets a surface of ``targets`` (boxes, :func:`box_mesh`) within
-    ``range_max``, and every pulse fired from inside ``box`` (2, 3), where a beam may start inside a target
-    and leave range before its faces; call under the scene's Mitsuba variant.
+def aimed_at(pulses: DevicePulses, targets: list[tuple[float, mi.Scene]], bounds: np.ndarray, box: np.ndarray,
+             range_max: float) -> DevicePulses:
+    """The pulses whose beam axis meets a box of ``targets`` within ``range_max``, and every pulse fired from
+    inside ``box`` (2, 3), where a beam may start inside a target and leave range before its faces; call
+    under the scene's Mitsuba variant.
 
-    With each object's box grown by the widest sub-ray's spread at ``range_max``, a pulse that misses
-    them all has no sub-ray that can hit anything: dropping it changes no point, only the rays traced.
+    :param targets: (range, scene of boxes, :func:`box_mesh`), nearest first, the last at ``range_max``:
+        each object's box grown by the widest sub-ray's spread at that range. A pulse is tested against the
+        nearest set whose range reaches the farthest corner of ``bounds`` (2, 3; the scene's geometry, so
+        every hit lies within that distance); the last set takes the rest.
+    :returns: the pulses kept. One that misses every box has no sub-ray that can hit anything: dropping it
+        changes no point, only the rays traced.
     """
     if pulses.count == 0:
         return pulses
     ray = mi.Ray3f(pulses.origin, pulses.direction)
     ray.maxt = mi.Float(range_max)
     inside = dr.full(mi.Bool, True, pulses.count)
+    farthest = mi.Float(0.0)
     for k in range(3):
-        inside &= (pulses.origin[k] >= float(box[0, k])) & (pulses.origin[k] <= float(box[1, k]))
-    keep = dr.compress(inside | targets.ray_test(ray, active=~inside))
+        o = pulses.origin[k]
+        inside &= (o >= float(box[0, k])) & (o <= float(box[1, k]))
+        far = dr.maximum(dr.abs(o - float(bounds[0, k])), dr.abs(o - float(bounds[1, k])))
+        farthest += far * far
+    farthest = dr.sqrt(farthest)
+    keep, tested = inside, mi.Bool(inside)
+    for i, (reach, scene) in enumerate(targets):
+        use = ~tested if i == len(targets) - 1 else ~tested & (farthest <= reach)
+        keep |= scene.ray_test(ray, active=use)
+        tested |= use
+    keep = dr.compress(keep)
     if dr.width(keep) == pulses.count:
         return pulses
     return DevicePulses(dr.gather(mi.UInt64, pulses.pulse_id, keep), dr.gather(mi.Float64, pulses.time, keep),

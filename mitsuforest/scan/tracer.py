@@ -71,13 +71,17 @@ class PulseTracer:
         self.reflectance = reflectance_table(sensor.wavelength) if own is None else own
         # Pulses are dropped when even their widest sub-ray misses the scene's box: a fixed pattern's
         # offsets stay under 1.5 w, a stratified draw under r = sqrt(u/2) = 2.9 w (24-bit uniforms: u < 16.7).
-        reach = 1.5 if pattern == "fixed" else 3.0
-        margin = sensor.range_max * max(half) * reach + 0.01
+        spread = max(half) * (1.5 if pattern == "fixed" else 3.0)      # m from the beam axis a metre of range
+        margin = sensor.range_max * spread + 0.01
         self.box = scan_scene.bbox + [[-margin] * 3, [margin] * 3]
+        self.bounds = scan_scene.bbox
         boxes = scan_scene.boxes if scan_scene.boxes is not None else scan_scene.bbox[None]
-        self.targets = boxes + np.array([[-margin] * 3, [margin] * 3])
+        near = min(sensor.range_max, 2.0 * float(np.linalg.norm(np.ptp(scan_scene.bbox, axis=0))))
+        self.targets = [(r, boxes + np.array([[-1.0] * 3, [1.0] * 3]) * (r * spread + 0.01))
+                        for r in dict.fromkeys((near, sensor.range_max))]
         with variant_scope(self.variant):
-            self.target_scene = mi.load_dict({"type": "scene", "boxes": mitsuba_mesh("boxes", *box_mesh(self.targets))})
+            self.target_scenes = [(r, mi.load_dict({"type": "scene", "boxes": mitsuba_mesh("boxes", *box_mesh(b))}))
+                                  for r, b in self.targets]
             self.caster = EchoKernel(scan_scene.mitsuba, weights=self.weights, table=self.table,
                                      reflectance=self.reflectance, sensor=sensor, seed=seed,
                                      point_position=point_position, record=waveforms, **beam)
@@ -107,7 +111,7 @@ class PulseTracer:
             made = reaching_pulses(leg, self.sensor, pulse_frequency, scan_frequency, first, count, self.box,
                                    first_id, self._device_table(pose), keep_fired=self.pulse_records)
             pulses, fired = made[:2]
-            pulses = aimed_at(pulses, self.target_scene, self.box, self.sensor.range_max)
+            pulses = aimed_at(pulses, self.target_scenes, self.bounds, self.box, self.sensor.range_max)
             if records:
                 echoes, returns = self.caster.echoes_and_waveforms(pulses)
             else:

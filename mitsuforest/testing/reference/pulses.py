@@ -73,10 +73,17 @@ def reaches_box(origin: np.ndarray, direction: np.ndarray, box: np.ndarray, rang
     return lo <= hi
 
 
-def aimed_at(pulses: Pulses, targets: np.ndarray, box: np.ndarray, range_max: float) -> np.ndarray:
-    """(P,) whether each pulse's beam axis meets one of the boxes ``targets`` (k, 2, 3) within
-    ``range_max``, or starts inside ``box`` (2, 3): the pulses the tracer casts."""
+def aimed_at(pulses: Pulses, targets: list[tuple[float, np.ndarray]], bounds: np.ndarray, box: np.ndarray,
+             range_max: float) -> np.ndarray:
+    """(P,) the pulses the tracer casts: those fired inside ``box`` (2, 3), and those whose beam axis meets
+    within ``range_max`` one of the boxes (k, 2, 3) of the nearest ``targets`` entry (range, boxes) whose
+    range reaches the farthest corner of ``bounds`` (2, 3) from the pulse (the last entry: the rest)."""
     inside = np.all((pulses.origin >= box[0]) & (pulses.origin <= box[1]), axis=1)
-    for target in targets:
-        inside |= reaches_box(pulses.origin, pulses.direction, target, range_max)
-    return inside
+    farthest = np.linalg.norm(np.maximum(np.abs(pulses.origin - bounds[0]), np.abs(pulses.origin - bounds[1])), axis=1)
+    keep, tested = inside.copy(), inside.copy()
+    for i, (reach, boxes) in enumerate(targets):
+        use = ~tested if i == len(targets) - 1 else ~tested & (farthest <= reach)
+        for target in boxes:
+            keep |= use & reaches_box(pulses.origin, pulses.direction, target, range_max)
+        tested |= use
+    return keep
