@@ -8,11 +8,11 @@ import numpy as np
 from .. import seeds
 from ..fields import POINT_DTYPE
 from . import HIT_DTYPE
+from ..scene.meshes import mitsuba_mesh
 from ..scene.variant import variant_scope
 from ..threads import row_ranges, shared_workers
 from .beam import beam_cells, beam_pattern
 from .echo_kernel import EchoKernel
-from ..scene.meshes import mitsuba_mesh
 from .pulses import aimed_at, box_mesh, reaching_pulses, upload_pulses
 from .radiometry import reflectance_db, reflectance_table
 from .waveform import PulseBatch
@@ -72,13 +72,15 @@ class PulseTracer:
         # Pulses are dropped when even their widest sub-ray misses the scene's box: a fixed pattern's
         # offsets stay under 1.5 w, a stratified draw under r = sqrt(u/2) = 2.9 w (24-bit uniforms: u < 16.7).
         spread = max(half) * (1.5 if pattern == "fixed" else 3.0)      # m from the beam axis a metre of range
-        margin = sensor.range_max * spread + 0.01
-        self.box = scan_scene.bbox + [[-margin] * 3, [margin] * 3]
+
+        def grown(boxes: np.ndarray, reach: float) -> np.ndarray:
+            """``boxes`` (..., 2, 3) grown by the widest sub-ray's distance from the axis at ``reach`` m."""
+            return boxes + np.array([[-1.0] * 3, [1.0] * 3]) * (reach * spread + 0.01)
+
+        self.box = grown(scan_scene.bbox, sensor.range_max)
         self.bounds = scan_scene.bbox
-        boxes = scan_scene.boxes if scan_scene.boxes is not None else scan_scene.bbox[None]
         near = min(sensor.range_max, 2.0 * float(np.linalg.norm(np.ptp(scan_scene.bbox, axis=0))))
-        self.targets = [(r, boxes + np.array([[-1.0] * 3, [1.0] * 3]) * (r * spread + 0.01))
-                        for r in dict.fromkeys((near, sensor.range_max))]
+        self.targets = [(r, grown(scan_scene.boxes, r)) for r in dict.fromkeys((near, sensor.range_max))]
         with variant_scope(self.variant):
             self.target_scenes = [(r, mi.load_dict({"type": "scene", "boxes": mitsuba_mesh("boxes", *box_mesh(b))}))
                                   for r, b in self.targets]

@@ -93,8 +93,8 @@ class ScanScene:
     culled: int              # placed objects out of reach of every leg, left out
     triangles: int           # distinct triangles of those objects' models and the ground (instanced copies once)
     loaded: int              # placed objects loaded: those in reach of the legs it was built for
+    boxes: np.ndarray        # (k, 2, 3) bounds of every object in reach of the survey, and the ground's
     reflectance: np.ndarray | None = None   # (256,) by class; None: ours at the sensor's wavelength
-    boxes: np.ndarray | None = None          # (k, 2, 3) bounds of every object in reach of the survey, and the ground's
 
 
 def reachable(obj_bounds: np.ndarray, legs, sensor) -> bool:
@@ -166,7 +166,7 @@ def _build(plan, models, sensor, variant, legs, reflectance) -> ScanScene:
     bbox = np.array([np.min([b[0] for b in all_bounds], 0), np.max([b[1] for b in all_bounds], 0)])
     triangles = sum(models[n].triangles for n in sorted({obj.model for obj, _, _ in survey})) + len(ground_f)
     return ScanScene(mi_scene, table, bbox, variant, len(survey), len(placed) - len(survey), triangles, len(keep),
-                     reflectance, np.array(all_bounds))
+                     np.array(all_bounds), reflectance)
 
 
 def _registry_ids(shapes: list[mi.Mesh]) -> np.ndarray:

@@ -134,11 +134,16 @@ def crown_volume_points(a: Archetype, stem: Branch, count: int, rng) -> np.ndarr
         rho, phi = radius * np.sqrt(rng.random(n)), rng.uniform(0, 2 * np.pi, n)
         keep = rho <= crown_radius(a, z)
         z, rho, phi = z[keep][:count - have], rho[keep][:count - have], phi[keep][:count - have]
-        axis_x = np.interp(z, stem.points[:, 2], stem.points[:, 0])
-        axis_y = np.interp(z, stem.points[:, 2], stem.points[:, 1])
-        out[have:have + len(z)] = np.column_stack([axis_x + rho * np.cos(phi), axis_y + rho * np.sin(phi), z])
+        out[have:have + len(z)] = _about_stem(stem, z, rho, phi)
         have += len(z)
     return out
+
+
+def _about_stem(stem: Branch, z, rho, phi) -> np.ndarray:
+    """(n, 3) points at heights ``z`` (n,), ``rho`` (n,) from the stem's axis at bearing ``phi`` (n,)."""
+    axis_x = np.interp(z, stem.points[:, 2], stem.points[:, 0])
+    axis_y = np.interp(z, stem.points[:, 2], stem.points[:, 1])
+    return np.column_stack([axis_x + rho * np.cos(phi), axis_y + rho * np.sin(phi), z])
 
 
 def _lifted_crown_points(a: Archetype, stem: Branch, count: int, rng) -> np.ndarray:
@@ -154,9 +159,7 @@ def _lifted_crown_points(a: Archetype, stem: Branch, count: int, rng) -> np.ndar
         z[have:have + len(keep)] = keep
         have += len(keep)
     rho, phi = crown_radius(a, z) * np.sqrt(rng.random(count)), rng.uniform(0, 2 * np.pi, count)
-    axis_x = np.interp(z, stem.points[:, 2], stem.points[:, 0])
-    axis_y = np.interp(z, stem.points[:, 2], stem.points[:, 1])
-    return np.column_stack([axis_x + rho * np.cos(phi), axis_y + rho * np.sin(phi), z])
+    return _about_stem(stem, z, rho, phi)
 
 
 def _branch_site(a: Archetype, i: int, s_lo: float, rng) -> tuple[float, float]:
