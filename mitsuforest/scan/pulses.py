@@ -172,7 +172,9 @@ def aimed_at(pulses: DevicePulses, targets: list[tuple[float, mi.Scene]], bounds
     keep, tested = inside, mi.Bool(inside)
     for i, (reach, scene) in enumerate(targets):
         use = ~tested if i == len(targets) - 1 else ~tested & (farthest <= reach)
-        keep |= scene.ray_test(ray, active=use)
+        hit = scene.ray_test(ray, active=use)
+        dr.eval(hit)   # OptiX traces one scene per kernel: fused, the second ray test would be dropped
+        keep |= hit
         tested |= use
     keep = dr.compress(keep)
     if dr.width(keep) == pulses.count:
