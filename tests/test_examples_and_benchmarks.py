@@ -225,6 +225,20 @@ def test_pictures_benchmark_quick():
 
 
 @pytest.mark.slow
+def test_warm_render_benchmark_renders_a_scene_cold_then_warm(tmp_path):
+    from helpers import tiny_scene
+    path = tmp_path / "tiny.yaml"
+    path.write_text(tiny_scene(1, 1, 0, 0, 0))
+    stdout = _run([str(ROOT / "benchmarks" / "warm_render.py"), str(path), "--beam-samples", "3",
+                   "--manifest", str(tmp_path / "manifest.json")], ROOT)
+    runs = [line.split(":")[0] for line in stdout.splitlines()]
+    points = {line.split(" CPU, ")[1].split(" points")[0] for line in stdout.splitlines()}
+    assert runs == ["cold", "warm"] and len(points) == 1, stdout          # the same points both times
+    manifest = __import__("json").loads((tmp_path / "manifest.json").read_text())
+    assert f"{manifest['points']:,}" in points and manifest["scene"]["simulation"]["beam_samples"] == 3
+
+
+@pytest.mark.slow
 def test_writer_benchmark_quick():
     stdout = _run([str(ROOT / "benchmarks" / "writer.py"), "--quick"], ROOT)
     rows = [line.split() for line in stdout.splitlines() if line.split() and line.split()[0].isdigit()]
