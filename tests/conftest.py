@@ -1,4 +1,5 @@
 import os
+import signal
 import sys
 from pathlib import Path
 
@@ -8,6 +9,11 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(Path(__file__).parent))
 
 from mitsuforest.scene.variant import available_variants  # noqa: E402
+
+# A suite started in the background (`bash .ci/run &`, nohup) inherits SIGINT ignored, and so would every
+# render it starts: the interrupt tests need Ctrl-C's usual meaning, in this process and its children.
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 # Every test that runs Dr.Jit runs on each variant this machine has: llvm_ad_mono, and cuda_ad_mono
 # where a GPU is usable.
