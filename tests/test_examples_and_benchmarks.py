@@ -1,5 +1,6 @@
 """Every example and benchmark runs (quick versions, no timing assertions), so none can rot."""
 
+import json
 import os
 import subprocess
 import sys
@@ -234,7 +235,7 @@ def test_warm_render_benchmark_renders_a_scene_cold_then_warm(tmp_path):
     runs = [line.split(":")[0] for line in stdout.splitlines()]
     points = {line.split(" CPU, ")[1].split(" points")[0] for line in stdout.splitlines()}
     assert runs == ["cold", "warm"] and len(points) == 1, stdout          # the same points both times
-    manifest = __import__("json").loads((tmp_path / "manifest.json").read_text())
+    manifest = json.loads((tmp_path / "manifest.json").read_text())
     assert f"{manifest['points']:,}" in points and manifest["scene"]["simulation"]["beam_samples"] == 3
 
 

@@ -132,8 +132,8 @@ def tile_figure(tile):
     panel_in = 3.6                                   # width of one panel's tile, inches
     height_in = panel_in * (z_range[1] - z_range[0]) / tile.tile
     rows = max(len(present), 10) / 2          # legend rows (two columns; the instances' legend has up to 10)
-    fig = _figure(3 * (panel_in + 0.45) + 0.4, height_in + 0.7 + LEGEND_DROP_IN + 0.25 * rows,   # title, ticks, legend
-                  left=0.6, right=0.1, bottom=0.45 + LEGEND_DROP_IN + 0.25 * rows, top=0.25,
+    top, bottom = 0.25, 0.45 + LEGEND_DROP_IN + 0.25 * rows       # title; ticks, x label and legend
+    fig = _figure(3 * (panel_in + 0.45) + 0.4, top + height_in + bottom, left=0.6, right=0.1, bottom=bottom, top=top,
                   between=0.45 / panel_in)
     axes = fig.subplots(1, 3, sharey=True)
     for ax, (title, image, codes) in zip(axes, panels):
