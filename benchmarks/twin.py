@@ -6,6 +6,7 @@ twin rendered and compared with its real scan.
     python benchmarks/twin.py --calibrate 3       # calibrate each twin's crowns in up to 3 renders first
     python benchmarks/twin.py --scans UAS_Clip.laz   # one scan only
     python benchmarks/twin.py --factors 2.7 1.07  # one render at fixed calibration factors (leaf area, radius)
+    python benchmarks/twin.py --factors 3.31 1.09 0.25   # ... and crown contrast
     python benchmarks/twin.py --factors 3.31 1.09 --archetype leaf_lift=0.5   # ... with the twin's archetypes changed
     python benchmarks/twin.py --out DIR           # where twins and renders go (default benchmarks/out/twin)
     python benchmarks/twin.py --real DIR          # the real scans' folder (default ../shared/data/real)
@@ -113,6 +114,21 @@ def change_archetypes(scene_file: Path, changes: dict) -> None:
     scene_file.write_text(yaml.safe_dump(doc, sort_keys=False))
 
 
+def apply_factors(trees_file: Path, stand_ratio, leaf: float, radius: float, contrast: float | None = None) -> int:
+    """Rescale a new twin's ``trees.csv`` as a calibration that ended at these factors would (twin/calibrate.py);
+    returns the trees at the leaf area cap."""
+    from mitsuforest.twin import calibrate
+    ratios = None
+    if contrast is not None:
+        rows = calibrate.read_trees(trees_file)
+        base = calibrate.base_crown_ratios(rows, stand_ratio)
+        if base is None:
+            raise SystemExit(f"{trees_file}: the trees have no crown ratio for a crown contrast")
+        dominant = calibrate.dominant_crowns([float(r["crown_radius"]) for r in rows])
+        ratios = calibrate.contrast_ratios(base, dominant, contrast)
+    return calibrate.rescale_trees(trees_file, leaf, radius, ratios)
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "out" / "twin")
@@ -121,8 +137,9 @@ def main() -> None:
     p.add_argument("--variant", help="Mitsuba variant for the renders (default: auto)")
     p.add_argument("--calibrate", type=int, default=0, metavar="N",
                    help="calibrate each twin's crowns against its scan in up to N renders (mitsuforest twin --calibrate)")
-    p.add_argument("--factors", nargs=2, type=float, metavar=("LEAF", "RADIUS"),
-                   help="instead of calibrating: leaf area per crown area and crown radius times these, one render")
+    p.add_argument("--factors", nargs="+", type=float, metavar="LEAF RADIUS [CONTRAST]",
+                   help="instead of calibrating: leaf area per crown area and crown radius times these, and the crown "
+                        "contrast when given (default 0), one render")
     p.add_argument("--archetype", nargs="+", default=[], metavar="FIELD=VALUE",
                    help="with --factors: set these archetype fields of the twin's trees (e.g. leaf_lift=0.5)")
     p.add_argument("--scans", nargs="+", default=list(SCANS), metavar="NAME", help="which scans (default: both)")
@@ -131,6 +148,8 @@ def main() -> None:
         p.error("--factors and --calibrate: choose one")
     if args.archetype and not args.factors:
         p.error("--archetype needs --factors")
+    if args.factors and len(args.factors) not in (2, 3):
+        p.error("--factors: LEAF RADIUS [CONTRAST], two or three numbers")
     changes = dict(archetype_change(item, p) for item in args.archetype)
     from mitsuforest.twin import make_twin
     for name in args.scans:
@@ -143,9 +162,9 @@ def main() -> None:
         report = make_twin(path, folder, log=lambda msg: print("  " + msg),
                            calibrate=0 if args.no_render else args.calibrate, variant=args.variant)
         if args.factors:
-            from mitsuforest.twin.calibrate import rescale_trees
-            capped = rescale_trees(folder / "trees.csv", *args.factors)
+            capped = apply_factors(folder / "trees.csv", report["trees"]["crown_ratio"], *args.factors)
             print(f"  trees.csv: leaf area per crown area x{args.factors[0]:g}, crown radius x{args.factors[1]:g}"
+                  + (f", crown contrast {args.factors[2]:g}" if len(args.factors) > 2 else "")
                   + (f" ({capped} trees at the leaf area cap)" if capped else ""))
             if changes:
                 change_archetypes(folder / f"{path.stem}.yaml", changes)

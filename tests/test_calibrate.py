@@ -6,7 +6,9 @@ import numpy as np
 import pytest
 
 from mitsuforest.twin import TwinFrame
-from mitsuforest.twin.calibrate import canopy_state, converged, crown_scale, lai_scale, rescale_trees
+from mitsuforest.twin.calibrate import (CONTRAST_LIMITS, CONTRAST_SLOPE, base_crown_ratios, canopy_spread, canopy_state,
+                                        contrast_ratios, contrast_step, converged, crown_scale, dominant_crowns,
+                                        lai_scale, rescale_trees, spread_slope)
 
 
 @pytest.mark.parametrize("lai_twin, lai_real, zenith", [(1.5, 4.2, 30.0), (6.0, 2.0, 0.0), (3.0, 3.0, 15.0)])
@@ -53,7 +55,10 @@ def test_canopy_state_counts_gap_and_cover_of_a_constructed_cloud():
     state = canopy_state(np.array(xs), np.array(ys), np.array(zs), np.ones(len(xs), int), dem, (-1.0, -1.0), frame)
     assert state["cover"] == pytest.approx(0.6)
     assert state["gap_fraction"] == pytest.approx(5 / 20)
-    assert converged(state, state)
+    assert state["spread"] == 0.0                 # every return in the canopy at 10 m
+    assert converged(state, state) and converged(state, state, spread=True)
+    assert not converged(state, {**state, "spread": 0.6}, spread=True)
+    assert converged(state, {**state, "spread": 0.6})
     assert not converged(state, {"gap_fraction": 0.5, "cover": 0.6})
     assert not converged(state, {"gap_fraction": 0.25, "cover": 0.5})
 
@@ -140,3 +145,51 @@ def test_each_tree_gets_its_own_crown_ratio_where_it_has_returns_enough():
     assert ratios[:2] == pytest.approx([0.3, 0.7], abs=0.015)
     assert ratios[2] == 0.42
     assert np.isnan(tree_crown_ratios([50.0], [0.0], [1.0], trees_x, trees_y, heights, np.full(3, 3.0), None)).all()
+
+
+def test_canopy_spread_is_the_interquartile_range_of_the_heights_in_the_canopy():
+    h = np.r_[np.zeros(5000), np.linspace(2.0, 22.0, 10_001)]      # ground, then uniform 2-22 m
+    assert canopy_spread(h) == pytest.approx(10.0, abs=1e-9)       # quartiles at 7 and 17 m
+    assert canopy_spread(np.r_[np.zeros(5000), np.full(99, 10.0)]) is None    # under 100 canopy returns
+
+
+def test_the_widest_quarter_of_the_crowns_are_the_dominants_and_the_contrast_moves_both_kinds():
+    radius = np.arange(1.0, 9.0)                                   # 1..8 m: the quantile 0.75 is 6.25 m
+    dominant = dominant_crowns(radius)
+    assert dominant.tolist() == [False] * 6 + [True] * 2
+    ratios = contrast_ratios(np.full(8, 0.4), dominant, 0.25)
+    assert ratios.tolist() == pytest.approx([0.6] * 6 + [0.3] * 2)   # x 1.5 and x 0.75
+    assert contrast_ratios([0.8, 0.8], [False, True], 0.25).tolist() == pytest.approx([0.95, 0.6])  # at most 0.95
+    assert contrast_ratios([0.4], [True], 0.0).tolist() == [0.4]
+    assert dominant_crowns([]).tolist() == []
+
+
+def test_a_secant_contrast_step_lands_on_a_linear_spread_the_first_guess_missed():
+    def spread(c):                 # the twin's spread answers 14 m per unit of contrast from 5.2 m
+        return 5.2 + 14.0 * c
+    target, c0 = 8.9, 0.0
+    c1 = contrast_step(c0, target, spread(c0))
+    assert c1 == pytest.approx((target - 5.2) / CONTRAST_SLOPE)    # the first step assumes 10 m a unit
+    slope = spread_slope((c0, spread(c0)), (c1, spread(c1)))
+    assert slope == pytest.approx(14.0)
+    c2 = contrast_step(c1, target, spread(c1), slope)
+    assert spread(c2) == pytest.approx(target)
+    assert contrast_step(0.4, 30.0, 5.0) == CONTRAST_LIMITS[1] and contrast_step(0.1, 0.0, 9.0) == CONTRAST_LIMITS[0]
+    assert spread_slope((0.2, 6.0), (0.2, 7.0)) == CONTRAST_SLOPE          # no step: the guess
+    assert spread_slope((0.0, 6.0), (0.2, 5.0)) == CONTRAST_SLOPE          # spread fell: the guess
+
+
+def test_crown_ratios_are_the_tree_s_own_or_the_stand_s_and_rescale_writes_them(tmp_path):
+    f = tmp_path / "trees.csv"
+    f.write_text("x,y,height,crown_radius,species,leaf_area,crown_ratio\n"
+                 "1.000,2.000,20.000,2.000,pinus_radiata,50.27,0.300\n3.000,4.000,10.000,1.000,pinus_radiata,12.57,\n")
+    rows = [dict(zip(("crown_ratio",), (r,))) for r in ("0.300", "")]
+    assert base_crown_ratios(rows, 0.42).tolist() == [0.3, 0.42]
+    assert base_crown_ratios(rows, None) is None
+    rescale_trees(f, 1.0, 1.0, np.array([0.225, 0.63]))
+    assert [r.split(",")[-1] for r in f.read_text().splitlines()] == ["crown_ratio", "0.225", "0.630"]
+    g = tmp_path / "plain.csv"
+    g.write_text("x,y,height,crown_radius,species\n1.000,2.000,20.000,2.000,pinus_radiata\n")
+    rescale_trees(g, 1.0, 1.0, np.array([0.5]))
+    assert g.read_text().splitlines() == ["x,y,height,crown_radius,species,crown_ratio",
+                                          "1.000,2.000,20.000,2.000,pinus_radiata,0.500"]

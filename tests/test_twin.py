@@ -91,6 +91,34 @@ def test_twin_scene_loads_and_plans_one_model_per_tree(demo_twin):
     assert scene.forest.surround > 0 and len(plan.trees) > len(inside)      # the stand around the plot: copies
 
 
+def test_one_calibration_render_rescales_leaf_width_and_depth_by_its_rules(demo_twin, tmp_path):
+    """One render of the twin of our own scan, measured against that scan: the step written to
+    ``twin.json`` and ``trees.csv`` is the one the update rules give for the measures it reports."""
+    import shutil
+    from mitsuforest.twin import analyse, calibrate as c
+    from mitsuforest.twin.points import read_scan
+    _, laz, out, report = demo_twin
+    folder = tmp_path / "twin"
+    shutil.copytree(out, folder)
+    before = c.read_trees(folder / "trees.csv")
+    scan = read_scan(laz)
+    record = c.calibrate(scan, analyse(scan), folder, report_name(out), 1, log=lambda *_: None)
+    real, (step,) = record["real"], record["steps"]
+    assert real["spread"] > 1.0 and step["spread"] > 1.0 and 0 < step["gap_fraction"] < 1
+    assert json.loads((folder / "twin.json").read_text())["calibration"] == json.loads(json.dumps(record))
+    assert not record["converged"]        # the demo's twin: spread 3.8 m against the scan's 6.3 m
+    assert step["lai_factor"] == pytest.approx(c.lai_scale(real["gap_fraction"], step["gap_fraction"]))
+    assert step["crown_factor"] == pytest.approx(c.crown_scale(real["cover"], step["cover"]))
+    assert record["crown_contrast"] == pytest.approx(c.contrast_step(0.0, real["spread"], step["spread"]))
+    after = c.read_trees(folder / "trees.csv")
+    base = c.base_crown_ratios(before, report["trees"]["crown_ratio"])
+    dominant = c.dominant_crowns([float(r["crown_radius"]) for r in before])
+    expected = c.contrast_ratios(base, dominant, record["crown_contrast"])
+    assert [float(r["crown_ratio"]) for r in after] == pytest.approx(expected, abs=5e-4)
+    assert [float(r["crown_radius"]) for r in after] == pytest.approx(
+        [float(r["crown_radius"]) * step["crown_factor"] for r in before], abs=5e-4)
+
+
 def test_surround_repeats_the_listed_trees_around_the_plot_with_its_period(tmp_path):
     """``forest.surround: 15`` around a 20 x 20 m plot: a tree at (5, 5) has copies at 5 + 20 i, 5 + 20 j
     within 15 m outside the plot (i, j in -1..1, not both 0: 8), one at (14, 12) at 14 + 20 i, 12 + 20 j

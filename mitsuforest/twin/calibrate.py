@@ -20,6 +20,16 @@ From the second step on, each exponent (1 for Beer-Lambert, 2 for the crown area
 step showed (:func:`response_exponent`, a secant step): clumped shoots answer more leaf area with less
 shade than random leaves, and overlapping crowns answer a wider radius with less cover than discs apart.
 
+A third measure sets the crowns' depth by their rank: the canopy's vertical spread, the interquartile
+range of the heights of all returns 2 m or more above the ground (:func:`canopy_spread`). A real stand
+holds dominant crowns, whose dense tops stop the pulses high, and smaller ones whose returns reach far
+down; crowns whose depth is measured on each tree's returns (``crown_ratio``) and then filled as cones of
+uniform leaf density pile the twin's returns into a narrower band (UAS_Clip: 5.3 m against the real 8.9 m).
+The crown contrast ``c`` (:func:`contrast_ratios`) makes the widest quarter of the crowns (the dominants)
+shallower, their crown ratio times ``1 - c``, and the others deeper, times ``1 + 2 c``; each step moves ``c``
+by the spread still missing over the spread a unit of ``c`` gave (:func:`contrast_step`; the first step
+assumes :data:`CONTRAST_SLOPE`, later ones the last step's secant).
+
 The loop (:func:`calibrate`) stops when both are within tolerance or after ``iterations`` renders; each
 render is the scene as written (same seed, same beam), so the result is deterministic.
 """
@@ -46,6 +56,12 @@ COVER_TOLERANCE = 0.03  # |cover_twin - cover_real|
 SCALE_LIMITS = (0.25, 4.0)   # one step changes LAI or crown radius by at most this factor
 MIN_GAP = foliage.MIN_GAP
 MAX_LEAF_AREA = FIELDS["leaf_area"].metadata["hi"]   # m²: the most a procedural tree carries
+RATIO_LIMITS = (FIELDS["crown_ratio"].metadata["lo"], FIELDS["crown_ratio"].metadata["hi"])
+SPREAD_TOLERANCE = 0.5      # m: |spread_twin - spread_real|
+CONTRAST_LIMITS = (0.0, 0.45)
+CONTRAST_SLOPE = 10.0       # m of spread per unit of contrast, the first step's guess (UAS_Clip's twin showed 11)
+DOMINANT_SHARE = 0.25       # the widest quarter of the crowns are the dominants
+MIN_SPREAD_RETURNS = 100    # returns in the canopy, fewer and the spread is not measured
 
 
 def lai_scale(p_real: float, p_twin: float, exponent: float = 1.0) -> float:
@@ -74,45 +90,108 @@ def response_exponent(before: float, after: float, factor: float, default: float
     return float(min(max(math.log(after / before) / math.log(factor), 0.1), 4.0 * default))
 
 
+def canopy_spread(h) -> float | None:
+    """The canopy's vertical spread (m): the interquartile range of the heights ``h`` (n,) above the
+    ground that are at or above :data:`CANOPY_HEIGHT`; ``None`` under :data:`MIN_SPREAD_RETURNS` of them."""
+    canopy = np.asarray(h, float)
+    canopy = canopy[canopy >= CANOPY_HEIGHT]
+    if len(canopy) < MIN_SPREAD_RETURNS:
+        return None
+    q1, q3 = np.quantile(canopy, [0.25, 0.75])
+    return float(q3 - q1)
+
+
+def dominant_crowns(radius) -> np.ndarray:
+    """(k,) bool: the crowns of ``radius`` (k,) in the widest :data:`DOMINANT_SHARE` (at or above its quantile)."""
+    radius = np.asarray(radius, float)
+    if not len(radius):
+        return np.zeros(0, bool)
+    return radius >= np.quantile(radius, 1.0 - DOMINANT_SHARE)
+
+
+def contrast_ratios(base, dominant, contrast: float) -> np.ndarray:
+    """(k,) crown ratios at crown contrast ``contrast``: the ``dominant`` crowns' ``base`` ratio times
+    ``1 - contrast``, the others' times ``1 + 2 contrast``, within :data:`RATIO_LIMITS`."""
+    factor = np.where(dominant, 1.0 - contrast, 1.0 + 2.0 * contrast)
+    return np.clip(np.asarray(base, float) * factor, *RATIO_LIMITS)
+
+
+def contrast_step(contrast: float, spread_real: float, spread_twin: float, slope: float = CONTRAST_SLOPE) -> float:
+    """The next crown contrast: ``contrast`` moved by the spread still missing over ``slope`` (m of spread
+    per unit of contrast), within :data:`CONTRAST_LIMITS`."""
+    return float(min(max(contrast + (spread_real - spread_twin) / slope, CONTRAST_LIMITS[0]), CONTRAST_LIMITS[1]))
+
+
+def spread_slope(before: tuple[float, float], after: tuple[float, float]) -> float:
+    """The spread a unit of contrast gave between two renders, each ``(contrast, spread)``: the secant, or
+    :data:`CONTRAST_SLOPE` where the contrast hardly moved or the spread did not grow with it."""
+    dc = after[0] - before[0]
+    if abs(dc) < 0.01 or (after[1] - before[1]) / dc < 0.1 * CONTRAST_SLOPE:
+        return CONTRAST_SLOPE
+    return float((after[1] - before[1]) / dc)
+
+
 def _bounded(k: float) -> float:
     return float(min(max(k, SCALE_LIMITS[0]), SCALE_LIMITS[1]))
 
 
 def canopy_state(x, y, z, return_number, dem: np.ndarray, dem_origin, frame) -> dict:
-    """The crown gap fraction and canopy cover of a scan over the plot ``frame`` (a :class:`~.TwinFrame`),
-    heights over ``dem`` (1 m cells from ``dem_origin``). Arrays of shape (n,)."""
+    """The crown gap fraction, canopy cover and canopy spread (:func:`canopy_spread`, of all returns) of a
+    scan over the plot ``frame`` (a :class:`~.TwinFrame`), heights over ``dem`` (1 m cells from
+    ``dem_origin``). Arrays of shape (n,)."""
     from . import DEM_CELL
     x, y, z = (np.asarray(a, float) for a in (x, y, z))
     h = z - ground.ground_height(dem, dem_origin[0], dem_origin[1], DEM_CELL, x, y)
     first = np.asarray(return_number) == 1
     x0, y0 = frame.offset[0], frame.offset[1]
     shape = (int(math.ceil(frame.size[1] / CHM_CELL)), int(math.ceil(frame.size[0] / CHM_CELL)))
-    inside = first & (x >= x0) & (y >= y0) & (x < x0 + shape[1] * CHM_CELL) & (y < y0 + shape[0] * CHM_CELL)
+    in_plot = (x >= x0) & (y >= y0) & (x < x0 + shape[1] * CHM_CELL) & (y < y0 + shape[0] * CHM_CELL)
+    inside = first & in_plot
     chm = detection.canopy_height_model(x[inside], y[inside], h[inside], x0, y0, shape, CHM_CELL)
     row, col = ground.grid_index(x[inside], y[inside], x0, y0, CHM_CELL, shape)
     counted = np.zeros(shape, bool)
     counted[row, col] = True
     gap = foliage.crown_gap_fraction(h[inside], chm[row, col] >= CANOPY_HEIGHT)
     cover = float(np.mean(chm[counted] >= CANOPY_HEIGHT)) if counted.any() else 0.0
-    return {"gap_fraction": gap, "cover": cover}
+    return {"gap_fraction": gap, "cover": cover, "spread": canopy_spread(h[in_plot])}
 
 
-def converged(real: dict, twin: dict) -> bool:
-    """Both measures within tolerance (:data:`GAP_TOLERANCE` on the LAI step, :data:`COVER_TOLERANCE`)."""
+def converged(real: dict, twin: dict, spread: bool = False) -> bool:
+    """The measures within tolerance (:data:`GAP_TOLERANCE` on the LAI step, :data:`COVER_TOLERANCE`
+    and, with ``spread``, :data:`SPREAD_TOLERANCE`)."""
     lai_step = abs(lai_scale(real["gap_fraction"], twin["gap_fraction"]) - 1.0)
-    return lai_step <= GAP_TOLERANCE and abs(twin["cover"] - real["cover"]) <= COVER_TOLERANCE
+    spread_off = spread and (twin.get("spread") is None or abs(twin["spread"] - real["spread"]) > SPREAD_TOLERANCE)
+    return lai_step <= GAP_TOLERANCE and abs(twin["cover"] - real["cover"]) <= COVER_TOLERANCE and not spread_off
 
 
-def rescale_trees(path: Path, lai_factor: float, radius_factor: float) -> int:
+def read_trees(path: Path) -> list[dict]:
+    """The rows of a twin's ``trees.csv``."""
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def base_crown_ratios(rows: list[dict], stand: float | None) -> np.ndarray | None:
+    """(k,) the crown ratio of each row of ``trees.csv``: its own, else the ``stand``'s; ``None`` where a
+    tree has neither (the template's ratio, which the crown contrast cannot scale)."""
+    ratios = np.array([float(r["crown_ratio"]) if r.get("crown_ratio") else np.nan for r in rows], float)
+    ratios[np.isnan(ratios)] = np.nan if stand is None else stand
+    return None if np.isnan(ratios).any() or not len(ratios) else ratios
+
+
+def rescale_trees(path: Path, lai_factor: float, radius_factor: float, crown_ratios=None) -> int:
     """Rewrite ``trees.csv``: each crown radius times ``radius_factor``, each leaf area times
     ``lai_factor · radius_factor²`` (its LAI times the new crown area), at most the
-    :data:`MAX_LEAF_AREA` a tree may carry; returns how many trees are at that cap."""
-    with open(path, newline="") as f:
-        rows = list(csv.DictReader(f))
+    :data:`MAX_LEAF_AREA` a tree may carry, and, when given, each tree's crown ratio ``crown_ratios`` (k,);
+    returns how many trees are at that cap."""
+    rows = read_trees(path)
     fields = list(rows[0].keys()) if rows else []
+    if crown_ratios is not None and "crown_ratio" not in fields:
+        fields.append("crown_ratio")
     capped = 0
-    for r in rows:
+    for i, r in enumerate(rows):
         r["crown_radius"] = f"{float(r['crown_radius']) * radius_factor:.3f}"
+        if crown_ratios is not None:
+            r["crown_ratio"] = f"{crown_ratios[i]:.3f}"
         if r.get("leaf_area"):
             leaf = float(r["leaf_area"]) * lai_factor * radius_factor ** 2
             capped += leaf >= MAX_LEAF_AREA
@@ -128,31 +207,32 @@ def calibrate(real_scan, analysis: dict, folder: Path, name: str, iterations: in
               log=None) -> dict:
     """Render the twin in ``folder`` up to ``iterations`` times, rescaling ``trees.csv`` after each render
     that is not within tolerance; returns the record kept in ``twin.json`` (``calibration``): the real
-    measures, each step's twin measures and factors, and the total factors applied."""
+    measures, each step's twin measures and factors, the total factors applied and the crown contrast."""
     from ..pipeline import render
     from .points import read_scan
     log = log or (lambda msg: print(msg, file=sys.stderr))
     frame, dem, origin = analysis["frame"], analysis["dem"], analysis["dem_origin"]
     real = canopy_state(real_scan.x, real_scan.y, real_scan.z, real_scan.return_number, dem, origin, frame)
-    record = {"real": real, "steps": [], "lai_factor": 1.0, "crown_factor": 1.0, "converged": False}
+    record = {"real": real, "steps": [], "lai_factor": 1.0, "crown_factor": 1.0, "crown_contrast": 0.0,
+              "converged": False}
     if real["gap_fraction"] is None:
         record["note"] = "the real scan has no canopy: nothing to calibrate"
         return record
+    rows = read_trees(folder / "trees.csv")
+    base_ratios = base_crown_ratios(rows, analysis.get("crown_ratio"))
+    dominant = dominant_crowns([float(r["crown_radius"]) for r in rows])
+    with_contrast = base_ratios is not None and real["spread"] is not None
+    if not with_contrast:
+        record["note"] = "no crown contrast: " + ("the real scan's canopy holds too few returns"
+                                                  if base_ratios is not None else "the trees have no crown ratio")
     for i in range(iterations):
-        work = Path(tempfile.mkdtemp(prefix=".calibrate.", dir=folder))
-        try:
-            result = render(folder / f"{name}.yaml", output_dir=work, variant=variant, overwrite=True,
-                            progress=False, log=lambda *_: None)
-            twin_scan = read_scan(next(f for f in map(str, result.files) if f.endswith((".laz", ".las"))))
-        finally:
-            shutil.rmtree(work, ignore_errors=True)
-        twin = canopy_state(twin_scan.x, twin_scan.y, twin_scan.z, twin_scan.return_number, dem, origin, frame)
-        step = {"gap_fraction": twin["gap_fraction"], "cover": twin["cover"]}
-        if twin["gap_fraction"] is None or converged(real, twin):
+        twin = _render_state(folder / f"{name}.yaml", variant, real_scan, analysis, render, read_scan)
+        step = {"gap_fraction": twin["gap_fraction"], "cover": twin["cover"], "spread": twin["spread"],
+                "crown_contrast": record["crown_contrast"]}
+        if twin["gap_fraction"] is None or converged(real, twin, spread=with_contrast):
             record["steps"].append(step)
             record["converged"] = twin["gap_fraction"] is not None
-            log(f"twin: calibration {i + 1}: gap fraction {_f(twin['gap_fraction'])} (real {real['gap_fraction']:.3f}), "
-                f"cover {twin['cover']:.3f} (real {real['cover']:.3f}): within tolerance")
+            log(f"twin: calibration {i + 1}: {_measures(twin, real)}: within tolerance")
             break
         if record["steps"]:          # secant: the exponents the last step showed
             last = record["steps"][-1]
@@ -164,13 +244,21 @@ def calibrate(real_scan, analysis: dict, folder: Path, name: str, iterations: in
         k_lai = lai_scale(real["gap_fraction"], twin["gap_fraction"], lai_exp)
         k_r = crown_scale(real["cover"], twin["cover"], cover_exp)
         step.update(lai_factor=k_lai, crown_factor=k_r, lai_exponent=lai_exp, cover_exponent=cover_exp)
+        ratios = None
+        if with_contrast and twin["spread"] is not None:
+            slope = CONTRAST_SLOPE
+            if record["steps"] and record["steps"][-1]["spread"] is not None:
+                last = record["steps"][-1]
+                slope = spread_slope((last["crown_contrast"], last["spread"]), (step["crown_contrast"], twin["spread"]))
+            record["crown_contrast"] = contrast_step(record["crown_contrast"], real["spread"], twin["spread"], slope)
+            step["spread_slope"] = slope
+            ratios = contrast_ratios(base_ratios, dominant, record["crown_contrast"])
         record["steps"].append(step)
         record["lai_factor"] *= k_lai
         record["crown_factor"] *= k_r
-        log(f"twin: calibration {i + 1}: gap fraction {twin['gap_fraction']:.3f} (real {real['gap_fraction']:.3f}), "
-            f"cover {twin['cover']:.3f} (real {real['cover']:.3f}): leaf area per crown area x{k_lai:.3f}, "
-            f"crown radius x{k_r:.3f}")
-        step["trees_at_leaf_cap"] = rescale_trees(folder / "trees.csv", k_lai, k_r)
+        log(f"twin: calibration {i + 1}: {_measures(twin, real)}: leaf area per crown area x{k_lai:.3f}, "
+            f"crown radius x{k_r:.3f}" + (f", crown contrast {record['crown_contrast']:.3f}" if ratios is not None else ""))
+        step["trees_at_leaf_cap"] = rescale_trees(folder / "trees.csv", k_lai, k_r, ratios)
         if step["trees_at_leaf_cap"]:
             log(f"twin: calibration {i + 1}: {step['trees_at_leaf_cap']} trees at the {MAX_LEAF_AREA:g} m² leaf area "
                 "a tree may carry")
@@ -179,6 +267,27 @@ def calibrate(real_scan, analysis: dict, folder: Path, name: str, iterations: in
     report["calibration"] = record
     report_file.write_text(json.dumps(report, indent=1) + "\n")
     return record
+
+
+def _render_state(scene_file: Path, variant, real_scan, analysis: dict, render, read_scan) -> dict:
+    """Render the twin's scene into a scratch folder beside it and measure it (:func:`canopy_state`)."""
+    work = Path(tempfile.mkdtemp(prefix=".calibrate.", dir=scene_file.parent))
+    try:
+        result = render(scene_file, output_dir=work, variant=variant, overwrite=True, progress=False,
+                        log=lambda *_: None)
+        twin_scan = read_scan(next(f for f in map(str, result.files) if f.endswith((".laz", ".las"))))
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    return canopy_state(twin_scan.x, twin_scan.y, twin_scan.z, twin_scan.return_number, analysis["dem"],
+                        analysis["dem_origin"], analysis["frame"])
+
+
+def _measures(twin: dict, real: dict) -> str:
+    text = (f"gap fraction {_f(twin['gap_fraction'])} (real {real['gap_fraction']:.3f}), "
+            f"cover {twin['cover']:.3f} (real {real['cover']:.3f})")
+    if real.get("spread") is not None:
+        text += f", canopy spread {_f(twin['spread'])} m (real {real['spread']:.3f} m)"
+    return text
 
 
 def _f(value) -> str:
