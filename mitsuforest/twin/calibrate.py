@@ -208,8 +208,6 @@ def calibrate(real_scan, analysis: dict, folder: Path, name: str, iterations: in
     """Render the twin in ``folder`` up to ``iterations`` times, rescaling ``trees.csv`` after each render
     that is not within tolerance; returns the record kept in ``twin.json`` (``calibration``): the real
     measures, each step's twin measures and factors, the total factors applied and the crown contrast."""
-    from ..pipeline import render
-    from .points import read_scan
     log = log or (lambda msg: print(msg, file=sys.stderr))
     frame, dem, origin = analysis["frame"], analysis["dem"], analysis["dem_origin"]
     real = canopy_state(real_scan.x, real_scan.y, real_scan.z, real_scan.return_number, dem, origin, frame)
@@ -226,7 +224,7 @@ def calibrate(real_scan, analysis: dict, folder: Path, name: str, iterations: in
         record["note"] = "no crown contrast: " + ("the real scan's canopy holds too few returns"
                                                   if base_ratios is not None else "the trees have no crown ratio")
     for i in range(iterations):
-        twin = _render_state(folder / f"{name}.yaml", variant, real_scan, analysis, render, read_scan)
+        twin = _render_state(folder / f"{name}.yaml", variant, analysis)
         step = {"gap_fraction": twin["gap_fraction"], "cover": twin["cover"], "spread": twin["spread"],
                 "crown_contrast": record["crown_contrast"]}
         if twin["gap_fraction"] is None or converged(real, twin, spread=with_contrast):
@@ -269,8 +267,10 @@ def calibrate(real_scan, analysis: dict, folder: Path, name: str, iterations: in
     return record
 
 
-def _render_state(scene_file: Path, variant, real_scan, analysis: dict, render, read_scan) -> dict:
+def _render_state(scene_file: Path, variant: str | None, analysis: dict) -> dict:
     """Render the twin's scene into a scratch folder beside it and measure it (:func:`canopy_state`)."""
+    from ..pipeline import render
+    from .points import read_scan
     work = Path(tempfile.mkdtemp(prefix=".calibrate.", dir=scene_file.parent))
     try:
         result = render(scene_file, output_dir=work, variant=variant, overwrite=True, progress=False,

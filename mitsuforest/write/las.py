@@ -122,8 +122,11 @@ def las_records(header: laspy.LasHeader, points: np.ndarray, out: np.ndarray | N
     :raises OverflowError: a coordinate that the header's scale and offset cannot hold.
     """
     out = np.empty(len(points), header.point_format.dtype()) if out is None else out
-    for name in _unfilled(out.dtype):
-        out[name] = 0
+    if out.flags.c_contiguous:      # one pass over the bytes: a field at a time costs four times as much
+        out.view(np.uint8).fill(0)
+    else:
+        for name in _unfilled(out.dtype):
+            out[name] = 0
     names = points.dtype.names
     reflectance = _reflectance(points)
     for field in LAS_FIELDS:
