@@ -86,7 +86,8 @@ def _parser() -> argparse.ArgumentParser:
     tw.add_argument("--name", help="the scene's name (default: the file's stem)")
     tw.add_argument("--calibrate", type=int, default=0, metavar="N",
                     help="render the twin up to N times, rescaling its crowns' leaf area, width and depth towards the "
-                         "real scan's gap fraction, canopy cover and canopy spread after each (default 0: no renders)")
+                         "real scan's echoes per pulse (or gap fraction), canopy cover and canopy spread after each "
+                         "(default 0: no renders)")
     tw.add_argument("--variant", help="Mitsuba variant of the calibration renders (default: auto)")
 
     i = sub.add_parser("info", help="summarise a point file", description="Summarise a PCD, LAS or LAZ file.")

@@ -8,7 +8,8 @@ import pytest
 from mitsuforest.twin import TwinFrame
 from mitsuforest.twin.calibrate import (CONTRAST_LIMITS, CONTRAST_SLOPE, base_crown_ratios, canopy_spread, canopy_state,
                                         contrast_ratios, contrast_step, converged, crown_scale, dominant_crowns,
-                                        lai_scale, rescale_trees, spread_slope)
+                                        echo_scale, lai_scale, leaf_exponent, leaf_rule, leaf_scale, rescale_trees,
+                                        spread_slope)
 
 
 @pytest.mark.parametrize("lai_twin, lai_real, zenith", [(1.5, 4.2, 30.0), (6.0, 2.0, 0.0), (3.0, 3.0, 15.0)])
@@ -56,6 +57,10 @@ def test_canopy_state_counts_gap_and_cover_of_a_constructed_cloud():
     assert state["cover"] == pytest.approx(0.6)
     assert state["gap_fraction"] == pytest.approx(5 / 20)
     assert state["spread"] == 0.0                 # every return in the canopy at 10 m
+    assert state["echoes_per_pulse"] == 1.0 and leaf_rule(state) == "gap fraction"
+    second = np.where(np.arange(len(xs)) % 4 == 0, 2, 1)          # a quarter of the points are second returns
+    echoes = canopy_state(np.array(xs), np.array(ys), np.array(zs), second, dem, (-1.0, -1.0), frame)["echoes_per_pulse"]
+    assert echoes == pytest.approx(4 / 3)
     assert converged(state, state) and converged(state, state, spread=True)
     assert not converged(state, {**state, "spread": 0.6}, spread=True)
     assert converged(state, {**state, "spread": 0.6})
@@ -193,3 +198,34 @@ def test_crown_ratios_are_the_tree_s_own_or_the_stand_s_and_rescale_writes_them(
     rescale_trees(g, 1.0, 1.0, np.array([0.5]))
     assert g.read_text().splitlines() == ["x,y,height,crown_radius,species,crown_ratio",
                                           "1.000,2.000,20.000,2.000,pinus_radiata,0.500"]
+
+
+@pytest.mark.parametrize("exponent", [1.0, 0.6])
+def test_the_echo_rule_lands_on_a_power_law_of_excess_echoes_in_one_step_then_by_secant(exponent):
+    """Echoes beyond the first fall as LAI^-exponent: E = 1 + 1.9 LAI^-exponent. The first step (exponent
+    1) hits where the law is 1; the secant shows 0.6 where it is not, and the next step lands."""
+    def echoes(lai):
+        return 1.0 + 1.9 * lai ** -exponent
+    real = {"echoes_per_pulse": echoes(3.3), "gap_fraction": 0.1}
+    lai = 1.0
+    twin = {"echoes_per_pulse": echoes(lai), "gap_fraction": 0.2}
+    assert leaf_rule(real) == "echoes"
+    k1 = leaf_scale(real, twin)
+    assert k1 == pytest.approx((echoes(lai) - 1) / (echoes(3.3) - 1)) == echo_scale(real["echoes_per_pulse"],
+                                                                                    twin["echoes_per_pulse"])
+    after = {"echoes_per_pulse": echoes(lai * k1), "gap_fraction": 0.15}
+    if exponent == 1.0:
+        assert lai * k1 == pytest.approx(3.3)
+        return
+    shown = leaf_exponent(real, twin, after, k1)
+    assert shown == pytest.approx(0.6, rel=1e-9)
+    assert lai * k1 * leaf_scale(real, after, shown) == pytest.approx(3.3, rel=1e-9)
+
+
+def test_a_scan_of_single_returns_sets_the_leaf_by_the_gap_fraction():
+    real = {"echoes_per_pulse": 1.01, "gap_fraction": 0.1}
+    twin = {"echoes_per_pulse": 1.5, "gap_fraction": 0.2}
+    assert leaf_rule(real) == "gap fraction" and leaf_rule({"gap_fraction": 0.1}) == "gap fraction"
+    assert leaf_scale(real, twin) == lai_scale(0.1, 0.2)
+    assert echo_scale(1.5, 1.0) == 0.25            # the excess floored at MIN_EXCESS, the step at /4
+    assert converged({**real, "cover": 0.5}, {**twin, "gap_fraction": 0.1, "cover": 0.5})

@@ -107,7 +107,8 @@ def test_one_calibration_render_rescales_leaf_width_and_depth_by_its_rules(demo_
     assert real["spread"] > 1.0 and step["spread"] > 1.0 and 0 < step["gap_fraction"] < 1
     assert json.loads((folder / "twin.json").read_text())["calibration"] == json.loads(json.dumps(record))
     assert not record["converged"]        # the demo's twin: spread 3.8 m against the scan's 6.3 m
-    assert step["lai_factor"] == pytest.approx(c.lai_scale(real["gap_fraction"], step["gap_fraction"]))
+    assert record["leaf_from"] == "echoes" and step["echoes_per_pulse"] > 1.02
+    assert step["lai_factor"] == pytest.approx(c.leaf_scale(real, step))
     assert step["crown_factor"] == pytest.approx(c.crown_scale(real["cover"], step["cover"]))
     assert record["crown_contrast"] == pytest.approx(c.contrast_step(0.0, real["spread"], step["spread"]))
     after = c.read_trees(folder / "trees.csv")

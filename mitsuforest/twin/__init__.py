@@ -94,9 +94,8 @@ def make_twin(path, out_dir, species=(), sensor=None, name: str | None = None, l
     :param sensor: a sensor file to use instead of the estimated sensor.
     :param name: the scene's name (default: the file's stem, or ``twin`` where that cannot name files).
     :param calibrate: render the twin up to this many times, rescaling its crowns' leaf area, width and
-        depth towards the real scan's gap fraction, canopy cover and canopy spread after each
-        (:mod:`.calibrate`); ``variant``
-        is the Mitsuba variant of those renders.
+        depth towards the real scan's echoes per pulse (or gap fraction), canopy cover and canopy spread
+        after each (:mod:`.calibrate`); ``variant`` is the Mitsuba variant of those renders.
     :raises UserError: one line, before anything is written: an unreadable or empty file, an unknown
         species, a bad name or sensor file, an output folder that cannot be written.
     """

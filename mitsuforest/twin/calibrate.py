@@ -1,36 +1,43 @@
 """Calibrating a twin's crowns against its real scan: render, measure, rescale, render again.
 
-Two measures of the canopy, taken the same way on the real scan and on the twin's render, both over the
+Measures of the canopy, taken the same way on the real scan and on the twin's render, both over the
 real scan's DEM (:func:`canopy_state`):
 
+- the echoes per pulse: all returns over first returns;
 - the crown gap fraction ``P``: the share of first returns under crowns (CHM at or above 2 m) that reach
   within :data:`~.foliage.GROUND_BAND` of the ground (:func:`~.foliage.crown_gap_fraction`);
 - the canopy cover: the share of the plot's 1 m cells whose highest first return stands 2 m or more
-  above the ground (compare's ``canopy_cover_2m``).
+  above the ground (compare's ``canopy_cover_2m``);
+- the canopy's vertical spread: the interquartile range of the heights of all returns 2 m or more above
+  the ground (:func:`canopy_spread`).
 
-Each step rescales every tree's crown (pure functions, :func:`lai_scale`, :func:`crown_scale`):
+Each step rescales every tree's crown (pure functions):
 
-- leaf area per crown area by Beer-Lambert, ``P = exp(-k · LAI)``: ``LAI_new = LAI_old · ln P_real / ln P_twin``,
-  which reaches ``P_real`` in one step where the crowns follow Beer-Lambert;
+- leaf area per crown area by the echoes per pulse (:func:`echo_scale`): the denser a crown's leaves, the
+  sooner a pulse is spent in it, and the echoes beyond the first, ``E - 1``, fall as leaf area rises
+  (UAS_Clip's twin: as ``LAI^-1``), so ``LAI_new = LAI_old · (E_twin - 1) / (E_real - 1)``. A scan with
+  (almost) one return a pulse says nothing of that; there the gap fraction sets it by Beer-Lambert,
+  ``P = exp(-k · LAI)``: ``LAI_new = LAI_old · ln P_real / ln P_twin`` (:func:`lai_scale`). The gap
+  fraction alone does not tell leaf from width: wider crowns close the gaps between them too, and on
+  UAS_Clip a calibration on it reached the real gap fraction with wide, thin crowns that gave 1.86 echoes
+  a pulse against the real 1.59;
 - crown radius by the square root of the cover ratio (a crown's area goes as its radius squared), so that
-  the twin's crowns cover as much of the plot as the real ones. A tree's leaf area is its LAI times its
-  crown area, so a wider crown carries more leaf at the same LAI.
+  the twin's crowns cover as much of the plot as the real ones (:func:`crown_scale`). A tree's leaf area is
+  its LAI times its crown area, so a wider crown carries more leaf at the same LAI;
+- the crowns' depth by their rank, from the spread. A real stand holds dominant crowns, whose dense tops
+  stop the pulses high, and smaller ones whose returns reach far down; crowns whose depth is measured on
+  each tree's returns (``crown_ratio``) and then filled as cones of uniform leaf density pile the twin's
+  returns into a narrower band (UAS_Clip: 5.2 m against the real 8.9 m). The crown contrast ``c``
+  (:func:`contrast_ratios`) makes the widest quarter of the crowns (the dominants) shallower, their crown
+  ratio times ``1 - c``, and the others deeper, times ``1 + 2 c``; each step moves ``c`` by the spread still
+  missing over the spread a unit of ``c`` gave (:func:`contrast_step`; the first step assumes
+  :data:`CONTRAST_SLOPE`, later ones the last step's secant).
 
-From the second step on, each exponent (1 for Beer-Lambert, 2 for the crown area) is the one the last
-step showed (:func:`response_exponent`, a secant step): clumped shoots answer more leaf area with less
-shade than random leaves, and overlapping crowns answer a wider radius with less cover than discs apart.
+From the second step on, the leaf and cover exponents (1 and 2) are the ones the last step showed
+(:func:`response_exponent`, a secant step): clumped shoots answer more leaf area with less shade than
+random leaves, and overlapping crowns answer a wider radius with less cover than discs apart.
 
-A third measure sets the crowns' depth by their rank: the canopy's vertical spread, the interquartile
-range of the heights of all returns 2 m or more above the ground (:func:`canopy_spread`). A real stand
-holds dominant crowns, whose dense tops stop the pulses high, and smaller ones whose returns reach far
-down; crowns whose depth is measured on each tree's returns (``crown_ratio``) and then filled as cones of
-uniform leaf density pile the twin's returns into a narrower band (UAS_Clip: 5.3 m against the real 8.9 m).
-The crown contrast ``c`` (:func:`contrast_ratios`) makes the widest quarter of the crowns (the dominants)
-shallower, their crown ratio times ``1 - c``, and the others deeper, times ``1 + 2 c``; each step moves ``c``
-by the spread still missing over the spread a unit of ``c`` gave (:func:`contrast_step`; the first step
-assumes :data:`CONTRAST_SLOPE`, later ones the last step's secant).
-
-The loop (:func:`calibrate`) stops when both are within tolerance or after ``iterations`` renders; each
+The loop (:func:`calibrate`) stops when all are within tolerance or after ``iterations`` renders; each
 render is the scene as written (same seed, same beam), so the result is deterministic.
 """
 
@@ -52,6 +59,8 @@ from . import detection, foliage, ground
 CHM_CELL = 1.0          # m: cover is counted in 1 m cells, as compare's canopy_cover_2m
 CANOPY_HEIGHT = 2.0     # m: a cell is canopy, a first return under a crown, at or above this
 GAP_TOLERANCE = 0.2     # |ln P_twin / ln P_real - 1|: the LAI step still to take, at most 20 %
+ECHO_TOLERANCE = 0.1    # |(E_twin - 1) / (E_real - 1) - 1|: the LAI step still to take by the echoes, at most 10 %
+MIN_EXCESS = 0.02       # echoes per pulse beyond the first under which the LAI follows the gap fraction
 COVER_TOLERANCE = 0.03  # |cover_twin - cover_real|
 SCALE_LIMITS = (0.25, 4.0)   # one step changes LAI or crown radius by at most this factor
 MIN_GAP = foliage.MIN_GAP
@@ -72,6 +81,39 @@ def lai_scale(p_real: float, p_twin: float, exponent: float = 1.0) -> float:
     lo, hi = MIN_GAP, 1.0 - MIN_GAP
     k = (math.log(min(max(p_real, lo), hi)) / math.log(min(max(p_twin, lo), hi))) ** (1.0 / exponent)
     return _bounded(k)
+
+
+def echo_scale(echoes_real: float, echoes_twin: float, exponent: float = 1.0) -> float:
+    """The factor on leaf area per crown area that moves the twin's echoes per pulse from ``echoes_twin``
+    to ``echoes_real`` where the echoes beyond the first go as ``LAI ** -exponent``:
+    ``((E_twin - 1) / (E_real - 1)) ** (1 / exponent)``, kept within :data:`SCALE_LIMITS`."""
+    excess_real, excess_twin = max(echoes_real - 1.0, MIN_EXCESS), max(echoes_twin - 1.0, MIN_EXCESS)
+    return _bounded((excess_twin / excess_real) ** (1.0 / exponent))
+
+
+def leaf_rule(real: dict) -> str:
+    """Which measure sets the leaf area: ``"echoes"`` where the real scan has multiple returns
+    (:data:`MIN_EXCESS`), else ``"gap fraction"``."""
+    echoes = real.get("echoes_per_pulse")
+    return "echoes" if echoes is not None and echoes - 1.0 >= MIN_EXCESS else "gap fraction"
+
+
+def leaf_scale(real: dict, twin: dict, exponent: float = 1.0) -> float:
+    """The factor on leaf area per crown area by :func:`leaf_rule`'s measure (:func:`echo_scale` or
+    :func:`lai_scale`)."""
+    if leaf_rule(real) == "echoes":
+        return echo_scale(real["echoes_per_pulse"], twin["echoes_per_pulse"], exponent)
+    return lai_scale(real["gap_fraction"], twin["gap_fraction"], exponent)
+
+
+def leaf_exponent(real: dict, last: dict, twin: dict, factor: float) -> float:
+    """The exponent the last leaf step (``factor``, from the measures ``last`` to ``twin``) showed, for
+    :func:`leaf_scale`'s measure (:func:`response_exponent`)."""
+    if leaf_rule(real) == "echoes":    # the excess echoes fall as leaf rises: the exponent of 1 / factor
+        return response_exponent(max(last["echoes_per_pulse"] - 1.0, MIN_EXCESS),
+                                 max(twin["echoes_per_pulse"] - 1.0, MIN_EXCESS), 1.0 / factor, 1.0)
+    return response_exponent(-math.log(max(last["gap_fraction"], MIN_GAP)),
+                             -math.log(max(twin["gap_fraction"], MIN_GAP)), factor, 1.0)
 
 
 def crown_scale(cover_real: float, cover_twin: float, exponent: float = 2.0) -> float:
@@ -136,8 +178,8 @@ def _bounded(k: float) -> float:
 
 
 def canopy_state(x, y, z, return_number, dem: np.ndarray, dem_origin, frame) -> dict:
-    """The crown gap fraction, canopy cover and canopy spread (:func:`canopy_spread`, of all returns) of a
-    scan over the plot ``frame`` (a :class:`~.TwinFrame`), heights over ``dem`` (1 m cells from
+    """The echoes per pulse, crown gap fraction, canopy cover and canopy spread (:func:`canopy_spread`, of
+    all returns) of a scan over the plot ``frame`` (a :class:`~.TwinFrame`), heights over ``dem`` (1 m cells from
     ``dem_origin``). Arrays of shape (n,)."""
     from . import DEM_CELL
     x, y, z = (np.asarray(a, float) for a in (x, y, z))
@@ -153,15 +195,19 @@ def canopy_state(x, y, z, return_number, dem: np.ndarray, dem_origin, frame) -> 
     counted[row, col] = True
     gap = foliage.crown_gap_fraction(h[inside], chm[row, col] >= CANOPY_HEIGHT)
     cover = float(np.mean(chm[counted] >= CANOPY_HEIGHT)) if counted.any() else 0.0
-    return {"gap_fraction": gap, "cover": cover, "spread": canopy_spread(h[in_plot])}
+    firsts = int(np.count_nonzero(inside))
+    echoes = int(np.count_nonzero(in_plot)) / firsts if firsts else None
+    return {"gap_fraction": gap, "cover": cover, "spread": canopy_spread(h[in_plot]), "echoes_per_pulse": echoes}
 
 
 def converged(real: dict, twin: dict, spread: bool = False) -> bool:
-    """The measures within tolerance (:data:`GAP_TOLERANCE` on the LAI step, :data:`COVER_TOLERANCE`
-    and, with ``spread``, :data:`SPREAD_TOLERANCE`)."""
-    lai_step = abs(lai_scale(real["gap_fraction"], twin["gap_fraction"]) - 1.0)
+    """The measures within tolerance (the LAI step :func:`leaf_scale` still asks within
+    :data:`ECHO_TOLERANCE` or :data:`GAP_TOLERANCE`, :data:`COVER_TOLERANCE` and, with ``spread``,
+    :data:`SPREAD_TOLERANCE`)."""
+    lai_step = abs(leaf_scale(real, twin) - 1.0)
+    tolerance = ECHO_TOLERANCE if leaf_rule(real) == "echoes" else GAP_TOLERANCE
     spread_off = spread and (twin.get("spread") is None or abs(twin["spread"] - real["spread"]) > SPREAD_TOLERANCE)
-    return lai_step <= GAP_TOLERANCE and abs(twin["cover"] - real["cover"]) <= COVER_TOLERANCE and not spread_off
+    return lai_step <= tolerance and abs(twin["cover"] - real["cover"]) <= COVER_TOLERANCE and not spread_off
 
 
 def read_trees(path: Path) -> list[dict]:
@@ -211,8 +257,8 @@ def calibrate(real_scan, analysis: dict, folder: Path, name: str, iterations: in
     log = log or (lambda msg: print(msg, file=sys.stderr))
     frame, dem, origin = analysis["frame"], analysis["dem"], analysis["dem_origin"]
     real = canopy_state(real_scan.x, real_scan.y, real_scan.z, real_scan.return_number, dem, origin, frame)
-    record = {"real": real, "steps": [], "lai_factor": 1.0, "crown_factor": 1.0, "crown_contrast": 0.0,
-              "converged": False}
+    record = {"real": real, "leaf_from": leaf_rule(real), "steps": [], "lai_factor": 1.0, "crown_factor": 1.0,
+              "crown_contrast": 0.0, "converged": False}
     if real["gap_fraction"] is None:
         record["note"] = "the real scan has no canopy: nothing to calibrate"
         return record
@@ -226,7 +272,7 @@ def calibrate(real_scan, analysis: dict, folder: Path, name: str, iterations: in
     for i in range(iterations):
         twin = _render_state(folder / f"{name}.yaml", variant, analysis)
         step = {"gap_fraction": twin["gap_fraction"], "cover": twin["cover"], "spread": twin["spread"],
-                "crown_contrast": record["crown_contrast"]}
+                "echoes_per_pulse": twin["echoes_per_pulse"], "crown_contrast": record["crown_contrast"]}
         if twin["gap_fraction"] is None or converged(real, twin, spread=with_contrast):
             record["steps"].append(step)
             record["converged"] = twin["gap_fraction"] is not None
@@ -234,12 +280,11 @@ def calibrate(real_scan, analysis: dict, folder: Path, name: str, iterations: in
             break
         if record["steps"]:          # secant: the exponents the last step showed
             last = record["steps"][-1]
-            lai_exp = response_exponent(-math.log(max(last["gap_fraction"], MIN_GAP)),
-                                        -math.log(max(twin["gap_fraction"], MIN_GAP)), last["lai_factor"], 1.0)
+            lai_exp = leaf_exponent(real, last, twin, last["lai_factor"])
             cover_exp = response_exponent(last["cover"], twin["cover"], last["crown_factor"], 2.0)
         else:
             lai_exp, cover_exp = 1.0, 2.0
-        k_lai = lai_scale(real["gap_fraction"], twin["gap_fraction"], lai_exp)
+        k_lai = leaf_scale(real, twin, lai_exp)
         k_r = crown_scale(real["cover"], twin["cover"], cover_exp)
         step.update(lai_factor=k_lai, crown_factor=k_r, lai_exponent=lai_exp, cover_exponent=cover_exp)
         ratios = None
@@ -283,7 +328,8 @@ def _render_state(scene_file: Path, variant: str | None, analysis: dict) -> dict
 
 
 def _measures(twin: dict, real: dict) -> str:
-    text = (f"gap fraction {_f(twin['gap_fraction'])} (real {real['gap_fraction']:.3f}), "
+    text = (f"echoes per pulse {_f(twin['echoes_per_pulse'])} (real {_f(real['echoes_per_pulse'])}), "
+            f"gap fraction {_f(twin['gap_fraction'])} (real {real['gap_fraction']:.3f}), "
             f"cover {twin['cover']:.3f} (real {real['cover']:.3f})")
     if real.get("spread") is not None:
         text += f", canopy spread {_f(twin['spread'])} m (real {real['spread']:.3f} m)"
