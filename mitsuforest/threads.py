@@ -14,8 +14,6 @@ from concurrent.futures import Future, ThreadPoolExecutor, wait
 from .errors import UserError
 
 THREADS_VARIABLE = "MITSUFOREST_WRITER_THREADS"
-PROCESSES_VARIABLE = "MITSUFOREST_LAZ_PROCESSES"
-LAZ_PROCESSES_FROM = 8   # cores from which LAZ is compressed in worker processes by default
 MIN_ROWS = 32768   # the smallest part worth a task of its own
 
 
@@ -34,22 +32,6 @@ def writer_threads() -> int:
         return len(os.sched_getaffinity(0))
     except AttributeError:   # not on Linux
         return os.cpu_count() or 1
-
-
-def laz_processes(threads: int) -> int:
-    """Worker processes that compress LAZ chunks (:func:`~mitsuforest.write.las.compressor_pool`) for a
-    writer of ``threads`` threads: ``MITSUFOREST_LAZ_PROCESSES`` if set (0: in the writing process, on
-    lazrs' threads), else ``threads`` from :data:`LAZ_PROCESSES_FROM` of them (lazrs' own threads make
-    about three cores' worth of 16), else 0. The bytes are the same either way.
-
-    :raises UserError: for a value that is not a whole number.
-    """
-    text = os.environ.get(PROCESSES_VARIABLE, "").strip()
-    if text:
-        if not text.isdigit():
-            raise UserError(f"{PROCESSES_VARIABLE}: must be a whole number >= 0, got {text!r}")
-        return int(text)
-    return threads if threads >= LAZ_PROCESSES_FROM else 0
 
 
 def row_ranges(count: int, parts: int, minimum: int = MIN_ROWS) -> list[tuple[int, int]]:

@@ -9,7 +9,7 @@ from conftest import ROOT
 
 from mitsuforest.errors import UserError
 from mitsuforest.scan import POINT_DTYPE
-from mitsuforest.threads import PROCESSES_VARIABLE, THREADS_VARIABLE, laz_processes, row_ranges, writer_threads
+from mitsuforest.threads import THREADS_VARIABLE, row_ranges, writer_threads
 from mitsuforest.write import PointWriter, Staging, read_pcd
 from mitsuforest.write.las import ASPRS_CODE, COORDINATE_SCALE, LasStream, las_header, las_records
 
@@ -73,52 +73,6 @@ def test_one_thread_and_many_write_the_same_bytes_and_statistics(tmp_path, offse
     assert np.array_equal(one.counts.by_height, many.counts.by_height)
     assert np.array_equal(one.counts.by_return, many.counts.by_return)
     assert one.count == many.count == sum(BATCHES)
-
-
-def test_laz_chunks_compressed_in_worker_processes_are_the_same_bytes(tmp_path, monkeypatch):
-    """Two worker processes compress the LAZ (blocks of two chunks, the last one short): the bytes of
-    one thread's file; a stream stopped by an error closes, and the pool goes on serving."""
-    scene = _scene(OFFSET)
-    serial, _ = _write(tmp_path, "one", scene, threads=1)
-    monkeypatch.setenv(PROCESSES_VARIABLE, "2")
-    pooled, _ = _write(tmp_path, "pool", scene, threads=2)
-    assert pooled[".laz"] == serial[".laz"] and pooled[".pcd"] == serial[".pcd"] and pooled[".las"] == serial[".las"]
-    with pytest.raises(RuntimeError, match="stop"):
-        with LasStream(tmp_path / "b.laz", (0, 0, 0), processes=2) as broken:
-            broken.write(_batches()[3])
-            raise RuntimeError("stop")
-    assert broken.closed and broken._writer.dest.closed
-    points = _batches()[0]
-    with LasStream(tmp_path / "c.laz", (0, 0, 0), processes=2) as again:
-        again.write(points)
-    assert np.allclose(laspy.read(tmp_path / "c.laz").x, points["x"], atol=1e-4)
-
-
-def test_a_script_without_a_main_guard_runs_once_beside_the_compressor_workers(tmp_path):
-    """Spawned workers would run the parent's main module first; they start while it is hidden."""
-    import subprocess
-    import sys
-    script = tmp_path / "plain.py"
-    script.write_text("import numpy as np\nprint('top level ran')\n"
-                      "from mitsuforest.scan import POINT_DTYPE\nfrom mitsuforest.write.las import LasStream\n"
-                      "p = np.zeros(120_000, POINT_DTYPE)\np['x'] = np.arange(120_000) * 1e-3\n"
-                      "with LasStream('out.laz', (0, 0, 0), processes=2) as s:\n    s.write(p)\n")
-    run = subprocess.run([sys.executable, str(script)], cwd=tmp_path, capture_output=True, text=True, timeout=120)
-    assert run.returncode == 0, run.stderr
-    assert run.stdout.count("top level ran") == 1
-    assert laspy.read(tmp_path / "out.laz").header.point_count == 120_000
-
-
-def test_laz_processes_from_eight_cores_or_the_variable(monkeypatch):
-    monkeypatch.delenv(PROCESSES_VARIABLE, raising=False)
-    assert laz_processes(2) == 0 and laz_processes(7) == 0 and laz_processes(16) == 16
-    monkeypatch.setenv(PROCESSES_VARIABLE, "0")
-    assert laz_processes(16) == 0
-    monkeypatch.setenv(PROCESSES_VARIABLE, "3")
-    assert laz_processes(2) == 3
-    monkeypatch.setenv(PROCESSES_VARIABLE, "many")
-    with pytest.raises(UserError, match=f"{PROCESSES_VARIABLE}: must be a whole number >= 0, got 'many'"):
-        laz_processes(2)
 
 
 def test_files_read_back_as_the_points_written(tmp_path):

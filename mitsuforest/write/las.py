@@ -20,22 +20,17 @@ as LAS 1.4 requires for point format 6 (with or without a CRS).
 
 from __future__ import annotations
 
-import collections
 import contextlib
 import dataclasses
 import datetime
 import errno
 import json
 import os
-import struct
-from concurrent.futures import ProcessPoolExecutor
-from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 
 import laspy
 import numpy as np
-from laspy._pointwriter import IPointWriter
-from laspy.vlrs.known import LasZipVlr, WktCoordinateSystemVlr
+from laspy.vlrs.known import WktCoordinateSystemVlr
 
 from ..classes import BUSH, DEADWOOD, GROUND, GROUND_VEGETATION, ROCK, SPECIES_CODES, STUMP, TREE_LEAVES, TREE_WOOD
 from ..config.types import IntensityMapping
@@ -51,8 +46,8 @@ LAS_MAX_RETURNS = (1 << LAS_DIMENSION["return_number"].width) - 1   # 15: 4 bits
 DEFAULT_CREATION_DATE = datetime.date(2000, 1, 1)   # the header's date without SOURCE_DATE_EPOCH (not today)
 
 try:
-    import lazrs
-    CODEC_ERRORS: tuple = (lazrs.LazrsError, BrokenProcessPool)
+    from lazrs import LazrsError
+    CODEC_ERRORS: tuple = (LazrsError,)
 except ImportError:          # laspy without the lazrs backend writes no LAZ
     CODEC_ERRORS = ()
 
@@ -193,110 +188,6 @@ for _code, _asprs in ASPRS_CODE.items():
 
 LAZ_CHUNK = 50_000   # points per LAZ chunk (lazrs' default); chunks are compressed independently
 MAX_CHUNKS_PER_CALL = 16   # LAZ records held back for one call: at most 37 MB
-CHUNKS_PER_TASK = 2        # LAZ chunks a worker process compresses at a time
-
-
-_POOL: dict = {}
-
-
-def compressor_pool(processes: int) -> ProcessPoolExecutor:
-    """The process's pool of ``processes`` LAZ compressor workers (:mod:`mitsuforest.lazworker`), kept for
-    later files and renders; a broken pool is replaced. The workers start at once, fresh interpreters
-    (``spawn``: no copy of this process's threads) that import only numpy and lazrs."""
-    pool = _POOL.get(processes)
-    if pool is None or getattr(pool, "_broken", False):
-        pool = _POOL[processes] = _started_pool(processes)
-    return pool
-
-
-def _started_pool(processes: int) -> ProcessPoolExecutor:
-    import multiprocessing
-    import sys
-    import types
-
-    from .. import lazworker
-    # A spawned worker runs the parent's main module first (multiprocessing's rule), which for a script
-    # that renders at its top level, with no ``if __name__ == "__main__"``, would render again in every
-    # worker: the workers start now, all of them, while the main module is an empty one.
-    main = sys.modules["__main__"]
-    sys.modules["__main__"] = types.ModuleType("__main__")
-    try:
-        pool = ProcessPoolExecutor(processes, mp_context=multiprocessing.get_context("spawn"),
-                                   initializer=lazworker.ignore_interrupts)
-        for task in [pool.submit(lazworker.ready) for _ in range(processes)]:
-            task.result()
-    finally:
-        sys.modules["__main__"] = main
-    return pool
-
-
-class PoolLazWriter(IPointWriter):
-    """laspy's point writer for a LAZ file whose chunks are compressed in worker processes (the bytes of
-    laspy's own lazrs writer): blocks of :data:`CHUNKS_PER_TASK` chunks go to the pool, and come back
-    into the file in order; ``done`` writes the chunk table and its offset. Every call but the file's
-    last must bring whole chunks."""
-
-    def __init__(self, dest, point_format, pool: ProcessPoolExecutor, processes: int):
-        self.dest, self.pool = dest, pool
-        self.vlr = lazrs.LazVlr.new_for_compression(point_format.id, point_format.num_extra_bytes)
-        self._record = self.vlr.record_data()
-        self._pending: collections.deque = collections.deque()
-        self._in_flight = 2 * processes
-        self._table: list = []
-        self._table_offset_at = None
-
-    @property
-    def destination(self):
-        return self.dest
-
-    def write_initial_header_and_vlrs(self, header, encoding_errors) -> None:
-        header.vlrs.append(LasZipVlr(self._record))
-        super().write_initial_header_and_vlrs(header, encoding_errors)
-        self._table_offset_at = self.dest.tell()
-        self.dest.write(struct.pack("<q", -1))         # the chunk table's offset, known once it is written
-
-    def write_points(self, points) -> None:
-        from ..lazworker import compress_chunks
-        data = np.frombuffer(points.array, np.uint8)
-        step = CHUNKS_PER_TASK * self.vlr.chunk_size() * points.point_format.size
-        for start in range(0, len(data), step):
-            self._pending.append(self.pool.submit(compress_chunks, self._record, data[start:start + step].tobytes()))
-            while len(self._pending) > self._in_flight:
-                self._write_next()
-
-    def _write_next(self) -> None:
-        chunks, table = self._pending.popleft().result()
-        self.dest.write(chunks)
-        self._table += table
-
-    def done(self) -> None:
-        while self._pending:
-            self._write_next()
-        table_at = self.dest.tell()
-        lazrs.write_chunk_table(self.dest, self._table, self.vlr)
-        end = self.dest.tell()
-        self.dest.seek(self._table_offset_at)
-        self.dest.write(struct.pack("<q", table_at))
-        self.dest.seek(end)
-
-    def cancel(self) -> None:
-        """Drop the blocks not yet written (after an error)."""
-        for task in self._pending:
-            task.cancel()
-        self._pending.clear()
-
-
-class _PoolBackend:
-    """A laspy LAZ backend (what ``laz_backend`` takes) whose writer is a :class:`PoolLazWriter`."""
-
-    def __init__(self, processes: int):
-        self.processes = processes
-
-    def is_available(self) -> bool:
-        return True
-
-    def create_writer(self, dest, header) -> PoolLazWriter:
-        return PoolLazWriter(dest, header.point_format, compressor_pool(self.processes), self.processes)
 
 
 class LasStream:
@@ -309,23 +200,18 @@ class LasStream:
     :param threads: LAZ compression threads: 1 compresses serially in the writing thread, more
         compresses ``threads`` chunks (at most 16) at a time with lazrs' parallel compressor (the
         same bytes).
-    :param processes: more than 1: LAZ chunks are compressed in that many worker processes instead
-        (:func:`compressor_pool`; the same bytes), ``threads`` chunks gathered a call.
     :param intensity: the sensor's intensity mapping (by default amplitude × 1e6).
     :param header: another header than ours (:func:`las_header`), for records the caller packs
         (:meth:`write_records`).
     """
 
     def __init__(self, path, offset, crs: str | None = None, compress: bool | None = None, threads: int = 2,
-                 intensity: IntensityMapping | None = None, header: laspy.LasHeader | None = None,
-                 processes: int = 0):
+                 intensity: IntensityMapping | None = None, header: laspy.LasHeader | None = None):
         self.path = Path(path)
         self.intensity = intensity
         self.header = header or las_header(offset, crs, intensity)
         compress = str(path).endswith(".laz") if compress is None else compress
         backend = laspy.LazBackend.LazrsParallel if threads > 1 else laspy.LazBackend.Lazrs
-        if compress and processes > 1:
-            backend, threads = _PoolBackend(processes), max(threads, processes)
         with self._io_errors():
             self._writer = laspy.open(str(path), mode="w", header=self.header, do_compress=compress,
                                       laz_backend=backend if compress else None)
@@ -401,8 +287,6 @@ class LasStream:
         self._buffer, self._held, self.closed = self._buffer[:0].copy(), 0, True
         if self._writer.done:
             return
-        if isinstance(self._writer.point_writer, PoolLazWriter):
-            self._writer.point_writer.cancel()
         for finish in (self._writer.close, self._writer.dest.close):   # the file stays open if closing failed
             try:
                 finish()

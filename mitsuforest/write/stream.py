@@ -18,7 +18,7 @@ import numpy as np
 
 from .. import seeds
 from ..fields import POINT_DTYPE, pcd_dtype
-from ..threads import Workers, laz_processes, row_ranges, writer_threads
+from ..threads import Workers, row_ranges, writer_threads
 from .atomic import naming_errors
 from .copc import CopcStream
 from .ground import fill_height, ground_surface, with_room_for_height
@@ -51,7 +51,7 @@ class PointWriter:
         self._pcd_file = open(staging.file(".pcd"), "wb") if staging and "pcd" in formats else None  # noqa: SIM115
         self._pcd_end = 0          # where the next batch's records go in the PCD file
         self._las = [LasStream(staging.file("." + f), self.offset, scene.origin.crs, threads=self.threads,
-                               intensity=scene.sensor.intensity, processes=laz_processes(self.threads))
+                               intensity=scene.sensor.intensity)
                      for f in ("las", "laz") if f in formats]
         self._workers = Workers(self.threads)
         self._others = []      # written whole batch by batch, after the threaded LAS and PCD records
