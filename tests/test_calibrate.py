@@ -59,8 +59,8 @@ def test_canopy_state_counts_gap_and_cover_of_a_constructed_cloud():
     assert state["spread"] == 0.0                 # every return in the canopy at 10 m
     assert state["echoes_per_pulse"] == 1.0 and leaf_rule(state) == "gap fraction"
     second = np.where(np.arange(len(xs)) % 4 == 0, 2, 1)          # a quarter of the points are second returns
-    echoes = canopy_state(np.array(xs), np.array(ys), np.array(zs), second, dem, (-1.0, -1.0), frame)["echoes_per_pulse"]
-    assert echoes == pytest.approx(4 / 3)
+    with_seconds = canopy_state(np.array(xs), np.array(ys), np.array(zs), second, dem, (-1.0, -1.0), frame)
+    assert with_seconds["echoes_per_pulse"] == pytest.approx(4 / 3)
     assert converged(state, state) and converged(state, state, spread=True)
     assert not converged(state, {**state, "spread": 0.6}, spread=True)
     assert converged(state, {**state, "spread": 0.6})
@@ -229,3 +229,42 @@ def test_a_scan_of_single_returns_sets_the_leaf_by_the_gap_fraction():
     assert leaf_scale(real, twin) == lai_scale(0.1, 0.2)
     assert echo_scale(1.5, 1.0) == 0.25            # the excess floored at MIN_EXCESS, the step at /4
     assert converged({**real, "cover": 0.5}, {**twin, "gap_fraction": 0.1, "cover": 0.5})
+
+
+def test_the_loop_converges_on_a_stand_whose_measures_follow_power_laws(tmp_path, monkeypatch):
+    """A stand of 12 trees standing in for renders: the echoes beyond the first go as LAI^-0.7, the cover
+    as radius^1.5, the spread grows 14 m a unit of contrast; the loop's secant steps reach all three
+    within tolerance, and its factors are the ones the laws ask."""
+    from types import SimpleNamespace
+
+    from mitsuforest.twin import calibrate as c
+    radius = np.linspace(1.0, 4.0, 12)
+    rows = [f"{10 + i:.3f},5.000,20.000,{r:.3f},pinus_radiata,{20 * np.pi * r ** 2:.2f},0.400"
+            for i, r in enumerate(radius)]
+    header = "x,y,height,crown_radius,species,leaf_area,crown_ratio\n"
+    (tmp_path / "trees.csv").write_text(header + "\n".join(rows) + "\n")
+    (tmp_path / "twin.json").write_text("{}")
+
+    def measured(folder):
+        t = c.read_trees(folder / "trees.csv")
+        r = np.array([float(x["crown_radius"]) for x in t])
+        lai = np.mean([float(x["leaf_area"]) / (np.pi * float(x["crown_radius"]) ** 2) for x in t]) / 20.0
+        dominant = c.dominant_crowns(r)
+        contrast = 1.0 - float(t[int(np.argmax(dominant))]["crown_ratio"]) / 0.4
+        return {"echoes_per_pulse": 1.0 + 1.2 * lai ** -0.7, "cover": min(1.0, 0.6 * (r[0] / 1.0) ** 1.5),
+                "spread": 5.0 + 14.0 * contrast, "gap_fraction": 0.2}
+
+    monkeypatch.setattr(c, "_render_state", lambda scene, variant, analysis: measured(scene.parent))
+    real = {"echoes_per_pulse": 1.0 + 1.2 * 3.0 ** -0.7, "cover": 0.6 * 1.2 ** 1.5, "spread": 8.5, "gap_fraction": 0.1}
+    monkeypatch.setattr(c, "canopy_state", lambda *args: real)
+    scan = SimpleNamespace(x=None, y=None, z=None, return_number=None)
+    analysis = {"frame": None, "dem": None, "dem_origin": None, "crown_ratio": 0.4}
+    record = c.calibrate(scan, analysis, tmp_path, "stand", 6, log=lambda *_: None)
+    assert record["converged"] and record["leaf_from"] == "echoes"
+    last = record["steps"][-1]
+    assert abs(c.echo_scale(real["echoes_per_pulse"], last["echoes_per_pulse"]) - 1) <= c.ECHO_TOLERANCE
+    assert abs(last["cover"] - real["cover"]) <= c.COVER_TOLERANCE
+    assert abs(last["spread"] - real["spread"]) <= c.SPREAD_TOLERANCE
+    assert len(record["steps"]) <= 4 and record["lai_factor"] == pytest.approx(3.0, rel=0.1)
+    assert record["crown_factor"] == pytest.approx(1.2, rel=0.03)
+    assert record["crown_contrast"] == pytest.approx(0.25, abs=0.04)

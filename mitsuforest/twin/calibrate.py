@@ -289,18 +289,16 @@ def calibrate(real_scan, analysis: dict, folder: Path, name: str, iterations: in
         step.update(lai_factor=k_lai, crown_factor=k_r, lai_exponent=lai_exp, cover_exponent=cover_exp)
         ratios = None
         if with_contrast and twin["spread"] is not None:
-            slope = CONTRAST_SLOPE
-            if record["steps"] and record["steps"][-1]["spread"] is not None:
-                last = record["steps"][-1]
-                slope = spread_slope((last["crown_contrast"], last["spread"]), (step["crown_contrast"], twin["spread"]))
-            record["crown_contrast"] = contrast_step(record["crown_contrast"], real["spread"], twin["spread"], slope)
-            step["spread_slope"] = slope
+            step["spread_slope"] = _spread_slope(record["steps"], step)
+            record["crown_contrast"] = contrast_step(record["crown_contrast"], real["spread"], twin["spread"],
+                                                     step["spread_slope"])
             ratios = contrast_ratios(base_ratios, dominant, record["crown_contrast"])
         record["steps"].append(step)
         record["lai_factor"] *= k_lai
         record["crown_factor"] *= k_r
         log(f"twin: calibration {i + 1}: {_measures(twin, real)}: leaf area per crown area x{k_lai:.3f}, "
-            f"crown radius x{k_r:.3f}" + (f", crown contrast {record['crown_contrast']:.3f}" if ratios is not None else ""))
+            f"crown radius x{k_r:.3f}"
+            + (f", crown contrast {record['crown_contrast']:.3f}" if ratios is not None else ""))
         step["trees_at_leaf_cap"] = rescale_trees(folder / "trees.csv", k_lai, k_r, ratios)
         if step["trees_at_leaf_cap"]:
             log(f"twin: calibration {i + 1}: {step['trees_at_leaf_cap']} trees at the {MAX_LEAF_AREA:g} m² leaf area "
@@ -310,6 +308,15 @@ def calibrate(real_scan, analysis: dict, folder: Path, name: str, iterations: in
     report["calibration"] = record
     report_file.write_text(json.dumps(report, indent=1) + "\n")
     return record
+
+
+def _spread_slope(steps: list[dict], step: dict) -> float:
+    """The spread a unit of contrast gave from the last step to this one (:func:`spread_slope`), or
+    :data:`CONTRAST_SLOPE` at the first."""
+    if not steps or steps[-1]["spread"] is None:
+        return CONTRAST_SLOPE
+    last = steps[-1]
+    return spread_slope((last["crown_contrast"], last["spread"]), (step["crown_contrast"], step["spread"]))
 
 
 def _render_state(scene_file: Path, variant: str | None, analysis: dict) -> dict:
