@@ -120,12 +120,10 @@ def apply_factors(trees_file: Path, stand_ratio, leaf: float, radius: float, con
     from mitsuforest.twin import calibrate
     ratios = None
     if contrast is not None:
-        rows = calibrate.read_trees(trees_file)
-        base = calibrate.base_crown_ratios(rows, stand_ratio)
-        if base is None:
+        basis = calibrate.contrast_basis(calibrate.read_trees(trees_file), stand_ratio)
+        if basis is None:
             raise SystemExit(f"{trees_file}: the trees have no crown ratio for a crown contrast")
-        dominant = calibrate.dominant_crowns([float(r["crown_radius"]) for r in rows])
-        ratios = calibrate.contrast_ratios(base, dominant, contrast)
+        ratios = calibrate.contrast_ratios(*basis, contrast)
     return calibrate.rescale_trees(trees_file, leaf, radius, ratios)
 
 

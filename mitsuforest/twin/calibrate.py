@@ -224,6 +224,14 @@ def base_crown_ratios(rows: list[dict], stand: float | None) -> np.ndarray | Non
     return None if np.isnan(ratios).any() or not len(ratios) else ratios
 
 
+def contrast_basis(rows: list[dict], stand: float | None) -> tuple[np.ndarray, np.ndarray] | None:
+    """What the crown contrast scales, for the rows of ``trees.csv``: (k,) base crown ratios
+    (:func:`base_crown_ratios`) and (k,) which crowns are dominant (:func:`dominant_crowns`); ``None``
+    where a tree has no crown ratio."""
+    base = base_crown_ratios(rows, stand)
+    return None if base is None else (base, dominant_crowns([float(r["crown_radius"]) for r in rows]))
+
+
 def rescale_trees(path: Path, lai_factor: float, radius_factor: float, crown_ratios=None) -> int:
     """Rewrite ``trees.csv``: each crown radius times ``radius_factor``, each leaf area times
     ``lai_factor · radius_factor²`` (its LAI times the new crown area), at most the
@@ -262,13 +270,11 @@ def calibrate(real_scan, analysis: dict, folder: Path, name: str, iterations: in
     if real["gap_fraction"] is None:
         record["note"] = "the real scan has no canopy: nothing to calibrate"
         return record
-    rows = read_trees(folder / "trees.csv")
-    base_ratios = base_crown_ratios(rows, analysis.get("crown_ratio"))
-    dominant = dominant_crowns([float(r["crown_radius"]) for r in rows])
-    with_contrast = base_ratios is not None and real["spread"] is not None
+    basis = contrast_basis(read_trees(folder / "trees.csv"), analysis.get("crown_ratio"))
+    with_contrast = basis is not None and real["spread"] is not None
     if not with_contrast:
         record["note"] = "no crown contrast: " + ("the real scan's canopy holds too few returns"
-                                                  if base_ratios is not None else "the trees have no crown ratio")
+                                                  if basis is not None else "the trees have no crown ratio")
     for i in range(iterations):
         twin = _render_state(folder / f"{name}.yaml", variant, analysis)
         step = {"gap_fraction": twin["gap_fraction"], "cover": twin["cover"], "spread": twin["spread"],
@@ -292,7 +298,7 @@ def calibrate(real_scan, analysis: dict, folder: Path, name: str, iterations: in
             step["spread_slope"] = _spread_slope(record["steps"], step)
             record["crown_contrast"] = contrast_step(record["crown_contrast"], real["spread"], twin["spread"],
                                                      step["spread_slope"])
-            ratios = contrast_ratios(base_ratios, dominant, record["crown_contrast"])
+            ratios = contrast_ratios(*basis, record["crown_contrast"])
         record["steps"].append(step)
         record["lai_factor"] *= k_lai
         record["crown_factor"] *= k_r
