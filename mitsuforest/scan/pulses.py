@@ -135,27 +135,19 @@ def upload_pulses(pulses, first_id: int = 0) -> DevicePulses:
                         mi.Point3f(*cols[0:3]), mi.Vector3f(*cols[3:6]), mi.Vector3f(*cols[6:9]))
 
 
-def box_mesh(boxes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The surfaces of ``k`` axis-aligned boxes (k, 2, 3): vertices (8k, 3) and faces (12k, 3)."""
-    corner = np.array([[i & 1, (i >> 1) & 1, (i >> 2) & 1] for i in range(8)])          # (8, 3) of 0/1
-    vertices = np.where(corner[None], boxes[:, None, 1], boxes[:, None, 0]).reshape(-1, 3)
-    quads = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
-    faces = np.array([t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))])       # (12, 3)
-    return vertices, (faces[None] + 8 * np.arange(len(boxes))[:, None, None]).reshape(-1, 3)
-
-
 def aimed_at(pulses: DevicePulses, targets: list[tuple[float, mi.Scene]], bounds: np.ndarray, box: np.ndarray,
              range_max: float) -> DevicePulses:
-    """The pulses whose beam axis meets a box of ``targets`` within ``range_max``, and every pulse fired from
-    inside ``box`` (2, 3), where a beam may start inside a target and leave range before its faces; call
-    under the scene's Mitsuba variant.
+    """The pulses whose beam axis meets a target within ``range_max``, and every pulse fired from inside
+    ``box`` (2, 3), where a beam may start inside a target and leave range before its faces; call under
+    the scene's Mitsuba variant.
 
-    :param targets: (range, scene of boxes, :func:`box_mesh`), nearest first, the last at ``range_max``:
-        each object's box grown by the widest sub-ray's spread at that range. A pulse is tested against the
-        nearest set whose range reaches the farthest corner of ``bounds`` (2, 3; the scene's geometry, so
-        every hit lies within that distance); the last set takes the rest.
-    :returns: the pulses kept. One that misses every box has no sub-ray that can hit anything: dropping it
-        changes no point, only the rays traced.
+    :param targets: (range, Mitsuba scene of closed surfaces), nearest first, the last at ``range_max``:
+        what can be hit, grown by the widest sub-ray's spread at that range (the render's: the objects'
+        proxies and the ground's box, :func:`mitsuforest.scene.proxies.proxy_scene`). A pulse is tested
+        against the nearest set whose range reaches the farthest corner of ``bounds`` (2, 3; the scene's
+        geometry, so every hit lies within that distance); the last set takes the rest.
+    :returns: the pulses kept. One that misses every target has no sub-ray that can hit anything: dropping
+        it changes no point, only the rays traced.
     """
     if pulses.count == 0:
         return pulses

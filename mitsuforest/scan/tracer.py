@@ -8,12 +8,12 @@ import numpy as np
 from .. import seeds
 from ..fields import POINT_DTYPE
 from . import HIT_DTYPE
-from ..scene.meshes import mitsuba_mesh
+from ..scene.proxies import proxy_scene
 from ..scene.variant import variant_scope
 from ..threads import row_ranges, shared_workers
 from .beam import beam_cells, beam_pattern
 from .echo_kernel import EchoKernel
-from .pulses import aimed_at, box_mesh, reaching_pulses, upload_pulses
+from .pulses import aimed_at, reaching_pulses, upload_pulses
 from .radiometry import reflectance_db, reflectance_table
 from .waveform import PulseBatch
 
@@ -80,10 +80,12 @@ class PulseTracer:
         self.box = grown(scan_scene.bbox, sensor.range_max)
         self.bounds = scan_scene.bbox
         near = min(sensor.range_max, 2.0 * float(np.linalg.norm(np.ptp(scan_scene.bbox, axis=0))))
-        self.targets = [(r, grown(scan_scene.boxes, r)) for r in dict.fromkeys((near, sensor.range_max))]
+        reaches = list(dict.fromkeys((near, sensor.range_max)))
+        self.targets = [(r, grown(scan_scene.boxes, r)) for r in reaches]     # the objects' boxes: the reference's
         with variant_scope(self.variant):
-            self.target_scenes = [(r, mi.load_dict({"type": "scene", "boxes": mitsuba_mesh("boxes", *box_mesh(b))}))
-                                  for r, b in self.targets]
+            # The pulses are aimed at the objects' proxies and the ground's box, each grown alike.
+            self.target_scenes = [(r, proxy_scene(scan_scene.cells, scan_scene.placements, r * spread + 0.01,
+                                                  scan_scene.boxes[-1:])) for r in reaches]
             self.caster = EchoKernel(scan_scene.mitsuba, weights=self.weights, table=self.table,
                                      reflectance=self.reflectance, sensor=sensor, seed=seed,
                                      point_position=point_position, record=waveforms, **beam)

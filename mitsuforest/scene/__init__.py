@@ -2,13 +2,14 @@
 
 Each model's meshes are loaded once as a ``shapegroup``; every placed object is an ``instance`` of
 it; the ground is a plain mesh. Nothing else is modelled: no emitters, no sensor, no integrator —
-the scan kernel only reads hit distances and ids. Objects that no pulse of any leg can reach are
+the scan kernel only reads hit distances and ids. Each model's proxy (proxies.py) goes with the scene,
+for the scan to aim its pulses at. Objects that no pulse of any leg can reach are
 left out (see :func:`reachable`); a scene built for some legs loads only the objects in their reach.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cached_property
 
 import drjit as dr
@@ -18,6 +19,7 @@ import numpy as np
 from ..classes import GROUND, SPECIES_CODES
 from ..plan.transforms import apply
 from .meshes import face_normals, mitsuba_mesh
+from .proxies import model_cells
 from .variant import scene_variant, select_variant, variant_scope
 
 __all__ = ["ScanScene", "build_scene", "scene_variant", "select_variant", "variant_scope", "reachable"]
@@ -95,6 +97,8 @@ class ScanScene:
     loaded: int              # placed objects loaded: those in reach of the legs it was built for
     boxes: np.ndarray        # (k, 2, 3) bounds of every object in reach of the survey, and the ground's
     reflectance: np.ndarray | None = None   # (256,) by class; None: ours at the sensor's wavelength
+    placements: list = field(default_factory=list)   # (model name, 4×4 matrix) of every object in reach of the survey
+    cells: dict = field(default_factory=dict)        # model name -> its proxy's cells (proxies.model_cells)
 
 
 def reachable(obj_bounds: np.ndarray, legs, sensor) -> bool:
@@ -166,7 +170,8 @@ def _build(plan, models, sensor, variant, legs, reflectance) -> ScanScene:
     bbox = np.array([np.min([b[0] for b in all_bounds], 0), np.max([b[1] for b in all_bounds], 0)])
     triangles = sum(models[n].triangles for n in sorted({obj.model for obj, _, _ in survey})) + len(ground_f)
     return ScanScene(mi_scene, table, bbox, variant, len(survey), len(placed) - len(survey), triangles, len(keep),
-                     np.array(all_bounds), reflectance)
+                     np.array(all_bounds), reflectance, [(obj.model, m) for obj, m, _ in survey],
+                     {name: model_cells(models[name]) for name in sorted({obj.model for obj, _, _ in survey})})
 
 
 def _registry_ids(shapes: list[mi.Mesh]) -> np.ndarray:
