@@ -19,6 +19,7 @@ import numpy as np
 from .meshes import mitsuba_mesh
 
 CELL = 0.5    # m, a proxy cell's side in the model's frame
+SMALL = 2.5   # m: a model no larger than this a side has its box for proxy (model_cells)
 
 #: (8, 3) the corners of a unit cube, corner i at (i & 1, i >> 1 & 1, i >> 2 & 1)
 _CORNERS = np.array([[i & 1, (i >> 1) & 1, (i >> 2) & 1] for i in range(8)])
@@ -60,7 +61,13 @@ def _cells_of_part(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
 
 def model_cells(model) -> np.ndarray:
     """(k, 3) int32 the cells of :data:`CELL` that a :class:`~mitsuforest.trees.models.Model`'s parts
-    occupy (kept with a cached model's read-only parts, so a worker finds them once)."""
+    occupy (kept with a cached model's read-only parts, so a worker finds them once). A model within
+    :data:`SMALL` m a side (a shrub, a rock: drawn anew for each plot, and about as full as its box) takes
+    every cell of its box instead."""
+    corners = model.hull_corners()
+    if len(corners) and np.all(np.ptp(corners, axis=0) <= SMALL):
+        lo, hi = (np.floor(f(corners, axis=0) / CELL).astype(np.int64) for f in (np.min, np.max))
+        return (np.indices(hi - lo + 1).reshape(3, -1).T + lo).astype(np.int32)
     cells = [p.of_mesh(_cells_of_part) for p in model.parts]
     cells = np.concatenate(cells) if cells else np.zeros((0, 3), np.int32)
     return np.unique(cells, axis=0) if len(model.parts) > 1 else cells
