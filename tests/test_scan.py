@@ -452,9 +452,9 @@ def test_speckle_multiplies_the_amplitude_by_a_gamma_of_the_looks(flat):
 @pytest.mark.parametrize("pattern", ["fixed", "stratified"])
 def test_same_bytes_for_any_batch_size(tmp_path, variant, pattern):
     """Ranging noise and stratified sub-rays are keyed on the pulse: pulses_per_batch changes nothing
-    in the files."""
+    in the files, nor do the batches sized by the share of slots cast (``None``, the default)."""
     files = []
-    for batch in (10_000, 100_000):
+    for batch in (10_000, 100_000, None):
         path = scene_file(tmp_path / str(batch), sensor="riegl_vux-1uav22.yaml", variant=variant,
                           area={"size": [12, 12]}, understory={"rocks": 3},
                           survey={"pulse_frequency": 100000, "lines": [[[6, -2], [6, 14]]]},
@@ -462,8 +462,40 @@ def test_same_bytes_for_any_batch_size(tmp_path, variant, pattern):
         render(path, progress=False, log=lambda *_: None)
         files.append(tmp_path / str(batch) / "out")
     for suffix in (".pcd", ".laz"):
-        a, b = ((f / f"test{suffix}").read_bytes() for f in files)
-        assert len(a) > 100_000 and a == b, suffix
+        a, *others = ((f / f"test{suffix}").read_bytes() for f in files)
+        assert len(a) > 100_000 and all(a == b for b in others), suffix
+
+
+def test_a_batch_traced_in_launches_makes_the_same_points_and_waveforms(demo_setup):
+    """A batch's cast pulses traced in launches of at most 1000 (``launch_pulses``, as a render bounds a
+    large automatic batch) give the same points, hits and echo records as one launch, and the same
+    waveforms up to float32 rounding (their bins are sums in whatever order the threads add)."""
+    scene, plan, _, scan_scene = demo_setup
+    leg = plan.legs[0]
+    first = leg.pulse_count(scene.pulse_frequency) // 2
+    made = []
+    for launch in (None, 1000):
+        tracer = PulseTracer(scan_scene, scene.sensor, 7, seed=3, pattern="stratified", waveforms=True,
+                             launch_pulses=launch)
+        made.append(tracer.trace_slots(leg, scene.pulse_frequency, scene.scan_frequency, first, 60_000))
+    (points, hits, fired, cast, batch), (points2, hits2, fired2, cast2, batch2) = made
+    assert cast == cast2 > 3000 and fired == fired2
+    assert points.tobytes() == points2.tobytes() and hits.tobytes() == hits2.tobytes() and len(points) > 3000
+    assert batch.cast.keys() == batch2.cast.keys() and len(batch.cast["samples"]) > 1000
+    for key in batch.cast:
+        np.testing.assert_allclose(batch.cast[key], batch2.cast[key], rtol=1e-6, atol=0, err_msg=key)
+    for key in batch.echoes:
+        np.testing.assert_array_equal(batch.echoes[key], batch2.echoes[key], err_msg=key)
+
+
+def test_the_next_batch_casts_about_a_million_sub_rays_within_its_bounds():
+    """``next_batch``: 15 % of slots cast at 19 sub-rays → 1e6 / (19 · 0.15) slots; never under the
+    default batch nor over the backend's most slots; a batch that cast nothing → the most."""
+    from mitsuforest.scan import MAX_BATCH_SLOTS, default_batch, next_batch
+    assert next_batch("llvm_ad_mono", 19, 15_000, 100_000) == 1_000_000 * 100_000 // (15_000 * 19) == 350_877
+    assert next_batch("llvm_ad_mono", 19, 90_000, 100_000) == default_batch("llvm_ad_mono", 19) == 105_263
+    assert next_batch("llvm_ad_mono", 1, 100, 400_000) == MAX_BATCH_SLOTS["llvm"]
+    assert next_batch("cuda_ad_mono", 19, 0, 1_000_000) == MAX_BATCH_SLOTS["cuda"]
 
 
 def test_variant_scope_puts_back_the_variant_it_found():

@@ -33,6 +33,12 @@ class DevicePulses:
     def count(self) -> int:
         return dr.width(self.time)
 
+    def take(self, index: mi.UInt32) -> DevicePulses:
+        """The pulses at ``index``, in its order."""
+        return DevicePulses(dr.gather(mi.UInt64, self.pulse_id, index), dr.gather(mi.Float64, self.time, index),
+                            dr.gather(mi.Float, self.scan_angle, index), dr.gather(mi.Point3f, self.origin, index),
+                            dr.gather(mi.Vector3f, self.direction, index), dr.gather(mi.Vector3f, self.across, index))
+
 
 def reaches_box(origin: list[mi.Float64], direction: list[mi.Float64], box: np.ndarray, range_max: float) -> mi.Bool:
     """Whether each ray (origin and direction: 3 Float64 arrays each) meets the axis-aligned box (2, 3)
@@ -169,8 +175,4 @@ def aimed_at(pulses: DevicePulses, targets: list[tuple[float, mi.Scene]], bounds
         keep |= hit
         tested |= use
     keep = dr.compress(keep)
-    if dr.width(keep) == pulses.count:
-        return pulses
-    return DevicePulses(dr.gather(mi.UInt64, pulses.pulse_id, keep), dr.gather(mi.Float64, pulses.time, keep),
-                        dr.gather(mi.Float, pulses.scan_angle, keep), dr.gather(mi.Point3f, pulses.origin, keep),
-                        dr.gather(mi.Vector3f, pulses.direction, keep), dr.gather(mi.Vector3f, pulses.across, keep))
+    return pulses if dr.width(keep) == pulses.count else pulses.take(keep)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import drjit as dr
 import mitsuba as mi
 import numpy as np
 
@@ -13,7 +14,7 @@ from ..scene.variant import variant_scope
 from ..threads import row_ranges, shared_workers
 from .beam import beam_cells, beam_pattern
 from .echo_kernel import EchoKernel
-from .pulses import aimed_at, reaching_pulses, upload_pulses
+from .pulses import DevicePulses, aimed_at, reaching_pulses, upload_pulses
 from .radiometry import reflectance_db, reflectance_table
 from .waveform import PulseBatch
 
@@ -47,6 +48,7 @@ class PulseTracer:
         by :meth:`trace_slots` with a pose table.
     :param navigation: a :class:`~mitsuforest.scan.navigation.NavigationModel`: the points are placed
         with its believed trajectory (None: with the true one).
+    :param launch_pulses: trace a batch's cast pulses in launches of at most this many (None: all at once).
     :param waveforms, pulse_records: make each batch's :class:`~mitsuforest.scan.waveform.PulseBatch`
         with the cast pulses' sampled waveforms and echo energies (``output.waveforms``) and with every
         fired pulse (``output.pulses``); :meth:`trace_slots` then returns it as a fourth item.
@@ -54,8 +56,9 @@ class PulseTracer:
 
     def __init__(self, scan_scene, sensor, beam_samples: int, seed: int = 0, pattern: str = "fixed",
                  point_position: str = "beam_axis", platform=None, navigation=None, waveforms: bool = False,
-                 pulse_records: bool = False):
+                 pulse_records: bool = False, launch_pulses: int | None = None):
         self.sensor, self.variant, self.table = sensor, scan_scene.variant, scan_scene.table
+        self.launch_pulses = launch_pulses
         self.point_position = point_position
         self.waveforms, self.pulse_records = waveforms, pulse_records
         self.platform, self.navigation, self._uploaded = platform, navigation, (None, None)
@@ -116,10 +119,7 @@ class PulseTracer:
                                    first_id, self._device_table(pose), keep_fired=self.pulse_records)
             pulses, fired = made[:2]
             pulses = aimed_at(pulses, self.target_scenes, self.bounds, self.box, self.sensor.range_max)
-            if records:
-                echoes, returns = self.caster.echoes_and_waveforms(pulses)
-            else:
-                echoes = self.caster.echoes(pulses)
+            echoes, returns = self._echoes(pulses, records)
             points, hits = self._points(echoes)
         points["point_source_id"] = source_id
         if self.navigation is not None:
@@ -129,6 +129,17 @@ class PulseTracer:
         kept = ("pulse_id", "return_number", "range", "amplitude", *(("energy",) if self.waveforms else ()))
         batch = PulseBatch(returns, {k: echoes[k] for k in kept}, made[2] if self.pulse_records else None, source_id)
         return points, hits, fired, pulses.count, batch
+
+    def _echoes(self, pulses: DevicePulses, records: bool) -> tuple[dict, dict | None]:
+        """The caster's echoes of ``pulses`` and, with ``records``, their waveforms (else None), traced
+        in launches of at most :attr:`launch_pulses` pulses."""
+        limit = self.launch_pulses
+        if limit is None or pulses.count <= limit:
+            return self.caster.echoes_and_waveforms(pulses) if records else (self.caster.echoes(pulses), None)
+        parts = [self._echoes(pulses.take(dr.arange(mi.UInt32, start, min(start + limit, pulses.count))), records)
+                 for start in range(0, pulses.count, limit)]
+        echoes = {k: np.concatenate([p[0][k] for p in parts]) for k in parts[0][0]}
+        return echoes, ({k: np.concatenate([p[1][k] for p in parts]) for k in parts[0][1]} if records else None)
 
     def _device_table(self, pose):
         """``pose`` on the device, uploaded once per leg."""
