@@ -19,9 +19,9 @@ of W over the window for any pulse length, however short against the bin. A retu
 summed over ``r_i ± 5σ`` (it leaves out 6e-7 of its integral); a pulse is ``complete`` when its
 farthest return's ``r_i + 5σ`` lies inside the window.
 
-On the device. A render samples on the device (:func:`device_waveforms`, one lane per return and
-bin it touches, added into its pulse's window with ``scatter_reduce``, float32); :func:`sample_waveforms`
-is its numpy twin (float64) and the tests' reference.
+On the device. A render samples on the device (:func:`device_waveforms`, one lane per pulse adding
+the bins of its returns into its window in turn, float32: the same bytes in every run);
+:func:`sample_waveforms` is its numpy twin (float64) and the tests' reference.
 
 Echo energy. An echo's energy is the integral of its own chain's part of W:
 ``E = σ·√(2π)·Σ_(i in chain) p_i`` (amplitude × m). So a complete waveform's integral equals the
@@ -136,23 +136,35 @@ def device_waveforms(t: mi.Float, power: mi.Float, samples_per_pulse: int, sigma
     complete = dr.gather(Float, farthest, rows) + reach <= (first + B) * bin_range
     first_bin = UInt32(first)
     waveform = dr.zeros(Float, m * B)
-    span = int(math.ceil(2 * reach / bin_range)) + 1
-    lane = dr.arange(UInt32, m * S * span)
-    ret, j = lane // span, lane % span
-    row = ret // S
-    sub = dr.gather(UInt32, rows, row) * S + (ret - row * S)
-    r, p = dr.gather(Float, t, sub), dr.gather(Float, power, sub)
-    valid = dr.isfinite(r)
-    r = dr.select(valid, r, 0.0)
-    k = dr.floor((r - reach) / bin_range) + Float(j)        # the bin's absolute index
-    scale = 1.0 / (sigma * math.sqrt(2.0))
-    part = p * (sigma * math.sqrt(math.pi / 2) / bin_range) * (dr.erf(((k + 1) * bin_range - r) * scale)
-                                                               - dr.erf((k * bin_range - r) * scale))
-    local = k - dr.gather(Float, first, row)
-    inside = valid & (local >= 0) & (local < B)
-    dr.scatter_reduce(dr.ReduceOp.Add, waveform, part, row * B + UInt32(dr.maximum(local, 0.0)), inside)
+    _add_returns(waveform, t, power, rows, first, S, B, sigma, bin_range)
     dr.eval(rows, first_bin, waveform, complete)
     return {"rows": rows, "first_bin": first_bin, "waveform": waveform, "complete": complete}
+
+
+@dr.syntax
+def _add_returns(waveform: mi.Float, t: mi.Float, power: mi.Float, rows: mi.UInt32, first: mi.Float, S: int, B: int,
+                 sigma: float, bin_range: float) -> None:
+    """Add each return's bins into its pulse's window of ``waveform`` (M·B,), one lane per pulse adding
+    its S returns' bins in turn: each bin is summed in the same order whatever the threads or the batch,
+    so the waveforms are the same bytes in every run (lanes per return and bin, added at once, are not)."""
+    reach = REACH_SIGMAS * sigma
+    span = int(math.ceil(2 * reach / bin_range)) + 1        # the bins a return's ± reach can touch
+    scale = 1.0 / (sigma * math.sqrt(2.0))
+    gain = sigma * math.sqrt(math.pi / 2) / bin_range
+    row = dr.arange(mi.UInt32, dr.width(rows))
+    base = rows * S
+    step = mi.UInt32(0)
+    while step < S * span:
+        sub, j = step // span, step % span
+        r, p = dr.gather(mi.Float, t, base + sub), dr.gather(mi.Float, power, base + sub)
+        valid = dr.isfinite(r)
+        r = dr.select(valid, r, 0.0)
+        k = dr.floor((r - reach) / bin_range) + mi.Float(j)        # the bin's absolute index
+        part = p * gain * (dr.erf(((k + 1) * bin_range - r) * scale) - dr.erf((k * bin_range - r) * scale))
+        local = k - first
+        inside = valid & (local >= 0) & (local < B)
+        dr.scatter_reduce(dr.ReduceOp.Add, waveform, part, row * B + mi.UInt32(dr.maximum(local, 0.0)), inside)
+        step += 1
 
 
 @dataclass
