@@ -5,7 +5,7 @@ dropped) and be grown by the widest sub-ray's distance in the world's metres, wh
 import numpy as np
 import pytest
 
-from mitsuforest.scene.proxies import CELL, model_cells, occupied_cells, proxy_scene, smallest_scale
+from mitsuforest.scene.proxies import CELL, Cells, model_cells, occupied_cells, proxy_scene, smallest_scale
 
 RNG = np.random.default_rng(30)
 
@@ -27,7 +27,9 @@ def test_every_surface_point_of_a_tree_lies_in_a_cell_of_its_proxy(demo_setup):
     _, plan, models, _ = demo_setup
     for name in sorted({o.model for o in plan.objects}):
         model = models[name]
-        cells = {tuple(c) for c in model_cells(model)}
+        index, size = model_cells(model)
+        assert size == CELL
+        cells = {tuple(c) for c in index}
         for part in model.parts:
             t = part.vertices[part.faces]
             u, v = RNG.uniform(size=(2, len(t), 1))
@@ -57,7 +59,21 @@ def test_a_proxy_is_grown_in_world_metres_under_a_scaled_placement(variant):
                   np.tile([1.0, 0, 0], (len(xs), 1)), np.zeros(len(xs)))
     bounds, box = np.array([[10.0, 0, 0], [40.0, 10, 1]]), np.array([[9.0, -1, -1], [41.0, 11, 2]])
     with variant_scope(variant):
-        scene = proxy_scene({"cube": np.array([[0, 0, 0]], np.int32)}, [("cube", matrix)], 0.1, ground)
+        scene = proxy_scene({"cube": Cells(np.array([[0, 0, 0]], np.int32), 0.5)}, [("cube", matrix)], 0.1, ground)
         kept = aimed_at(upload_pulses(made), [(100.0, scene)], bounds, box, range_max=100.0)
         assert kept.pulse_id.numpy().tolist() == [0, 2, 4, 5]
         assert isinstance(scene, mi.Scene)
+
+
+def test_a_large_model_gets_larger_cells():
+    """A 3 km square of two triangles would be 3.6 · 10^7 cells of 0.5 m a layer: its cells double until its
+    box spans at most MAX_GRID of them (2 m), and it occupies them all (its triangles' boxes fill the layer)."""
+    from mitsuforest.scene.proxies import MAX_GRID
+    from mitsuforest.trees.models import Component, Model, Part
+    square = np.array([[0, 0, 0], [3000, 0, 0], [3000, 3000, 0.3], [0, 3000, 0.3]], float)
+    part = Part("ground", square, np.array([[0, 1, 2], [0, 2, 3]], np.uint32), np.zeros(2, np.uint16))
+    index, size = model_cells(Model("plate", [part], [Component("rock", 65)]))
+    side = int(np.floor(3000 / size)) + 1
+    assert size == 2.0 and (np.floor(np.array([3000, 3000, 0.3]) / size) + 2).prod() <= MAX_GRID
+    assert (np.floor(np.array([3000, 3000, 0.3]) / (size / 2)) + 2).prod() > MAX_GRID
+    assert len(index) == side * side and index[:, 2].max() == 0

@@ -12,6 +12,7 @@ without touching a leaf.
 from __future__ import annotations
 
 import itertools
+from typing import NamedTuple
 
 import mitsuba as mi
 import numpy as np
@@ -20,6 +21,7 @@ from .meshes import mitsuba_mesh
 
 CELL = 0.5    # m, a proxy cell's side in the model's frame
 SMALL = 2.5   # m: a model no larger than this a side has its box for proxy (model_cells)
+MAX_GRID = 1 << 24   # cells of a model's box at most: larger models get larger cells (model_cells)
 
 #: (8, 3) the corners of a unit cube, corner i at (i & 1, i >> 1 & 1, i >> 2 & 1)
 _CORNERS = np.array([[i & 1, (i >> 1) & 1, (i >> 2) & 1] for i in range(8)])
@@ -55,22 +57,37 @@ def occupied_cells(vertices: np.ndarray, faces: np.ndarray, cell: float = CELL) 
     return (np.argwhere(grid) + base).astype(np.int32)
 
 
+class Cells(NamedTuple):
+    """A model's proxy: the indices (k, 3) int32 of the cells of side ``size`` (m, model frame) it occupies."""
+
+    index: np.ndarray
+    size: float
+
+
 def _cells_of_part(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return occupied_cells(vertices, faces)
 
 
-def model_cells(model) -> np.ndarray:
-    """(k, 3) int32 the cells of :data:`CELL` that a :class:`~mitsuforest.trees.models.Model`'s parts
-    occupy (kept with a cached model's read-only parts, so a worker finds them once). A model within
-    :data:`SMALL` m a side (a shrub, a rock: drawn anew for each plot, and about as full as its box) takes
-    every cell of its box instead."""
+def model_cells(model) -> Cells:
+    """The cells of :data:`CELL` that a :class:`~mitsuforest.trees.models.Model`'s parts occupy (kept with a
+    cached model's read-only parts, so a worker finds them once), or of a side doubled until its box
+    spans at most :data:`MAX_GRID` of them (a large imported mesh). A model within :data:`SMALL` m a side
+    (a shrub, a rock: drawn anew for each plot, and about as full as its box) takes every cell of its box
+    instead."""
     corners = model.hull_corners()
-    if len(corners) and np.all(np.ptp(corners, axis=0) <= SMALL):
-        lo, hi = (np.floor(f(corners, axis=0) / CELL).astype(np.int64) for f in (np.min, np.max))
-        return (np.indices(hi - lo + 1).reshape(3, -1).T + lo).astype(np.int32)
-    cells = [p.of_mesh(_cells_of_part) for p in model.parts]
+    extent = np.ptp(corners, axis=0) if len(corners) else np.zeros(3)
+    size = CELL
+    while np.prod(np.floor(extent / size) + 2) > MAX_GRID:
+        size *= 2
+    if np.all(extent <= SMALL):
+        lo, hi = (np.floor(f(corners, axis=0) / size).astype(np.int64) for f in (np.min, np.max))
+        return Cells((np.indices(hi - lo + 1).reshape(3, -1).T + lo).astype(np.int32), size)
+    if size == CELL:
+        cells = [p.of_mesh(_cells_of_part) for p in model.parts]
+    else:
+        cells = [occupied_cells(p.vertices, p.faces, size) for p in model.parts]
     cells = np.concatenate(cells) if cells else np.zeros((0, 3), np.int32)
-    return np.unique(cells, axis=0) if len(model.parts) > 1 else cells
+    return Cells(np.unique(cells, axis=0) if len(model.parts) > 1 else cells, size)
 
 
 def smallest_scale(matrix: np.ndarray) -> float:
@@ -83,7 +100,7 @@ def proxy_scene(cells: dict[str, np.ndarray], placements: list[tuple[str, np.nda
     """The placed proxies, each cell grown by ``grow`` m in the world frame, and ``boxes`` (k, 2, 3)
     grown alike, as one Mitsuba scene; call under a Mitsuba variant.
 
-    :param cells: model name → its :func:`model_cells`.
+    :param cells: model name → its :class:`Cells` (:func:`model_cells`).
     :param placements: (model name, 4 × 4 matrix) of each placed object.
     :param boxes: the world-frame boxes of what has no proxy (the ground).
     """
@@ -94,9 +111,10 @@ def proxy_scene(cells: dict[str, np.ndarray], placements: list[tuple[str, np.nda
     if len(boxes):
         d["boxes"] = mitsuba_mesh("boxes", *box_mesh(boxes + np.array([[-grow] * 3, [grow] * 3])))
     for name in sorted(scale):
-        if len(cells[name]):
+        index, size = cells[name]
+        if len(index):
             g = grow / scale[name]                       # a world ball of radius grow, in the model's frame
-            grown = np.stack([cells[name] * CELL - g, (cells[name] + 1) * CELL + g], axis=1)
+            grown = np.stack([index * size - g, (index + 1) * size + g], axis=1)
             d[f"proxy_{name}"] = {"type": "shapegroup", "cells": mitsuba_mesh(f"proxy_{name}", *box_mesh(grown))}
     for k, (name, matrix) in enumerate(placements):
         if f"proxy_{name}" in d:
