@@ -86,7 +86,7 @@ class PulseTracer:
         reaches = list(dict.fromkeys((near, sensor.range_max)))
         self.targets = [(r, grown(scan_scene.boxes, r)) for r in reaches]     # the objects' boxes: the reference's
         with variant_scope(self.variant):
-            # The pulses are aimed at the objects' proxies and the ground's box, each grown alike.
+            # The pulses are aimed at the objects' proxies and the ground's box (the last box), each grown alike.
             self.target_scenes = [(r, proxy_scene(scan_scene.cells, scan_scene.placements, r * spread + 0.01,
                                                   scan_scene.boxes[-1:])) for r in reaches]
             self.caster = EchoKernel(scan_scene.mitsuba, weights=self.weights, table=self.table,
