@@ -79,7 +79,7 @@ class ScanResult:
     hits: np.ndarray | None = None         # HIT_DTYPE, what each point hit (scan; None from scan_batches)
     pulses_emitted: int = 0                # time slots flown (fired or not)
     pulses_fired: int = 0                  # inside the field of view
-    pulses_cast: int = 0                   # fired and aimed at an object's box: traced
+    pulses_cast: int = 0                   # fired and aimed at an object's proxy or the ground's box: traced
     rays: int = 0
     seconds: float = 0.0
 
