@@ -488,12 +488,15 @@ def test_a_batch_traced_in_launches_makes_the_same_points_and_waveforms(demo_set
 
 
 def test_the_next_batch_casts_about_a_million_sub_rays_within_its_bounds():
-    """``next_batch``: 15 % of slots cast at 19 sub-rays → 1e6 / (19 · 0.15) slots; never under the
-    default batch nor over the backend's most slots; a batch that cast nothing → the most."""
+    """``next_batch``: 15 % of 200,000 slots cast at 19 sub-rays → 1e6 / (19 · 0.15) slots; at most twice
+    the last batch, never under the default batch nor over the backend's most slots; a batch that cast
+    nothing → twice the last, up to the most."""
     from mitsuforest.scan import MAX_BATCH_SLOTS, default_batch, next_batch
-    assert next_batch("llvm_ad_mono", 19, 15_000, 100_000) == 1_000_000 * 100_000 // (15_000 * 19) == 350_877
+    assert next_batch("llvm_ad_mono", 19, 30_000, 200_000) == 1_000_000 * 200_000 // (30_000 * 19) == 350_877
+    assert next_batch("llvm_ad_mono", 19, 15_000, 105_263) == 210_526                 # twice the last
     assert next_batch("llvm_ad_mono", 19, 90_000, 100_000) == default_batch("llvm_ad_mono", 19) == 105_263
     assert next_batch("llvm_ad_mono", 1, 100, 400_000) == MAX_BATCH_SLOTS["llvm"]
+    assert next_batch("llvm_ad_mono", 19, 0, 105_263) == 210_526
     assert next_batch("cuda_ad_mono", 19, 0, 1_000_000) == MAX_BATCH_SLOTS["cuda"]
 
 

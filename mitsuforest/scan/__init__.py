@@ -6,8 +6,9 @@ of :func:`default_batch` slots (about :data:`BATCH_SUB_RAYS` sub-rays per launch
 about two million, and few sub-rays per pulse need more slots to pay each launch's fixed cost), then
 of :func:`next_batch` slots: as many as cast about :data:`CAST_SUB_RAYS` sub-rays at the share of slots
 that the leg's last batch cast (most of a 360° scanner's slots aim at the sky or past a small plot,
-and each batch has a fixed cost), its cast pulses traced in launches of at most :data:`BATCH_SUB_RAYS`
-sub-rays. For each batch the :class:`~mitsuforest.scan.tracer.PulseTracer` decides on the
+and each batch has a fixed cost), at most twice the last, its cast pulses traced in launches of at most
+:data:`LAUNCH_SUB_RAYS` sub-rays (so a batch that casts more than its last does not hold more sub-rays at
+once). For each batch the :class:`~mitsuforest.scan.tracer.PulseTracer` decides on the
 device which pulses fire and can reach the scene's box, then traces them (sub-rays, radiometry,
 waveform, ranging noise); only finished echoes come back to numpy, as points and, beside them, what
 each hit (:data:`HIT_DTYPE`), which the labels stage turns into ids. Memory is bounded by the
@@ -48,7 +49,8 @@ HIT_DTYPE = np.dtype([("object_row", "<u4"), ("triangle", "<u4")])
 
 BATCH_SUB_RAYS = {"llvm": 2_000_000, "cuda": 20_000_000}   # default sub-rays per launch, by Dr.Jit backend
 MAX_BATCH_SLOTS = {"llvm": 400_000, "cuda": 1_000_000}     # ... and at most this many time slots
-CAST_SUB_RAYS = {"llvm": 1_000_000, "cuda": 10_000_000}    # sub-rays cast per launch that next_batch aims at
+CAST_SUB_RAYS = {"llvm": 1_000_000, "cuda": 10_000_000}    # sub-rays cast per batch that next_batch aims at
+LAUNCH_SUB_RAYS = {"llvm": 1_000_000, "cuda": 20_000_000}  # an automatic batch's sub-rays traced at once, at most
 
 
 def default_batch(variant: str, beam_samples: int) -> int:
@@ -63,14 +65,15 @@ def default_batch(variant: str, beam_samples: int) -> int:
 def next_batch(variant: str, beam_samples: int, cast: int, slots: int) -> int:
     """Time slots for a leg's next batch when ``simulation.pulses_per_batch`` is not set: about
     :data:`CAST_SUB_RAYS` sub-rays if it casts the share ``cast / slots`` of its slots as the last did,
-    between :func:`default_batch` and :data:`MAX_BATCH_SLOTS`. The demo's survey casts about 15 % of its
+    between :func:`default_batch` and :data:`MAX_BATCH_SLOTS`, and at most twice the last batch. The demo's survey casts about 15 % of its
     slots: about 350,000 slots a batch at 19 sub-rays instead of 105,263."""
     backend = variant.split("_")[0]
     least = default_batch(variant, beam_samples)
+    most = min(MAX_BATCH_SLOTS[backend], 2 * max(slots, least))      # at most twice the last: grow in steps
     if cast <= 0:
-        return max(least, MAX_BATCH_SLOTS[backend])
+        return max(least, most)
     wanted = CAST_SUB_RAYS[backend] * slots // (cast * beam_samples)
-    return int(max(least, min(wanted, MAX_BATCH_SLOTS[backend])))
+    return int(max(least, min(wanted, most)))
 
 
 @dataclass
@@ -120,7 +123,8 @@ def scan_batches(scene, plan, scan_scene, result: ScanResult, progress: bool = T
                          sim.point_position, platform=platform, navigation=navigation_model(scene, plan, platform),
                          waveforms=scene.output.waveforms and on_pulses is not None,
                          pulse_records=scene.output.pulses and on_pulses is not None,
-                         launch_pulses=None if sim.pulses_per_batch else BATCH_SUB_RAYS[backend] // sim.beam_samples)
+                         launch_pulses=None if sim.pulses_per_batch else
+                         max(1, LAUNCH_SUB_RAYS[backend] // sim.beam_samples))
     counts = [leg.pulse_count(scene.pulse_frequency) for leg in plan.legs]
     legs = range(len(plan.legs)) if legs is None else legs
     first_id = sum(counts[:legs.start])
