@@ -55,9 +55,9 @@ LAUNCH_SUB_RAYS = {"llvm": 1_000_000, "cuda": 20_000_000}  # an automatic batch'
 
 def default_batch(variant: str, beam_samples: int) -> int:
     """Time slots of a leg's first batch, and the fewest of any, when ``simulation.pulses_per_batch`` is
-    not set: 105,263 at 19 sub-rays on a CPU, 400,000 for a thin beam. Measured on the open scene's thin beam: 26–28 s end to end and
-    750–790 MB at 400k slots; 29–31 s and 682 MB at 100k (each launch has a fixed cost); 27 s but
-    914 MB at 1 M."""
+    not set: 105,263 at 19 sub-rays on a CPU, 400,000 for a thin beam. Measured on the open scene's thin
+    beam: 26–28 s end to end and 750–790 MB at 400k slots; 29–31 s and 682 MB at 100k (each launch has a
+    fixed cost); 27 s but 914 MB at 1 M."""
     backend = variant.split("_")[0]
     return max(1000, min(BATCH_SUB_RAYS[backend] // beam_samples, MAX_BATCH_SLOTS[backend]))
 
@@ -65,8 +65,8 @@ def default_batch(variant: str, beam_samples: int) -> int:
 def next_batch(variant: str, beam_samples: int, cast: int, slots: int) -> int:
     """Time slots for a leg's next batch when ``simulation.pulses_per_batch`` is not set: about
     :data:`CAST_SUB_RAYS` sub-rays if it casts the share ``cast / slots`` of its slots as the last did,
-    between :func:`default_batch` and :data:`MAX_BATCH_SLOTS`, and at most twice the last batch. The demo's survey casts about 15 % of its
-    slots: about 350,000 slots a batch at 19 sub-rays instead of 105,263."""
+    between :func:`default_batch` and :data:`MAX_BATCH_SLOTS`, and at most twice the last batch. The demo's
+    survey casts about 15 % of its slots: about 350,000 slots a batch at 19 sub-rays instead of 105,263."""
     backend = variant.split("_")[0]
     least = default_batch(variant, beam_samples)
     most = min(MAX_BATCH_SLOTS[backend], 2 * max(slots, least))      # at most twice the last: grow in steps
