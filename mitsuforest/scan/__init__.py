@@ -58,7 +58,7 @@ def default_batch(variant: str, beam_samples: int) -> int:
     not set: 105,263 at 19 sub-rays on a CPU, 400,000 for a thin beam. Measured on the open scene's thin
     beam: 26–28 s end to end and 750–790 MB at 400k slots; 29–31 s and 682 MB at 100k (each launch has a
     fixed cost); 27 s but 914 MB at 1 M."""
-    backend = variant.split("_")[0]
+    backend = _backend(variant)
     return max(1000, min(BATCH_SUB_RAYS[backend] // beam_samples, MAX_BATCH_SLOTS[backend]))
 
 
@@ -67,13 +67,18 @@ def next_batch(variant: str, beam_samples: int, cast: int, slots: int) -> int:
     :data:`CAST_SUB_RAYS` sub-rays if it casts the share ``cast / slots`` of its slots as the last did,
     between :func:`default_batch` and :data:`MAX_BATCH_SLOTS`, and at most twice the last batch. The demo's
     survey casts about 15 % of its slots: about 350,000 slots a batch at 19 sub-rays instead of 105,263."""
-    backend = variant.split("_")[0]
+    backend = _backend(variant)
     least = default_batch(variant, beam_samples)
     most = min(MAX_BATCH_SLOTS[backend], 2 * max(slots, least))      # at most twice the last: grow in steps
     if cast <= 0:
-        return max(least, most)
+        return most
     wanted = CAST_SUB_RAYS[backend] * slots // (cast * beam_samples)
     return int(max(least, min(wanted, most)))
+
+
+def _backend(variant: str) -> str:
+    """``llvm`` or ``cuda``: the Dr.Jit backend of a Mitsuba variant."""
+    return variant.split("_")[0]
 
 
 @dataclass
@@ -118,7 +123,7 @@ def scan_batches(scene, plan, scan_scene, result: ScanResult, progress: bool = T
 
     sim = scene.simulation
     platform = Platform(scene)
-    backend = scan_scene.variant.split("_")[0]
+    backend = _backend(scan_scene.variant)
     tracer = PulseTracer(scan_scene, scene.sensor, sim.beam_samples, scene.seed, sim.beam_pattern,
                          sim.point_position, platform=platform, navigation=navigation_model(scene, plan, platform),
                          waveforms=scene.output.waveforms and on_pulses is not None,

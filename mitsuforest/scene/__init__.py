@@ -98,7 +98,13 @@ class ScanScene:
     boxes: np.ndarray        # (k, 2, 3) bounds of every object in reach of the survey, and the ground's
     reflectance: np.ndarray | None = None   # (256,) by class; None: ours at the sensor's wavelength
     placements: list = field(default_factory=list)   # (model name, 4×4 matrix) of every object in reach of the survey
-    cells: dict = field(default_factory=dict)        # model name -> its proxy's cells (proxies.model_cells)
+    survey_models: dict = field(default_factory=dict)  # model name -> Model of those objects
+
+    @cached_property
+    def cells(self) -> dict:
+        """Model name → its proxy's cells (:func:`~.proxies.model_cells`), found when the scan first asks
+        (a survey prepared only to write, a dataset's merge, never does)."""
+        return {name: model_cells(model) for name, model in self.survey_models.items()}
 
 
 def reachable(obj_bounds: np.ndarray, legs, sensor) -> bool:
@@ -168,10 +174,10 @@ def _build(plan, models, sensor, variant, legs, reflectance) -> ScanScene:
     table = _hit_table(mi_scene, plan, models, used, keep, ground_v, ground_f, part_meshes)
     all_bounds = [b for _, _, b in survey] + [np.array([ground_v.min(0), ground_v.max(0)])]
     bbox = np.array([np.min([b[0] for b in all_bounds], 0), np.max([b[1] for b in all_bounds], 0)])
-    triangles = sum(models[n].triangles for n in sorted({obj.model for obj, _, _ in survey})) + len(ground_f)
+    survey_models = {name: models[name] for name in sorted({obj.model for obj, _, _ in survey})}
+    triangles = sum(m.triangles for m in survey_models.values()) + len(ground_f)
     return ScanScene(mi_scene, table, bbox, variant, len(survey), len(placed) - len(survey), triangles, len(keep),
-                     np.array(all_bounds), reflectance, [(obj.model, m) for obj, m, _ in survey],
-                     {name: model_cells(models[name]) for name in sorted({obj.model for obj, _, _ in survey})})
+                     np.array(all_bounds), reflectance, [(obj.model, m) for obj, m, _ in survey], survey_models)
 
 
 def _registry_ids(shapes: list[mi.Mesh]) -> np.ndarray:

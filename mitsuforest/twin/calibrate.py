@@ -87,8 +87,12 @@ def echo_scale(echoes_real: float, echoes_twin: float, exponent: float = 1.0) ->
     """The factor on leaf area per crown area that moves the twin's echoes per pulse from ``echoes_twin``
     to ``echoes_real`` where the echoes beyond the first go as ``LAI ** -exponent``:
     ``((E_twin - 1) / (E_real - 1)) ** (1 / exponent)``, kept within :data:`SCALE_LIMITS`."""
-    excess_real, excess_twin = max(echoes_real - 1.0, MIN_EXCESS), max(echoes_twin - 1.0, MIN_EXCESS)
-    return _bounded((excess_twin / excess_real) ** (1.0 / exponent))
+    return _bounded((_excess(echoes_twin) / _excess(echoes_real)) ** (1.0 / exponent))
+
+
+def _excess(echoes_per_pulse: float) -> float:
+    """The echoes per pulse beyond the first, at least :data:`MIN_EXCESS`."""
+    return max(echoes_per_pulse - 1.0, MIN_EXCESS)
 
 
 def leaf_rule(real: dict) -> str:
@@ -110,8 +114,8 @@ def leaf_exponent(real: dict, last: dict, twin: dict, factor: float) -> float:
     """The exponent the last leaf step (``factor``, from the measures ``last`` to ``twin``) showed, for
     :func:`leaf_scale`'s measure (:func:`response_exponent`)."""
     if leaf_rule(real) == "echoes":    # the excess echoes fall as leaf rises: the exponent of 1 / factor
-        return response_exponent(max(last["echoes_per_pulse"] - 1.0, MIN_EXCESS),
-                                 max(twin["echoes_per_pulse"] - 1.0, MIN_EXCESS), 1.0 / factor, 1.0)
+        return response_exponent(_excess(last["echoes_per_pulse"]), _excess(twin["echoes_per_pulse"]),
+                                 1.0 / factor, 1.0)
     return response_exponent(-math.log(max(last["gap_fraction"], MIN_GAP)),
                              -math.log(max(twin["gap_fraction"], MIN_GAP)), factor, 1.0)
 
