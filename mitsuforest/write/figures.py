@@ -16,6 +16,7 @@ from .atomic import atomic_path
 from .quicklook import CLASS_COLOURS, WOODY_CLASSES, front_points, instance_palette, paint
 
 DPI = 100
+PNG_LEVEL = 3      # zlib level of the pictures
 _WOODY = np.isin(np.arange(256), WOODY_CLASSES)          # by class code
 _TREE = np.isin(np.arange(256), (TREE_WOOD, TREE_LEAVES))
 NON_TREE_GREY = 200
@@ -35,13 +36,28 @@ def _figure(width_in: float, height_in: float, left: float, right: float, bottom
 
 
 def _save(fig, path) -> None:
-    """Draw ``fig`` once and write it as a PNG: the bytes ``fig.savefig(path, dpi=DPI)`` writes."""
-    import matplotlib.image
+    """Draw ``fig`` once and write it as an RGB PNG: the pixels ``fig.savefig(path, dpi=DPI)`` writes (its
+    RGBA at zlib level 6 takes 1.4 times as long to compress, for files 5 % smaller)."""
+    from PIL import Image
     canvas = _canvas_class()(fig)
     canvas.draw()
+    rgb = np.ascontiguousarray(np.asarray(canvas.buffer_rgba())[..., :3])    # the figures are opaque
     with atomic_path(path) as tmp:
         # The margins of _figure already make room for legends outside the axes (no bbox_inches="tight").
-        matplotlib.image.imsave(tmp, canvas.buffer_rgba(), format="png", origin="upper", dpi=DPI)
+        Image.fromarray(rgb).save(tmp, format="PNG", dpi=(DPI, DPI), compress_level=PNG_LEVEL)
+
+
+def _title(ax, text: str, **kwargs) -> None:
+    """Give ``ax`` a title at a fixed height. Left to place itself, a title measures every tick label of
+    its axes at each draw to clear ticks on top, which no axes here has: a fifth of a picture's time."""
+    ax.set_title(text, y=1.0, **kwargs)
+
+
+def _log_scale(ax, axis: str) -> None:
+    """Put ``ax``'s ``axis`` ("x" or "y") on a log scale with ticks at the decades only: the eight minor
+    ticks of each decade were half the drawing time of a chart."""
+    ax.set(**{f"{axis}scale": "log"})
+    ax.minorticks_off()
 
 
 @functools.cache
@@ -97,7 +113,7 @@ def top_figure(top, tile=None, classes_present=()):
         ax.annotate(f"{tile.tile:g} m tile", (tile.x0, tile.y0 + tile.tile), xytext=(2, 3),
                     textcoords="offset points", fontsize=8)
     ax.set(xlabel="x (m, local frame)", ylabel="y (m)")
-    ax.set_title("Top view by class (highest point per pixel, gaps < 1 m filled)", pad=14)   # over the tile's label
+    _title(ax, "Top view by class (highest point per pixel, gaps < 1 m filled)", pad=14)   # over the tile's label
     _class_legend(ax, classes_present, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
     return fig
 
@@ -138,9 +154,8 @@ def tile_figure(tile):
     axes = fig.subplots(1, 3, sharey=True)
     for ax, (title, image, codes) in zip(axes, panels):
         ax.imshow(image, extent=(*x_range, *z_range), interpolation="nearest")
-        ax.set(title=f"{tile.tile:g} m tile from the south: {title}", xlabel="x (m)",
-               xticks=np.arange(np.ceil(x_range[0] / 5) * 5, x_range[1] - 1, 5))   # no label at the shared edges
-        ax.title.set_fontsize(9)
+        _title(ax, f"{tile.tile:g} m tile from the south: {title}", fontsize=9)
+        ax.set(xlabel="x (m)", xticks=np.arange(np.ceil(x_range[0] / 5) * 5, x_range[1] - 1, 5))   # no label at the shared edges
         ax.set_anchor("N")      # spare height goes below, where the legend is
         if codes is not None:
             _class_legend(ax, codes, ncol=2, **_below(ax))
@@ -219,9 +234,9 @@ def profile_figure(counts):
             ax.stairs(n, edges[lo:hi + 1], orientation="horizontal", color=CLASS_COLOURS[c] / 255, lw=1.6,
                       label=f"{class_name(c)} ({n.sum():,})", baseline=None)
         ax.set_ylim(edges[lo], edges[hi])
-    ax.set_xscale("log")
-    ax.set(xlabel=f"returns per {edges[1] - edges[0]:g} m of height (log)", ylabel="height above the ground (m)",
-           title="Vertical profile: returns by height and class")
+    _log_scale(ax, "x")
+    ax.set(xlabel=f"returns per {edges[1] - edges[0]:g} m of height (log)", ylabel="height above the ground (m)")
+    _title(ax, "Vertical profile: returns by height and class")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="upper right")
     return fig
@@ -246,9 +261,10 @@ def returns_figure(pulses_by_returns: np.ndarray, counts):
         bars = left.bar(n, pulses, color="#4a7bb7")
         total = pulses.sum()
         left.bar_label(bars, [f"{p / total:.1%}" if p / total >= 0.0005 else "" for p in pulses], fontsize=7)
-        left.set_yscale("log")
+        _log_scale(left, "y")
         left.set_xticks(n)
-    left.set(xlabel="returns per pulse", ylabel="pulses (log)", title="Returns histogram")
+    left.set(xlabel="returns per pulse", ylabel="pulses (log)")
+    _title(left, "Returns histogram")
     by_return = counts.by_return[1:]
     numbers = np.flatnonzero(by_return.sum(1)) + 1
     bottom = np.zeros(len(numbers))
@@ -257,7 +273,7 @@ def returns_figure(pulses_by_returns: np.ndarray, counts):
         right.bar(numbers, share * 100, bottom=bottom, color=CLASS_COLOURS[c] / 255, label=class_name(c))
         bottom += share * 100
     right.set_xticks(numbers)
-    right.set(xlabel="return number", ylabel="share of the points (%)", ylim=(0, 100),
-              title="Classes by return number")
+    right.set(xlabel="return number", ylabel="share of the points (%)", ylim=(0, 100))
+    _title(right, "Classes by return number")
     right.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
     return fig
