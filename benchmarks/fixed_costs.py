@@ -39,6 +39,7 @@ STAGES = [
     ("mitsuforest.survey", "build_models", "models"),
     ("mitsuforest.survey", "build_scene", "mitsuba scene"),
     ("mitsuforest.survey", "PointWriter", "point writer setup"),
+    ("mitsuforest.scan.tracer", "PulseTracer", "tracer setup"),     # the proxies' cells and scene, the kernel's tables
     ("mitsuforest.survey", "_drain", "scan + points"),
     ("mitsuforest.write.PointWriter", "close", "points close"),
     ("mitsuforest.write.PointWriter", "statistics", "statistics"),
