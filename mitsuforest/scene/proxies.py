@@ -51,9 +51,13 @@ def occupied_cells(vertices: np.ndarray, faces: np.ndarray, cell: float = CELL) 
     lo -= base
     extra = hi - base - lo                                               # cells past the first, per axis
     grid = np.zeros(hi.max(axis=0) - base + 1, bool)
-    for step in itertools.product(*(range(n + 1) for n in extra.max(axis=0))):   # mostly 0-1 a side
-        at = lo[np.all(extra >= step, axis=1)] + step if any(step) else lo
-        grid[at[:, 0], at[:, 1], at[:, 2]] = True
+    grid[lo[:, 0], lo[:, 1], lo[:, 2]] = True
+    spanning = np.flatnonzero(extra.any(axis=1))      # most triangles (leaves) lie in one cell
+    lo, extra = lo[spanning], extra[spanning]
+    for step in itertools.product(*(range(n + 1) for n in extra.max(axis=0, initial=0))):   # mostly 0-1 a side
+        if any(step):
+            at = lo[np.all(extra >= step, axis=1)] + step
+            grid[at[:, 0], at[:, 1], at[:, 2]] = True
     return (np.argwhere(grid) + base).astype(np.int32)
 
 
