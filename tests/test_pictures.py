@@ -92,7 +92,7 @@ def test_heights_above_a_ground_given_only_as_a_mesh():
     assert np.allclose(counts.ground(np.array([3.0, 7.0]), np.array([4.0, 9.5])), [4.5, 7.25])
 
 
-def test_a_picture_is_drawn_once_into_the_bytes_savefig_writes(tmp_path, monkeypatch):
+def test_a_picture_is_drawn_once_into_the_pixels_savefig_writes(tmp_path, monkeypatch):
     """The pictures are drawn once, with fixed margins and no layout engine, into the same pixels as
     ``savefig``: the tile with its legends, and the returns chart's log axis."""
     from matplotlib.figure import Figure

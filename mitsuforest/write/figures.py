@@ -49,7 +49,8 @@ def _save(fig, path) -> None:
 
 def _title(ax, text: str, **kwargs) -> None:
     """Give ``ax`` a title at a fixed height. Left to place itself, a title measures every tick label of
-    its axes at each draw to clear ticks on top, which no axes here has: a fifth of a picture's time."""
+    its axes at each draw to clear ticks on top, which no axes here has (a fifth of the drawing, by
+    cProfile)."""
     ax.set_title(text, y=1.0, **kwargs)
 
 
