@@ -77,3 +77,11 @@ def test_a_large_model_gets_larger_cells():
     assert size == 2.0 and (np.floor(np.array([3000, 3000, 0.3]) / size) + 2).prod() <= MAX_GRID
     assert (np.floor(np.array([3000, 3000, 0.3]) / (size / 2)) + 2).prod() > MAX_GRID
     assert len(index) == side * side and index[:, 2].max() == 0
+
+
+def test_a_model_without_vertices_has_no_cells():
+    """No corners: no box to fill and no triangle to place, so no cells (not an error on an empty box)."""
+    from mitsuforest.trees.models import Component, Model, Part
+    part = Part("wood", np.zeros((0, 3), np.float32), np.zeros((0, 3), np.uint32), np.zeros(0, np.uint16))
+    index, size = model_cells(Model("bare", [part], [Component("stem", 4)]))
+    assert index.shape == (0, 3) and size == CELL

@@ -83,7 +83,7 @@ def model_cells(model) -> Cells:
     size = CELL
     while np.prod(np.floor(extent / size) + 2) > MAX_GRID:
         size *= 2
-    if np.all(extent <= SMALL):
+    if len(corners) and np.all(extent <= SMALL):
         lo, hi = (np.floor(f(corners, axis=0) / size).astype(np.int64) for f in (np.min, np.max))
         return Cells((np.indices(hi - lo + 1).reshape(3, -1).T + lo).astype(np.int32), size)
     if size == CELL:
