@@ -29,6 +29,7 @@ from .profile import ReturnCounts
 from .quicklook import SideTile, TopView
 
 SPACING_TILE = 5.0  # m, side of the tiles in which the mean nearest-neighbour spacing is measured
+SPACING_QUERIES = 10_000  # points of a tile drawn to ask for their nearest neighbour (the tree holds them all)
 
 
 class PointWriter:
@@ -73,6 +74,7 @@ class PointWriter:
         corner = [rng.uniform(0, max(s - SPACING_TILE, 0), 4) for s in self.area]
         self._tiles = np.column_stack(corner)
         self._tile_points = [[] for _ in self._tiles]
+        self._spacing_rng = seeds.rng(scene.seed, "spacing-queries")
         self.dtype = None
 
     def add(self, points: np.ndarray) -> None:
@@ -181,7 +183,7 @@ class PointWriter:
         for bucket in self._tile_points:
             xyz = np.vstack(bucket) if bucket else np.zeros((0, 3))
             if len(xyz) > 1:
-                spacings.append(nearest_distances(xyz))
+                spacings.append(nearest_distances(xyz, spacing_queries(len(xyz), self._spacing_rng)))
         return {
             "points": int(self.count),
             "density_per_m2": self.count / plot_area if plot_area else 0.0,
@@ -192,20 +194,39 @@ class PointWriter:
         }
 
 
-def nearest_distances(xyz: np.ndarray, cell: float = 0.25) -> np.ndarray:
-    """(n,) the distance from each of the points ``xyz`` (n, 3), n >= 2, to its nearest other one.
+def spacing_queries(n: int, rng: np.random.Generator, most: int = SPACING_QUERIES) -> np.ndarray | None:
+    """Rows of a tile's n points that ask for their nearest neighbour: ``most`` of them drawn at random
+    without replacement, in increasing order, or None (all) when there are no more than that. A random
+    draw, not every k-th point, which could fall in step with the returns of each pulse."""
+    if n <= most:
+        return None
+    return np.sort(rng.choice(n, most, replace=False))
 
-    The points go into the k-d tree and its queries in the order of ``cell``-sized squares (by y, then
-    x), so that neighbours lie near each other in memory: half the time of the scan's order. Each
-    distance is the same number in any order (that of the same pair of points, computed alike).
+
+def nearest_distances(xyz: np.ndarray, rows: np.ndarray | None = None, cell: float = 0.25) -> np.ndarray:
+    """(m,) the distance from each of the points ``xyz[rows]`` (all n when ``rows`` is None) to its
+    nearest other point of ``xyz`` (n, 3), n >= 2.
+
+    The tree holds every point, so that a sample of queries does not widen the spacing as thinning the
+    points would. The points go into the k-d tree and its queries in the order of ``cell``-sized squares
+    (by y, then x), so that neighbours lie near each other in memory: half the time of the scan's order.
+    Each distance is the same number in any order (that of the same pair of points, computed alike).
     """
     from scipy.spatial import cKDTree
     square = np.floor(xyz[:, :2] / cell).astype(np.int64)
     order = np.lexsort((square[:, 0], square[:, 1]))
     near = xyz[order]
+    tree = cKDTree(near, balanced_tree=False)
+    if rows is None:
+        distances = np.empty(len(xyz))
+        distances[order] = tree.query(near, k=2)[0][:, 1]
+        return distances
+    asking = np.zeros(len(xyz), bool)
+    asking[rows] = True
+    asked = order[asking[order]]                 # the rows asking, in the squares' order
     distances = np.empty(len(xyz))
-    distances[order] = cKDTree(near, balanced_tree=False).query(near, k=2)[0][:, 1]
-    return distances
+    distances[asked] = tree.query(xyz[asked], k=2)[0][:, 1]
+    return distances[rows]
 
 
 def georeference(points: np.ndarray, offset) -> np.ndarray:
