@@ -369,3 +369,27 @@ def test_for_instance_profile_header_dates_as_ours(monkeypatch):
     assert for_instance_header(OFFSET, None).creation_date == datetime.date(2000, 1, 1)
     monkeypatch.setenv("SOURCE_DATE_EPOCH", "1700000000")
     assert for_instance_header(OFFSET, None).creation_date == datetime.date(2023, 11, 14)
+
+
+def test_an_archetypes_crown_is_kept_in_the_cache_and_read_back_the_same(model_cache, monkeypatch):
+    """The plan's crown of an archetype (its skeleton grown, 0.05-0.1 CPU s) is stored once and read back
+    by a later process bit for bit, without growing the skeleton again; a drawn unique tree's is not
+    stored (its model is not either)."""
+    import mitsuforest.trees as trees
+    from mitsuforest.specs.archetypes import DEFAULT_ARCHETYPES
+    a, drawn = DEFAULT_ARCHETYPES[0], DEFAULT_ARCHETYPES[1]
+    trees._archetype_shape.cache_clear()
+    grown, components = trees.tree_shape(a)
+    [entry] = model_cache.glob("crown-*.npz")
+    trees.tree_shape(drawn, keep=False)
+    assert len(list(model_cache.glob("crown-*.npz"))) == 1
+    trees._archetype_shape.cache_clear()               # as another process would
+    with monkeypatch.context() as m:
+        m.setattr(trees, "grow", lambda _: pytest.fail("the skeleton was grown again"))
+        crown, again = trees.tree_shape(a)
+    assert np.array_equal(crown, grown) and crown.dtype == np.float64 and again == components > 10
+    assert not crown.flags.writeable
+    entry.write_bytes(b"PK\x03\x04 truncated zip")       # a damaged entry is grown again
+    trees._archetype_shape.cache_clear()
+    assert np.array_equal(trees.tree_shape(a)[0], grown)
+    trees._archetype_shape.cache_clear()

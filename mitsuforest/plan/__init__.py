@@ -49,8 +49,9 @@ class _Refusal(Exception):
         self.key, self.reason = key, reason
 
 
-TreeShape = Callable[[Archetype | MeshTree | QsmTree], tuple[np.ndarray, int]]
-"""A tree model's (k, 3) crown points, model frame, and its labelled component count (see
+TreeShape = Callable[..., tuple[np.ndarray, int]]
+"""``tree_shape(source, keep=True)``: a tree model's (k, 3) crown points, model frame, and its labelled
+component count; ``keep=False`` for a plot's drawn unique trees, whose shapes are not worth keeping (see
 :func:`mitsuforest.trees.tree_shape`, the trees stage's answer, which the plan cannot import)."""
 
 
@@ -172,7 +173,7 @@ def _tree_models(forest, seed: int, tree_shape: TreeShape) -> dict[str, tuple[np
     for i, entry in enumerate(forest.archetypes):
         drawn = isinstance(entry, UniqueTrees)
         for a in unique_archetypes(entry, seed, i) if drawn else (entry,):
-            crown, components = tree_shape(a)
+            crown, components = tree_shape(a, keep=not drawn)
             out[f"tree{len(out) + 1:02d}"] = crown, ModelSpec("tree", components, archetype=a, drawn=drawn or None)
     for entry in forest.models:
         crown, components = tree_shape(entry)   # builds (or loads) the model: files are read here

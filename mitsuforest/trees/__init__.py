@@ -13,7 +13,7 @@ import numpy as np
 from ..specs import ModelSpec
 from ..specs.archetypes import DEFAULT_ARCHETYPES, Archetype
 from ..specs.sources import MeshTree, QsmTree
-from .cache import cached
+from .cache import cached, cached_arrays
 from .imported import imported_model, summary as imported_summary
 from .models import Component, Model, Part, tree_components, tree_model
 from .skeleton import grow
@@ -26,31 +26,48 @@ _BUILDERS = {"bush": bush_model, "rock": rock_model, "stump": stump_model, "dead
              "grass": grass_patch_model, "litter": litter_patch_model}
 
 
-def tree_shape(source: Archetype | MeshTree | QsmTree) -> tuple[np.ndarray, int]:
+def tree_shape(source: Archetype | MeshTree | QsmTree, keep: bool = True) -> tuple[np.ndarray, int]:
     """What the plan needs of a tree model's shape (see :func:`mitsuforest.plan.plan_scene`): (k, 3) crown
     points in the model's frame, whose outline seen from above is the crown's cover, and the number of
     its labelled components (object ids per placed copy).
 
-    An archetype's crown is its skeleton widened outward by a leaf length; an imported tree's, the
-    corners of its model's hull (the model is built here, or read from the cache).
+    An archetype's crown is its skeleton widened outward by a leaf length, kept in the model cache
+    unless ``keep`` is false (a plot's drawn unique trees, whose models are not kept either); an
+    imported tree's, the corners of its model's hull (the model is built here, or read from the cache).
     """
     if isinstance(source, Archetype):
-        return _archetype_shape(source)
+        return _archetype_shape(source, keep)
     return imported_summary(source)
 
 
 @lru_cache(maxsize=64)
-def _archetype_shape(a: Archetype) -> tuple[np.ndarray, int]:
-    """Cached per process: a dataset worker plans many plots of the same archetypes, and growing their
-    skeletons was most of a small plot's planning time. The crown array is shared, so it is read-only."""
+def _archetype_shape(a: Archetype, keep: bool) -> tuple[np.ndarray, int]:
+    """Cached per process, and on disk when ``keep``: growing an archetype's skeleton took 0.05-0.1 CPU s,
+    most of a small plot's planning (0.8 s for the demo's ten in a fresh process). The crown array is
+    shared, so it is read-only."""
+    names = ("crown", "components")
+    if keep:
+        shape = cached_arrays("crown", archetype_parameters(a), names, lambda: _grown_crown(a))
+    else:
+        shape = _grown_crown(a)
+    crown = shape["crown"]
+    crown.flags.writeable = False
+    return crown, int(shape["components"])
+
+
+def _grown_crown(a: Archetype) -> dict[str, np.ndarray]:
     branches = grow(a)
     pts = np.vstack([b.points for b in branches])
     radial = pts.copy()
     radial[:, 2] = 0
     norm = np.linalg.norm(radial, axis=1, keepdims=True)
     crown = pts + radial / np.maximum(norm, 1e-9) * a.leaf_length
-    crown.flags.writeable = False
-    return crown, len(tree_components(a, branches))
+    return {"crown": crown, "components": np.array(len(tree_components(a, branches)))}
+
+
+def archetype_parameters(a: Archetype) -> dict:
+    """An archetype's fields that decide its geometry (all but its weight in a mix): its cache key's."""
+    return {k: v for k, v in dataclasses.asdict(a).items() if k != "weight"}
 
 
 def build_model(name: str, spec: ModelSpec) -> Model:
@@ -62,8 +79,7 @@ def build_model(name: str, spec: ModelSpec) -> Model:
         model = tree_model(spec.archetype, name)
     elif spec.kind == "tree":
         archetype = spec.archetype
-        params = {k: v for k, v in dataclasses.asdict(archetype).items() if k != "weight"}
-        model = cached("tree", params, lambda: tree_model(archetype, name))
+        model = cached("tree", archetype_parameters(archetype), lambda: tree_model(archetype, name))
     else:
         params = spec.parameters()
         model = cached(spec.kind, params, lambda: _BUILDERS[spec.kind](name=name, **params))

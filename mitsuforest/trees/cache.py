@@ -91,6 +91,22 @@ def cached(kind: str, params: dict, build) -> Model:
     return _copy(model)
 
 
+def cached_arrays(kind: str, params: dict, names: tuple[str, ...], build) -> dict[str, np.ndarray]:
+    """Load the arrays ``names`` for ``(kind, params)`` from the cache, or ``build()`` them (a dict of
+    those names to arrays) and try to store them: what is worth keeping besides a model itself (an
+    archetype's crown, which a plan needs before any model is built)."""
+    path = cache_dir() / (cache_key(kind, params) + ".npz")
+    with contextlib.suppress(*LOAD_ERRORS):    # no entry yet, or an unreadable or damaged one: build it
+        with np.load(path) as data:
+            return {name: data[name] for name in names}
+    arrays = build()
+    try:
+        _save_arrays(arrays, path)
+    except OSError as e:
+        _warn_write_failed(path.parent, e)
+    return arrays
+
+
 def _entry_state(path: Path) -> tuple | None:
     """The entry's path, modification time and size (a replaced or damaged file is read again), or
     None when there is no readable entry."""
@@ -128,7 +144,6 @@ def _warn_write_failed(folder: Path, error: OSError) -> None:
 
 
 def _save(model: Model, path: Path):
-    path.parent.mkdir(parents=True, exist_ok=True)
     arrays = {}
     for i, p in enumerate(model.parts):
         arrays[f"v{i}"], arrays[f"f{i}"], arrays[f"c{i}"] = p.vertices, p.faces, p.component
@@ -137,9 +152,15 @@ def _save(model: Model, path: Path):
               "components": [[c.kind, c.classification] for c in model.components],
               "volume": model.volume.as_dict() if model.volume else None,
               "meta": model.meta}
+    _save_arrays({"header": np.array(json.dumps(header)), **arrays}, path)
+
+
+def _save_arrays(arrays: dict[str, np.ndarray], path: Path) -> None:
+    """Write ``arrays`` to ``path`` (.npz) whole or not at all: a reader never sees a partial entry."""
+    path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(f".tmp-{os.getpid()}.npz")
     try:
-        np.savez(tmp, header=np.array(json.dumps(header)), **arrays)
+        np.savez(tmp, **arrays)
         os.replace(tmp, path)
     finally:
         with contextlib.suppress(OSError):
