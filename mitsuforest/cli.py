@@ -166,7 +166,6 @@ def _preload() -> None:
         import laspy  # noqa: F401
         import manifold3d  # noqa: F401
         import mitsuba  # noqa: F401
-        import trimesh  # noqa: F401
 
         from . import pipeline  # noqa: F401
 

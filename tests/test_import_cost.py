@@ -21,3 +21,17 @@ def test_reading_point_files_loads_no_mitsuba_and_the_scan_side_loads_on_first_u
             f"print({LOADED}, Platform.__module__, PulseTracer.__module__, POINT_DTYPE is TRACER_DTYPE)\n")
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True)
     assert out.stdout.splitlines() == ["[]", "['drjit', 'mitsuba'] mitsuforest.scan.platform mitsuforest.scan.tracer True"]
+
+
+def test_a_render_of_cached_models_imports_no_trimesh():
+    """trimesh (0.45 s to import, with scipy.ndimage) reads meshes and repairs imported wood: a render,
+    a dataset worker or the command line whose models are cached never needs it, so none of them loads
+    it until a model is built or a mesh is read."""
+    code = ("import sys\n"
+            "import mitsuforest.cli, mitsuforest.pipeline, mitsuforest.dataset.tasks\n"
+            "print('trimesh' in sys.modules)\n"
+            "from mitsuforest.trees.repair import boundary_loops\n"
+            "import numpy as np\n"
+            "print(boundary_loops(np.array([[0, 1, 2]])), 'trimesh' in sys.modules)\n")
+    out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True)
+    assert out.stdout.splitlines() == ["False", "1 True"]
