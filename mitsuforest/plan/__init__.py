@@ -297,6 +297,7 @@ def _place_trees(forest, size, crowns, terrain, rng) -> tuple[list[PlacedObject]
 STEM_CLEARANCE = 0.6
 CLEARANCE = {"bush": 1.7, "rock": 1.0, "stump": 1.0, "deadwood": 1.5}  # logs: side branches reach 1.3 m, bow 0.1 m; stump roots 0.9 m
 MIN_LOG = 1.5  # m, the shortest log drawn
+OCCUPIED_CELL = 4.0  # m, the cells by which placed footprints are looked up
 
 
 def _place_understory(scene: dict, size, trees, terrain, rng, deadwood_treeid: int = DEADWOOD_TREEID):
@@ -366,22 +367,39 @@ class _Footprint:
 
 
 class _Occupied:
-    """The footprints placed so far, as one array of axis samples (M, 2) with each one's clearance (M,),
-    so that a candidate is tested against all of them at once."""
+    """The footprints placed so far, their axis samples filed by square cells of OCCUPIED_CELL metres,
+    so that a candidate is tested against those near it only (against all of them, a 9 ha plot's 2,500
+    understory objects took 12 s to place)."""
 
     def __init__(self, footprints=()):
-        self.samples, self.clearance = np.zeros((0, 2)), np.zeros(0)
+        self._cells: dict[tuple[int, int], list[np.ndarray]] = {}    # cell -> arrays (k, 3): x, y, clearance
+        self._widest = 0.0
         for footprint in footprints:
             self.add(footprint)
 
     def add(self, footprint: _Footprint) -> None:
-        self.samples = np.vstack([self.samples, footprint.samples])
-        self.clearance = np.append(self.clearance, np.full(len(footprint.samples), footprint.clearance))
+        rows = np.column_stack([footprint.samples, np.full(len(footprint.samples), footprint.clearance)])
+        cells = np.floor(footprint.samples / OCCUPIED_CELL).astype(np.int64)
+        for cell in {tuple(c) for c in cells.tolist()}:
+            self._cells.setdefault(cell, []).append(rows[np.all(cells == cell, axis=1)])
+        self._widest = max(self._widest, footprint.clearance)
 
     def admit(self, footprint: _Footprint) -> bool:
-        """Whether ``footprint`` keeps the sum of the two clearances from every placed footprint."""
-        d = footprint.samples[:, None, :] - self.samples[None, :, :]
-        gap = footprint.clearance + self.clearance
+        """Whether ``footprint`` keeps the sum of the two clearances from every placed footprint.
+
+        Only the samples in cells within the largest such sum (and a metre more, beyond any rounding)
+        are compared: every other lies farther away on x or y alone, so the answer is that of
+        comparing all of them."""
+        reach = footprint.clearance + self._widest + 1.0
+        low = np.floor((footprint.samples.min(axis=0) - reach) / OCCUPIED_CELL).astype(np.int64)
+        high = np.floor((footprint.samples.max(axis=0) + reach) / OCCUPIED_CELL).astype(np.int64)
+        near = [rows for x in range(low[0], high[0] + 1) for y in range(low[1], high[1] + 1)
+                for rows in self._cells.get((x, y), ())]
+        if not near:
+            return True
+        placed = np.vstack(near)
+        d = footprint.samples[:, None, :] - placed[None, :, :2]
+        gap = footprint.clearance + placed[:, 2]
         return bool(np.all(d[..., 0] * d[..., 0] + d[..., 1] * d[..., 1] >= gap * gap))
 
 
