@@ -1,12 +1,14 @@
 """Interrupts: Ctrl-C (SIGINT) and SIGTERM, which schedulers send, both stop a render cleanly.
 
 Some moments must not be cut: a C extension's import (Mitsuba and Dr.Jit crash when an interrupt
-lands half-way; trimesh's import swallows it) and the final move of finished files into place. Those
-run inside :func:`deferred_signals`, which notes a signal and acts on it when the block ends.
+lands half-way; trimesh's import swallows it, so it is imported where a mesh is read by
+:func:`import_held`) and the final move of finished files into place. Those run inside
+:func:`deferred_signals`, which notes a signal and acts on it when the block ends.
 """
 
 from __future__ import annotations
 
+import importlib
 import os
 import signal
 import sys
@@ -90,3 +92,12 @@ def dask_setup(worker) -> None:
     the client, which stops the workers and reports once (no worker tracebacks)."""
     if in_main_thread():
         signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def import_held(name: str):
+    """The module ``name``, imported with signals held (:func:`deferred_signals`) when it is not loaded
+    yet: for trimesh, whose import swallows an interrupt, imported only where a mesh is read."""
+    if name in sys.modules:
+        return sys.modules[name]
+    with deferred_signals():
+        return importlib.import_module(name)

@@ -493,3 +493,27 @@ def test_signal_at_every_stage_leaves_nothing(sig, tmp_path, monkeypatch, capsys
         else:
             assert "no finished output was written" in err
             assert left == [], (at, left)
+
+
+def test_a_module_imported_held_keeps_the_interrupt_its_import_would_swallow(tmp_path, monkeypatch):
+    """trimesh is imported where a mesh is read, mid-render: its import catches BaseException around
+    its optional parts, so a Ctrl-C landing there was lost. :func:`import_held` holds the signal until
+    the module is loaded, then raises it."""
+    import sys
+
+    from mitsuforest.interrupts import import_held
+    (tmp_path / "swallows_interrupts.py").write_text(
+        "import os, signal, time\n"
+        "try:\n"
+        "    os.kill(os.getpid(), signal.SIGINT)\n"
+        "    time.sleep(0.1)\n"
+        "except BaseException:\n"
+        "    pass\n"
+        "LOADED = True\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.delitem(sys.modules, "swallows_interrupts", raising=False)
+    with pytest.raises(KeyboardInterrupt):
+        import_held("swallows_interrupts")
+    assert sys.modules["swallows_interrupts"].LOADED
+    assert import_held("swallows_interrupts") is sys.modules["swallows_interrupts"]   # loaded: no signals touched
+    monkeypatch.delitem(sys.modules, "swallows_interrupts")

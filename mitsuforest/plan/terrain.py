@@ -14,6 +14,7 @@ import numpy as np
 
 from .. import seeds
 from ..errors import UserError
+from ..interrupts import import_held
 
 
 @dataclass(frozen=True)
@@ -129,7 +130,7 @@ def _relief(x, y, amplitude, wavelength, seed):
 
 
 def _mesh_heights(path, x, y):
-    import trimesh      # here: only a terrain mesh needs it (0.45 s to import)
+    trimesh = import_held("trimesh")      # here: only a terrain mesh needs it (0.45 s to import)
     try:
         mesh = trimesh.load(path, force="mesh")
     except Exception as e:  # trimesh raises many kinds for unreadable files

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..interrupts import import_held
 from ..specs.sources import MAX_HEIGHT, MIN_HEIGHT, UNITS, ModelFileError, missing_companions
 
 Y_UP_TO_Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])   # +y becomes +z
@@ -29,7 +30,7 @@ class Piece:
 
 def read_pieces(path) -> list[Piece]:
     """Every triangle piece of a mesh file, with the scene graph's transforms applied."""
-    import trimesh
+    trimesh = import_held("trimesh")
     options = {"split_objects": True, "split_groups": True} if Path(path).suffix.lower() == ".obj" else {}
     try:
         scene = trimesh.load(str(path), force="scene", process=False, **options)
@@ -92,7 +93,7 @@ def joined(pieces: list[Piece], merge: bool = True) -> tuple[np.ndarray, np.ndar
 
     :returns: vertices (n, 3) float64, faces (m, 3) int64, and each face's piece (m,) (index into ``pieces``).
     """
-    import trimesh
+    trimesh = import_held("trimesh")
     if not pieces:
         return np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros(0, np.int64)
     base = np.cumsum([0] + [len(p.vertices) for p in pieces[:-1]])

@@ -15,6 +15,7 @@ from dataclasses import asdict, dataclass
 import manifold3d
 import numpy as np
 
+from ..interrupts import import_held
 
 
 @dataclass(frozen=True)
@@ -49,7 +50,7 @@ def loose_parts(vertices: np.ndarray, faces: np.ndarray) -> tuple[list[tuple[np.
     :returns: ``[(vertices (n_i, 3), faces (m_i, 3) int64), ...]``, each with its own vertex numbering,
         and the index of each part's first face in ``faces``.
     """
-    import trimesh      # here: a render of cached models needs none of it (0.45 s to import)
+    trimesh = import_held("trimesh")      # here: a render of cached models needs none of it (0.45 s to import)
     mesh = trimesh.Trimesh(vertices, faces, process=False)
     groups = trimesh.graph.connected_components(mesh.face_adjacency, nodes=np.arange(len(faces)),
                                                 min_len=1)
@@ -68,7 +69,7 @@ def boundary_loops(faces: np.ndarray) -> int:
     border = unique[counts == 1]
     if not len(border):
         return 0
-    import trimesh
+    trimesh = import_held("trimesh")
     return len(trimesh.graph.connected_components(border, min_len=1))
 
 

@@ -74,7 +74,7 @@ class PointWriter:
         corner = [rng.uniform(0, max(s - SPACING_TILE, 0), 4) for s in self.area]
         self._tiles = np.column_stack(corner)
         self._tile_points = [[] for _ in self._tiles]
-        self._spacing_rng = seeds.rng(scene.seed, "spacing-queries")
+        self._seed = scene.seed
         self.dtype = None
 
     def add(self, points: np.ndarray) -> None:
@@ -179,11 +179,11 @@ class PointWriter:
     def statistics(self) -> dict:
         """Density over the plot, mean nearest-neighbour spacing, class and returns counts."""
         plot_area = float(self.area[0] * self.area[1])
-        spacings = []
+        spacings, rng = [], seeds.rng(self._seed, "spacing-queries")
         for bucket in self._tile_points:
             xyz = np.vstack(bucket) if bucket else np.zeros((0, 3))
             if len(xyz) > 1:
-                spacings.append(nearest_distances(xyz, spacing_queries(len(xyz), self._spacing_rng)))
+                spacings.append(nearest_distances(xyz, spacing_queries(len(xyz), rng)))
         return {
             "points": int(self.count),
             "density_per_m2": self.count / plot_area if plot_area else 0.0,
