@@ -517,3 +517,31 @@ def test_a_module_imported_held_keeps_the_interrupt_its_import_would_swallow(tmp
     assert sys.modules["swallows_interrupts"].LOADED
     assert import_held("swallows_interrupts") is sys.modules["swallows_interrupts"]   # loaded: no signals touched
     monkeypatch.delitem(sys.modules, "swallows_interrupts")
+
+
+def test_an_interrupt_waits_for_the_first_set_variant(monkeypatch):
+    """The first ``mi.set_variant`` of a variant imports its C extension; an interrupt landing there
+    broke the import (``SystemError: __import__ returned a result with an exception set``, seen once in
+    CI). It is held until the variant is set, then raised; a variant already loaded is set as it is."""
+    import os
+    import signal
+    import sys
+
+    import mitsuba as mi
+
+    from mitsuforest.scene import variant as variant_module
+    finished = []
+
+    def interrupted_import(name):
+        os.kill(os.getpid(), signal.SIGINT)
+        time.sleep(0.1)
+        finished.append(name)
+
+    monkeypatch.setattr(mi, "set_variant", interrupted_import)
+    with pytest.raises(KeyboardInterrupt):
+        variant_module._set_variant("not_loaded_yet_mono")
+    assert finished == ["not_loaded_yet_mono"]
+    monkeypatch.setattr(mi, "set_variant", finished.append)
+    monkeypatch.setitem(sys.modules, "mitsuba.loaded_mono", object())
+    variant_module._set_variant("loaded_mono")
+    assert finished == ["not_loaded_yet_mono", "loaded_mono"]

@@ -12,8 +12,10 @@ import glob
 from contextlib import contextmanager
 import os
 import re
+import sys
 
 from ..errors import UserError
+from ..interrupts import deferred_signals
 
 LLVM_HELP = ("Dr.Jit needs libLLVM >= 17 for the CPU backend (LLVM 15/16 abort with 'Cannot select "
              "fminimum'). Install it with: apt-get install -y libllvm19")
@@ -115,9 +117,21 @@ def variant_scope(variant: str):
     """
     import mitsuba as mi
     previous = mi.variant()
-    mi.set_variant(variant)
+    _set_variant(variant)
     try:
         yield
     finally:
         if previous is not None:
             mi.set_variant(previous)
+
+
+def _set_variant(variant: str) -> None:
+    """``mi.set_variant``, the first time with signals held: it imports the variant's C extension, which
+    an interrupt landing half-way leaves broken (``SystemError: __import__ returned a result with an
+    exception set``)."""
+    import mitsuba as mi
+    if f"mitsuba.{variant}" in sys.modules:
+        mi.set_variant(variant)
+        return
+    with deferred_signals():
+        mi.set_variant(variant)
