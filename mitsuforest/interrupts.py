@@ -94,10 +94,19 @@ def dask_setup(worker) -> None:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
-def import_held(name: str):
-    """The module ``name``, imported with signals held (:func:`deferred_signals`) when it is not loaded
-    yet: for trimesh, whose import swallows an interrupt, imported only where a mesh is read."""
-    if name in sys.modules:
-        return sys.modules[name]
+@contextmanager
+def held_while_loading(module: str):
+    """:func:`deferred_signals` around a block that imports ``module``, unless it is loaded already (then
+    the block is left as it is): Mitsuba's first ``set_variant`` of a variant, trimesh where a mesh is read."""
+    if module in sys.modules:
+        yield
+        return
     with deferred_signals():
+        yield
+
+
+def import_held(name: str):
+    """The module ``name``, imported with signals held when it is not loaded yet (:func:`held_while_loading`):
+    for trimesh, whose import swallows an interrupt, imported only where a mesh is read."""
+    with held_while_loading(name):
         return importlib.import_module(name)

@@ -12,10 +12,9 @@ import glob
 from contextlib import contextmanager
 import os
 import re
-import sys
 
 from ..errors import UserError
-from ..interrupts import deferred_signals
+from ..interrupts import held_while_loading
 
 LLVM_HELP = ("Dr.Jit needs libLLVM >= 17 for the CPU backend (LLVM 15/16 abort with 'Cannot select "
              "fminimum'). Install it with: apt-get install -y libllvm19")
@@ -130,8 +129,5 @@ def _set_variant(variant: str) -> None:
     an interrupt landing half-way leaves broken (``SystemError: __import__ returned a result with an
     exception set``)."""
     import mitsuba as mi
-    if f"mitsuba.{variant}" in sys.modules:
-        mi.set_variant(variant)
-        return
-    with deferred_signals():
+    with held_while_loading(f"mitsuba.{variant}"):
         mi.set_variant(variant)

@@ -69,13 +69,17 @@ def cache_key(kind: str, params: dict) -> str:
     return f"{kind}-{hashlib.sha256(text.encode()).hexdigest()[:20]}"
 
 
+def _entry_path(kind: str, params: dict) -> Path:
+    return cache_dir() / (cache_key(kind, params) + ".npz")
+
+
 def cached(kind: str, params: dict, build) -> Model:
     """Load the model for ``(kind, params)`` from the cache, or ``build()`` it and try to store it.
 
     A process keeps the last :data:`MEMORY_ENTRIES` models it loaded or built (their arrays read-only)
     and hands out copies sharing them: a dataset worker renders plot after plot of the same
     archetypes without reading them again."""
-    path = cache_dir() / (cache_key(kind, params) + ".npz")
+    path = _entry_path(kind, params)
     model = _in_memory.get(_entry_state(path))
     if model is None:
         with contextlib.suppress(*LOAD_ERRORS):  # no entry yet, or an unreadable or damaged one: build it
@@ -83,10 +87,7 @@ def cached(kind: str, params: dict, build) -> Model:
     if model is None:
         model = build()
         model.hull_corners()
-        try:
-            _save(model, path)
-        except OSError as e:
-            _warn_write_failed(path.parent, e)
+        _store(_model_arrays(model), path)
     _remember(_entry_state(path), model)
     return _copy(model)
 
@@ -95,15 +96,12 @@ def cached_arrays(kind: str, params: dict, names: tuple[str, ...], build) -> dic
     """Load the arrays ``names`` for ``(kind, params)`` from the cache, or ``build()`` them (a dict of
     those names to arrays) and try to store them: what is worth keeping besides a model itself (an
     archetype's crown, which a plan needs before any model is built)."""
-    path = cache_dir() / (cache_key(kind, params) + ".npz")
+    path = _entry_path(kind, params)
     with contextlib.suppress(*LOAD_ERRORS):    # no entry yet, or an unreadable or damaged one: build it
         with np.load(path) as data:
             return {name: data[name] for name in names}
     arrays = build()
-    try:
-        _save_arrays(arrays, path)
-    except OSError as e:
-        _warn_write_failed(path.parent, e)
+    _store(arrays, path)
     return arrays
 
 
@@ -143,7 +141,9 @@ def _warn_write_failed(folder: Path, error: OSError) -> None:
                     "are built anew (set MITSUFOREST_CACHE to a writable folder to keep them)", folder, error)
 
 
-def _save(model: Model, path: Path):
+def _model_arrays(model: Model) -> dict[str, np.ndarray]:
+    """A model as the arrays of its entry: a JSON header, each part's vertices, faces and components, the
+    hull's corners."""
     arrays = {}
     for i, p in enumerate(model.parts):
         arrays[f"v{i}"], arrays[f"f{i}"], arrays[f"c{i}"] = p.vertices, p.faces, p.component
@@ -152,16 +152,19 @@ def _save(model: Model, path: Path):
               "components": [[c.kind, c.classification] for c in model.components],
               "volume": model.volume.as_dict() if model.volume else None,
               "meta": model.meta}
-    _save_arrays({"header": np.array(json.dumps(header)), **arrays}, path)
+    return {"header": np.array(json.dumps(header)), **arrays}
 
 
-def _save_arrays(arrays: dict[str, np.ndarray], path: Path) -> None:
-    """Write ``arrays`` to ``path`` (.npz) whole or not at all: a reader never sees a partial entry."""
-    path.parent.mkdir(parents=True, exist_ok=True)
+def _store(arrays: dict[str, np.ndarray], path: Path) -> None:
+    """Write ``arrays`` to ``path`` (.npz) whole or not at all, so that a reader never sees a partial
+    entry; a cache that cannot be written warns once (:func:`_warn_write_failed`)."""
     tmp = path.with_suffix(f".tmp-{os.getpid()}.npz")
     try:
+        path.parent.mkdir(parents=True, exist_ok=True)
         np.savez(tmp, **arrays)
         os.replace(tmp, path)
+    except OSError as e:
+        _warn_write_failed(path.parent, e)
     finally:
         with contextlib.suppress(OSError):
             tmp.unlink(missing_ok=True)

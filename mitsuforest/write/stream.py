@@ -215,18 +215,15 @@ def nearest_distances(xyz: np.ndarray, rows: np.ndarray | None = None, cell: flo
     from scipy.spatial import cKDTree
     square = np.floor(xyz[:, :2] / cell).astype(np.int64)
     order = np.lexsort((square[:, 0], square[:, 1]))
-    near = xyz[order]
-    tree = cKDTree(near, balanced_tree=False)
-    if rows is None:
-        distances = np.empty(len(xyz))
-        distances[order] = tree.query(near, k=2)[0][:, 1]
-        return distances
-    asking = np.zeros(len(xyz), bool)
-    asking[rows] = True
-    asked = order[asking[order]]                 # the rows asking, in the squares' order
+    tree = cKDTree(xyz[order], balanced_tree=False)
+    asked = order
+    if rows is not None:
+        asking = np.zeros(len(xyz), bool)
+        asking[rows] = True
+        asked = order[asking[order]]             # the rows asking, in the squares' order
     distances = np.empty(len(xyz))
     distances[asked] = tree.query(xyz[asked], k=2)[0][:, 1]
-    return distances[rows]
+    return distances if rows is None else distances[rows]
 
 
 def georeference(points: np.ndarray, offset) -> np.ndarray:
