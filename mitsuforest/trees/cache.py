@@ -21,6 +21,7 @@ import importlib.metadata
 import json
 import logging
 import os
+import sys
 import zipfile
 from pathlib import Path
 
@@ -88,7 +89,7 @@ def cached(kind: str, params: dict, build) -> Model:
         model = build()
         model.hull_corners()
         _store(_model_arrays(model), path)
-    _remember(_entry_state(path), model)
+    _remember(_entry_state(path), model, path)
     return _copy(model)
 
 
@@ -115,12 +116,14 @@ def _entry_state(path: Path) -> tuple | None:
     return str(path), stat.st_mtime_ns, stat.st_size
 
 
-def _remember(key: tuple | None, model: Model) -> None:
+def _remember(key: tuple | None, model: Model, path: Path) -> None:
     if key is None:
         return
-    for part in model.parts:
+    for i, part in enumerate(model.parts):
         for array in (part.vertices, part.faces, part.component):
             array.flags.writeable = False
+        if part.store is None:
+            part.store = DerivedArrays(path.parent / "derived" / f"{path.stem}-part{i}")
     _in_memory[key] = model
     _in_memory.move_to_end(key)
     while len(_in_memory) > MEMORY_ENTRIES:
@@ -131,6 +134,43 @@ def _copy(model: Model) -> Model:
     """A model of its own (name, lists, meta) over the same read-only arrays."""
     return dataclasses.replace(model, parts=list(model.parts), components=list(model.components),
                                meta=copy.deepcopy(model.meta))
+
+
+class DerivedArrays:
+    """What is computed from a cached part's mesh (:meth:`~.models.Part.of_mesh`: its proxy cells, face
+    normals, triangle areas), kept in the folder ``derived`` beside the model's entry, one file for each
+    function: ``STEM-FUNCTION-HASH.npz``, the hash that of the function's module source, so that editing
+    the code that computes it makes a new file."""
+
+    def __init__(self, stem: Path):
+        self.stem = stem
+
+    def get(self, compute) -> np.ndarray | None:
+        """The array kept for ``compute``, or None (none yet, or an unreadable or damaged one, or a
+        function without a name of its own in its module: a lambda, a closure)."""
+        if not _named(compute):
+            return None
+        with contextlib.suppress(*LOAD_ERRORS), np.load(self._path(compute)) as data:
+            return data["value"]
+        return None
+
+    def put(self, compute, value: np.ndarray) -> None:
+        """Keep ``value`` for ``compute`` (best effort, as the models)."""
+        if _named(compute):
+            _store({"value": value}, self._path(compute))
+
+    def _path(self, compute) -> Path:
+        return self.stem.with_name(f"{self.stem.name}-{compute.__qualname__}-{_source_hash(compute.__module__)}.npz")
+
+
+def _named(compute) -> bool:
+    return "<" not in compute.__qualname__ and getattr(sys.modules.get(compute.__module__), "__file__", None) is not None
+
+
+@functools.cache
+def _source_hash(module: str) -> str:
+    """A hash of ``module``'s source file (what decides the arrays its functions derive)."""
+    return hashlib.sha256(Path(sys.modules[module].__file__).read_bytes()).hexdigest()[:12]
 
 
 def _warn_write_failed(folder: Path, error: OSError) -> None:

@@ -27,16 +27,23 @@ class Part:
     faces: np.ndarray      # (m, 3) uint32
     component: np.ndarray  # (m,) uint16, index into Model.components
     _derived: dict = field(default_factory=dict, init=False, repr=False, compare=False)   # see of_mesh
+    #: where a cached model's part keeps what :meth:`of_mesh` computes on disk (set by the model cache)
+    store: object = field(default=None, init=False, repr=False, compare=False)
 
     def of_mesh(self, compute):
         """``compute(vertices, faces)``, an array; kept with the part while its mesh is read-only (a cached
         model's, whose copies share their parts: a dataset worker computes its archetypes' normals and
-        areas once, not once a plot), computed anew each call otherwise (a mesh that may still change).
-        The array kept is read-only."""
+        areas once, not once a plot), and in the model's cache entry (:attr:`store`: a later process reads
+        it back); computed anew each call otherwise (a mesh that may still change). The array kept is
+        read-only."""
         if self.vertices.flags.writeable or self.faces.flags.writeable:
             return compute(self.vertices, self.faces)
         if compute not in self._derived:
-            value = compute(self.vertices, self.faces)
+            value = self.store.get(compute) if self.store else None
+            if value is None:
+                value = compute(self.vertices, self.faces)
+                if self.store:
+                    self.store.put(compute, value)
             value.flags.writeable = False
             self._derived[compute] = value
         return self._derived[compute]
