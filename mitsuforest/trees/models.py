@@ -8,6 +8,7 @@ first-order branch with its descendants, the leaves, a rock ...), so a hit's tri
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Protocol
 
 import numpy as np
 
@@ -20,6 +21,15 @@ from .tubes import frustum_volume, tube
 from .volume import WoodVolume, wood_volume
 
 
+class DerivedStore(Protocol):
+    """Where a part keeps what :meth:`Part.of_mesh` derives beyond the process (the model cache's
+    :class:`~.cache.DerivedArrays`)."""
+
+    def get(self, compute) -> np.ndarray | None: ...
+
+    def put(self, compute, value: np.ndarray) -> None: ...
+
+
 @dataclass
 class Part:
     name: str
@@ -28,7 +38,7 @@ class Part:
     component: np.ndarray  # (m,) uint16, index into Model.components
     _derived: dict = field(default_factory=dict, init=False, repr=False, compare=False)   # see of_mesh
     #: where a cached model's part keeps what :meth:`of_mesh` computes on disk (set by the model cache)
-    store: object = field(default=None, init=False, repr=False, compare=False)
+    store: DerivedStore | None = field(default=None, init=False, repr=False, compare=False)
 
     def of_mesh(self, compute):
         """``compute(vertices, faces)``, an array; kept with the part while its mesh is read-only (a cached
