@@ -1,6 +1,8 @@
 """Disk cache of models, keyed by their parameters and by the code that generates them.
 
-Location: ``$MITSUFOREST_CACHE`` or ``~/.cache/mitsuforest``. Delete the folder to clear it.
+Location: ``$MITSUFOREST_CACHE`` or ``~/.cache/mitsuforest``. Delete the folder to clear it. Beside
+the models, ``models/derived/`` keeps what the scan computes from a cached model's meshes
+(:class:`DerivedArrays`).
 
 The key hashes the model's parameters together with :func:`code_hash`: the source of the
 generating modules and the versions of the libraries they call, so editing a generator or
@@ -164,7 +166,9 @@ class DerivedArrays:
 
 
 def _named(compute) -> bool:
-    return "<" not in compute.__qualname__ and getattr(sys.modules.get(compute.__module__), "__file__", None) is not None
+    """Whether ``compute`` has a name of its own in a module with a source file (not a lambda or closure)."""
+    module = sys.modules.get(compute.__module__)
+    return "<" not in compute.__qualname__ and getattr(module, "__file__", None) is not None
 
 
 @functools.cache
