@@ -100,12 +100,18 @@ def cached_arrays(kind: str, params: dict, names: tuple[str, ...], build) -> dic
     those names to arrays) and try to store them: what is worth keeping besides a model itself (an
     archetype's crown, which a plan needs before any model is built)."""
     path = _entry_path(kind, params)
-    with contextlib.suppress(*LOAD_ERRORS):    # no entry yet, or an unreadable or damaged one: build it
-        with np.load(path) as data:
-            return {name: data[name] for name in names}
-    arrays = build()
-    _store(arrays, path)
+    arrays = _read(path, names)
+    if arrays is None:
+        arrays = build()
+        _store(arrays, path)
     return arrays
+
+
+def _read(path: Path, names: tuple[str, ...]) -> dict[str, np.ndarray] | None:
+    """The arrays ``names`` of the entry ``path``, or None when there is no readable, undamaged one."""
+    with contextlib.suppress(*LOAD_ERRORS), np.load(path) as data:
+        return {name: data[name] for name in names}
+    return None
 
 
 def _entry_state(path: Path) -> tuple | None:
@@ -150,11 +156,8 @@ class DerivedArrays:
     def get(self, compute) -> np.ndarray | None:
         """The array kept for ``compute``, or None (none yet, or an unreadable or damaged one, or a
         function without a name of its own in its module: a lambda, a closure)."""
-        if not _named(compute):
-            return None
-        with contextlib.suppress(*LOAD_ERRORS), np.load(self._path(compute)) as data:
-            return data["value"]
-        return None
+        kept = _read(self._path(compute), ("value",)) if _named(compute) else None
+        return None if kept is None else kept["value"]
 
     def put(self, compute, value: np.ndarray) -> None:
         """Keep ``value`` for ``compute`` (best effort, as the models)."""
