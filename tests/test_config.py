@@ -1,6 +1,7 @@
 """Bad input as a new user would give it: one clear line naming file and key, exit 2, nothing written."""
 
 import dataclasses
+import re
 
 import numpy as np
 import pytest
@@ -8,7 +9,7 @@ import yaml
 from helpers import ROOT, SENSORS
 
 from mitsuforest.cli import main
-from mitsuforest.config import ConfigError, load_scene, load_sensor
+from mitsuforest.config import ConfigError, _CheckedLoader, _parse_yaml, load_scene, load_sensor, read_yaml
 from mitsuforest.survey import make_plan
 from mitsuforest.pipeline import render
 
@@ -94,6 +95,39 @@ def test_a_seed_of_any_size_is_an_integer(tmp_path):
     path.write_text(f"seed: {big}\n" + GOOD)
     assert load_scene(path).seed == big
     assert load_scene(path, seed=2**53 + 1).seed == 2**53 + 1
+
+
+@pytest.mark.parametrize("path", sorted([*ROOT.glob("scenes/*.yaml"), *ROOT.glob("sensors/*.yaml"),
+                                          *ROOT.glob("examples/**/*.yaml")]), ids=lambda p: p.name)
+def test_libyaml_reads_each_shipped_file_as_the_python_parser_does(path):
+    text = path.read_text()
+    assert _parse_yaml(text) == yaml.load(text, Loader=_CheckedLoader)
+
+
+@pytest.mark.parametrize(("text", "message"), [
+    ("a: 1\nb: 2\na: 3\n", "line 3, column 1: duplicate key 'a'"),
+    ("x: " + "[" * 98 + "&d [[[[1]]]]" + "]" * 98 + "\ny: *d\n", "line 1, column 106: nested deeper than 100 levels"),
+    ("x: [\n", "YAML syntax error: line 2, column 1"),
+])
+def test_what_libyaml_refuses_or_passes_too_deep_is_told_as_the_python_parser_tells_it(text, message, tmp_path):
+    """A duplicate key, an anchor nested too deep that a shallow alias names later (libyaml's walk
+    reaches it there first) and a syntax error: each with the Python parser's line and column."""
+    path = tmp_path / "s.yaml"
+    path.write_text(text)
+    with pytest.raises(ConfigError, match=re.escape(message)):
+        read_yaml(path)
+
+
+def test_a_thousand_aliases_of_aliases_are_read_at_once(tmp_path):
+    """Ten references a level, nine levels (a billion leaves if expanded): the depth walk takes each
+    node once a level, and the values are shared, not copied."""
+    lines = ["a0: &a0 [x, x, x, x, x, x, x, x, x, x]"]
+    lines += [f"a{i}: &a{i} [" + ", ".join([f"*a{i - 1}"] * 10) + "]" for i in range(1, 10)]
+    path = tmp_path / "s.yaml"
+    path.write_text("\n".join(lines) + "\n")
+    data, _ = read_yaml(path)
+    assert data["a9"][0][0][0][0][0][0][0][0][0][0] == "x"
+    assert data["a9"][0] is data["a8"]
 
 
 def test_missing_scene_file(tmp_path, monkeypatch, capsys):
