@@ -24,7 +24,7 @@ from ..errors import UserError
 from ..specs.understory import SHRUB_FORMS, UNDERSTORY_COMPONENTS
 from ..specs.archetypes import Archetype, UniqueTrees, grown_to, nearest_template, unique_archetypes
 from ..specs.sources import MeshTree, QsmTree
-from .cover import CoverGrid, crown_outline
+from .cover import CoverGrid, PlacedOutlines, crown_outline
 from .flight import flight_legs
 from .ground_layer import place_ground_layer
 from .terrain import Terrain, make_terrain
@@ -262,7 +262,7 @@ def _place_trees(forest, size, crowns, terrain, rng) -> tuple[list[PlacedObject]
     sizes = [e.unique if isinstance(e, UniqueTrees) else 1 for e in entries]
     first, placed = np.cumsum([0, *sizes[:-1]]), [0] * len(entries)
     target_count, target_cover = forest.trees, forest.target_cover
-    grid = CoverGrid(size)
+    grid, outlines = CoverGrid(size), PlacedOutlines(crowns)
     trees, positions = [], np.empty((0, 2))
     spacing = forest.min_spacing
     misses = 0
@@ -283,7 +283,7 @@ def _place_trees(forest, size, crowns, terrain, rng) -> tuple[list[PlacedObject]
         k = int(first[e]) + placed[e] % sizes[e]
         placed[e] += 1
         tree = _tree(k, xy, terrain, forest.tilt, rng)
-        grid.add(crown_outline(apply(tree.matrix, crowns[k])))
+        grid.add(outlines.outline(k, tree.matrix))
         trees.append(tree)
         positions = np.vstack([positions, xy])
     if target_count is None and grid.fraction < target_cover:
@@ -356,14 +356,24 @@ class _Footprint:
 
     def __init__(self, centre, yaw: float, length: float, clearance: float):
         self.centre, self.yaw, self.length, self.clearance = centre, float(yaw), float(length), clearance
-        direction = np.array([np.cos(np.deg2rad(yaw)), np.sin(np.deg2rad(yaw))])
-        steps = np.linspace(-0.5, 0.5, max(int(np.ceil(length / 0.2)), 0) + 1) if length else np.zeros(1)
-        self.samples = centre + steps[:, None] * length * direction  # axis points 0.2 m apart at most
+        if length:
+            direction = np.array([np.cos(np.deg2rad(yaw)), np.sin(np.deg2rad(yaw))])
+            steps = np.linspace(-0.5, 0.5, max(int(np.ceil(length / 0.2)), 0) + 1)
+            self.samples = centre + steps[:, None] * length * direction  # axis points 0.2 m apart at most
+            self.low, self.high = self.samples.min(axis=0).tolist(), self.samples.max(axis=0).tolist()
+        else:
+            self.samples = np.array([centre], float)
+            self.low = self.high = self.samples[0].tolist()    # the box around the axis
 
     def inside(self, low, high) -> bool:
         """Whether the axis lies within the box ``low``-``high``, shape (2,) each."""
-        return bool(np.all((self.samples >= low) & (self.samples <= high)))
+        return low[0] <= self.low[0] and low[1] <= self.low[1] and self.high[0] <= high[0] and self.high[1] <= high[1]
 
+    def cells(self, reach: float) -> tuple[range, range]:
+        """The OCCUPIED_CELL cells, by x and by y, of the box around the axis widened by ``reach``."""
+        (x0, y0), (x1, y1) = self.low, self.high
+        return (range(math.floor((x0 - reach) / OCCUPIED_CELL), math.floor((x1 + reach) / OCCUPIED_CELL) + 1),
+                range(math.floor((y0 - reach) / OCCUPIED_CELL), math.floor((y1 + reach) / OCCUPIED_CELL) + 1))
 
 
 class _Occupied:
@@ -372,16 +382,15 @@ class _Occupied:
     understory objects took 12 s to place)."""
 
     def __init__(self, footprints=()):
-        self._cells: dict[tuple[int, int], list[np.ndarray]] = {}    # cell -> arrays (k, 3): x, y, clearance
+        self._cells: dict[tuple[int, int], list[tuple[float, float, float]]] = {}   # cell -> (x, y, clearance)
         self._widest = 0.0
         for footprint in footprints:
             self.add(footprint)
 
     def add(self, footprint: _Footprint) -> None:
-        rows = np.column_stack([footprint.samples, np.full(len(footprint.samples), footprint.clearance)])
-        cells = np.floor(footprint.samples / OCCUPIED_CELL).astype(np.int64)
-        for cell in {tuple(c) for c in cells.tolist()}:
-            self._cells.setdefault(cell, []).append(rows[np.all(cells == cell, axis=1)])
+        for x, y in footprint.samples.tolist():
+            cell = (math.floor(x / OCCUPIED_CELL), math.floor(y / OCCUPIED_CELL))
+            self._cells.setdefault(cell, []).append((x, y, footprint.clearance))
         self._widest = max(self._widest, footprint.clearance)
 
     def admit(self, footprint: _Footprint) -> bool:
@@ -390,14 +399,14 @@ class _Occupied:
         Only the samples in cells within the largest such sum (and a metre more, beyond any rounding)
         are compared: every other lies farther away on x or y alone, so the answer is that of
         comparing all of them."""
-        reach = footprint.clearance + self._widest + 1.0
-        low = np.floor((footprint.samples.min(axis=0) - reach) / OCCUPIED_CELL).astype(np.int64)
-        high = np.floor((footprint.samples.max(axis=0) + reach) / OCCUPIED_CELL).astype(np.int64)
-        near = [rows for x in range(low[0], high[0] + 1) for y in range(low[1], high[1] + 1)
-                for rows in self._cells.get((x, y), ())]
+        xs, ys = footprint.cells(footprint.clearance + self._widest + 1.0)
+        near = [sample for x in xs for y in ys for sample in self._cells.get((x, y), ())]
         if not near:
             return True
-        placed = np.vstack(near)
+        if len(footprint.samples) == 1:     # a point: in Python, the same arithmetic as numpy's below
+            (x, y), c = footprint.low, footprint.clearance
+            return all((x - px) * (x - px) + (y - py) * (y - py) >= (c + pc) * (c + pc) for px, py, pc in near)
+        placed = np.array(near)
         d = footprint.samples[:, None, :] - placed[None, :, :2]
         gap = footprint.clearance + placed[:, 2]
         return bool(np.all(d[..., 0] * d[..., 0] + d[..., 1] * d[..., 1] >= gap * gap))
