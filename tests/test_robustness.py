@@ -426,3 +426,27 @@ def test_an_archetypes_crown_is_kept_in_the_cache_and_read_back_the_same(model_c
     trees._archetype_shape.cache_clear()
     assert np.array_equal(trees.tree_shape(a)[0], grown)
     trees._archetype_shape.cache_clear()
+
+
+def test_workers_setting_up_one_plot_begin_apart_and_read_what_the_others_built(model_cache, monkeypatch):
+    """Leg tasks of one plot on several workers each build its models: the second begins halfway down
+    the list, goes round, and the first then reads every model the second stored instead of building
+    it. Both get every model, in the plan's order, the same arrays."""
+    from types import SimpleNamespace
+
+    import mitsuforest.trees as trees
+    from mitsuforest.plan import ModelSpec
+    from mitsuforest.specs.understory import UNDERSTORY_COMPONENTS
+    names = [f"rock{i:03d}" for i in range(1, 7)]
+    plan = SimpleNamespace(models={n: ModelSpec("rock", UNDERSTORY_COMPONENTS, seed=i) for i, n in enumerate(names)})
+    built = []
+    monkeypatch.setitem(trees._BUILDERS, "rock", lambda name, **params: built.append(params["seed"]) or
+                        trees.rock_model(name=name, **params))
+    order = []
+    second = trees.build_models(plan, progress=order.append, start=0.5)
+    assert order == names[3:] + names[:3] and built == [3, 4, 5, 0, 1, 2] and list(second) == names
+    cache._in_memory.clear()                          # the first worker, another process
+    first = trees.build_models(plan)
+    assert len(built) == 6 and list(first) == names
+    for name in names:
+        assert np.array_equal(first[name].parts[0].vertices, second[name].parts[0].vertices)

@@ -73,7 +73,7 @@ def scan_legs(root: str, name: str, first: int, stop: int, threads: int | None =
     from ..survey import prepare_plan, scan
     from ..write import write_tables
     from ..write.ground import ground_surface
-    scene, plan, models = _plot_setup(files.scene_file(root, name))
+    scene, plan, models = _plot_setup(files.scene_file(root, name), first)
     prepared = prepare_plan(scene, plan, models, legs=range(first, stop))
     path.parent.mkdir(parents=True, exist_ok=True)
     info = {"first": first, "stop": stop, "scene_sha256": scene_sha}
@@ -251,11 +251,14 @@ def _finish(root, result, tiles, seconds: float) -> dict:
 
 
 _SETUP: dict = {}   # this worker's plot in memory: {scene file: (scene, plan, models)}
+SPREAD = (5 ** 0.5 - 1) / 2    # leg k's worker begins building the plot's models at fraction k·SPREAD (mod 1)
 
 
-def _plot_setup(path):
+def _plot_setup(path, first_leg: int = 0):
     """The plot's scene, plan and models, kept for the next leg tasks of the same plot (one plot at a
-    time: a new plot replaces the last)."""
+    time: a new plot replaces the last). Workers setting up a plot for different legs begin building its
+    models at points spread over the list (the golden ratio's fractions, apart for any number of
+    workers), and read from the cache what another has built."""
     key = (str(path), os.stat(path).st_mtime_ns)
     if key not in _SETUP:
         _SETUP.clear()
@@ -266,5 +269,5 @@ def _plot_setup(path):
         scene = load_scene(path)
         scene_variant(scene)
         plan = make_plan(scene)
-        _SETUP[key] = (scene, plan, build_models(plan))
+        _SETUP[key] = (scene, plan, build_models(plan, start=first_leg * SPREAD))
     return _SETUP[key]

@@ -87,11 +87,18 @@ def build_model(name: str, spec: ModelSpec) -> Model:
     return model
 
 
-def build_models(plan, progress=None) -> dict[str, Model]:
-    """Every model of the plan, from the cache where possible."""
-    models = {}
-    for name, spec in plan.models.items():
-        models[name] = build_model(name, spec)
+def build_models(plan, progress=None, start: float = 0.0) -> dict[str, Model]:
+    """Every model of the plan, from the cache where possible, in the plan's order.
+
+    :param start: where in the plan's list of models to begin, a fraction in [0, 1), going round to its
+        start: processes setting up one plot at once (a dataset's leg tasks) each begin elsewhere, so
+        that with a shared cache each builds a share of the models and reads what the others built.
+    """
+    names = list(plan.models)
+    first = int(start % 1.0 * len(names))
+    built = {}
+    for name in names[first:] + names[:first]:
+        built[name] = build_model(name, plan.models[name])
         if progress:
             progress(name)
-    return models
+    return {name: built[name] for name in names}
