@@ -428,10 +428,11 @@ def test_an_archetypes_crown_is_kept_in_the_cache_and_read_back_the_same(model_c
     trees._archetype_shape.cache_clear()
 
 
-def test_workers_setting_up_one_plot_begin_apart_and_read_what_the_others_built(model_cache, monkeypatch):
-    """Leg tasks of one plot on several workers each build its models: the second begins halfway down
-    the list, goes round, and the first then reads every model the second stored instead of building
-    it. Both get every model, in the plan's order, the same arrays."""
+def test_workers_setting_up_one_plot_build_in_their_own_orders_and_read_what_the_others_built(model_cache,
+                                                                                              monkeypatch):
+    """Leg tasks of one plot on several workers each build its models: the second, in an order of its
+    own, builds them all; the first, in the plan's order, then reads every one the second stored instead
+    of building it. Both get every model, in the plan's order, the same arrays."""
     from types import SimpleNamespace
 
     import mitsuforest.trees as trees
@@ -443,8 +444,8 @@ def test_workers_setting_up_one_plot_begin_apart_and_read_what_the_others_built(
     monkeypatch.setitem(trees._BUILDERS, "rock", lambda name, **params: built.append(params["seed"]) or
                         trees.rock_model(name=name, **params))
     order = []
-    second = trees.build_models(plan, progress=order.append, start=0.5)
-    assert order == names[3:] + names[:3] and built == [3, 4, 5, 0, 1, 2] and list(second) == names
+    second = trees.build_models(plan, progress=order.append, order=[3, 5, 0, 4, 1, 2])
+    assert order == [names[i] for i in (3, 5, 0, 4, 1, 2)] and built == [3, 5, 0, 4, 1, 2] and list(second) == names
     cache._in_memory.clear()                          # the first worker, another process
     first = trees.build_models(plan)
     assert len(built) == 6 and list(first) == names

@@ -15,6 +15,8 @@ import shutil
 import time
 from pathlib import Path
 
+import numpy as np
+
 from ..write import TABLES
 from . import files, parts
 from .tiles import tile_grid
@@ -251,14 +253,15 @@ def _finish(root, result, tiles, seconds: float) -> dict:
 
 
 _SETUP: dict = {}   # this worker's plot in memory: {scene file: (scene, plan, models)}
-SPREAD = (5 ** 0.5 - 1) / 2    # leg k's worker begins building the plot's models at fraction k·SPREAD (mod 1)
 
 
 def _plot_setup(path, first_leg: int = 0):
     """The plot's scene, plan and models, kept for the next leg tasks of the same plot (one plot at a
-    time: a new plot replaces the last). Workers setting up a plot for different legs begin building its
-    models at points spread over the list (the golden ratio's fractions, apart for any number of
-    workers), and read from the cache what another has built."""
+    time: a new plot replaces the last). A worker setting it up for a later leg than the first builds
+    the models in an order of its own (drawn with the leg's number), so that workers setting up one plot
+    at once seldom build the same model together: each reads from the cache what another has stored.
+    (Walking the list from points spread along it was tried: a worker that caught up with another then
+    built each model beside it.)"""
     key = (str(path), os.stat(path).st_mtime_ns)
     if key not in _SETUP:
         _SETUP.clear()
@@ -269,5 +272,6 @@ def _plot_setup(path, first_leg: int = 0):
         scene = load_scene(path)
         scene_variant(scene)
         plan = make_plan(scene)
-        _SETUP[key] = (scene, plan, build_models(plan, start=first_leg * SPREAD))
+        order = np.random.default_rng(first_leg).permutation(len(plan.models)) if first_leg else None
+        _SETUP[key] = (scene, plan, build_models(plan, order=order))
     return _SETUP[key]

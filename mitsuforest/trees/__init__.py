@@ -87,17 +87,17 @@ def build_model(name: str, spec: ModelSpec) -> Model:
     return model
 
 
-def build_models(plan, progress=None, start: float = 0.0) -> dict[str, Model]:
+def build_models(plan, progress=None, order=None) -> dict[str, Model]:
     """Every model of the plan, from the cache where possible, in the plan's order.
 
-    :param start: where in the plan's list of models to begin, a fraction in [0, 1), going round to its
-        start: processes setting up one plot at once (a dataset's leg tasks) each begin elsewhere, so
-        that with a shared cache each builds a share of the models and reads what the others built.
+    :param order: the order in which to build or read them (a permutation of the plan's model rows; the
+        plan's own by default): processes setting up one plot at once (a dataset's leg tasks) each take
+        another, so that with a shared cache each builds a share and reads what the others stored.
     """
     names = list(plan.models)
-    first = int(start % 1.0 * len(names))
     built = {}
-    for name in names[first:] + names[:first]:
+    for row in range(len(names)) if order is None else order:
+        name = names[row]
         built[name] = build_model(name, plan.models[name])
         if progress:
             progress(name)
