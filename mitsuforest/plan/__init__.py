@@ -376,7 +376,8 @@ def _check_understory_fits(scene) -> None:
 
 
 class _Footprint:
-    """A segment of ``length`` through ``centre`` at ``yaw`` (degrees), widened by ``clearance``."""
+    """A segment of ``length`` through ``centre`` at ``yaw`` (degrees), widened by ``clearance``: its axis
+    ``samples`` (k, 2), and ``low`` and ``high``, the corners [x, y] of the box around them."""
 
     def __init__(self, centre, yaw: float, length: float, clearance: float):
         self.centre, self.yaw, self.length, self.clearance = centre, float(yaw), float(length), clearance
@@ -387,7 +388,7 @@ class _Footprint:
             self.low, self.high = self.samples.min(axis=0).tolist(), self.samples.max(axis=0).tolist()
         else:
             self.samples = np.array([centre], float)
-            self.low = self.high = self.samples[0].tolist()    # the box around the axis
+            self.low = self.high = self.samples[0].tolist()
 
     def inside(self, low, high) -> bool:
         """Whether the axis lies within the box ``low``-``high``, shape (2,) each."""

@@ -27,7 +27,7 @@ class PlacedOutlines:
     """The outlines of crowns placed again and again: each crown's (k, 3) points reduced, on its first
     placement, to those that can be a corner of the outline of any placement of it (the vertices of its
     convex hull and the points qhull finds on its facets; the hull of a projection is the projection of
-    the hull). A crown of 2,000-4,000 points keeps about 40: a tenth of the time a tree, the same outline.
+    the hull). A crown of 2,000-4,000 points keeps about 40: a quarter of the time a tree, the same outline.
 
     :param crowns: the crowns' (n_i, 3) points, model frame.
     """
@@ -40,6 +40,8 @@ class PlacedOutlines:
         """:func:`crown_outline` of crown ``k`` placed by the 4×4 ``matrix``."""
         if k not in self._rows:
             self._rows[k] = hull_rows(self._crowns[k])
+        # Every point is placed and the rows taken after: the numbers of placing them all (a matrix
+        # product of fewer rows may round otherwise).
         return crown_outline(apply(matrix, self._crowns[k])[self._rows[k]])
 
 
