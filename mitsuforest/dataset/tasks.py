@@ -15,8 +15,7 @@ import shutil
 import time
 from pathlib import Path
 
-import numpy as np
-
+from .. import seeds
 from ..write import TABLES
 from . import files, parts
 from .tiles import tile_grid
@@ -272,6 +271,6 @@ def _plot_setup(path, first_leg: int = 0):
         scene = load_scene(path)
         scene_variant(scene)
         plan = make_plan(scene)
-        order = np.random.default_rng(first_leg).permutation(len(plan.models)) if first_leg else None
+        order = seeds.rng(first_leg, "model-order").permutation(len(plan.models)) if first_leg else None
         _SETUP[key] = (scene, plan, build_models(plan, order=order))
     return _SETUP[key]
