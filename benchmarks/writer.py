@@ -9,6 +9,7 @@ script stops if they do not. CPU time counts every thread of the process.
     python benchmarks/writer.py                                  # 4 M points, 1 thread and this machine's cores
     python benchmarks/writer.py --quick                          # 400,000 points, 1 and 2 threads (CI)
     python benchmarks/writer.py --threads 1 2 4 8 16 --dir /dev/shm --repeat 3
+    python benchmarks/writer.py --threads 16 --processes 15 --dir /dev/shm    # threads against worker processes
     PYTHONPATH=../base python benchmarks/writer.py       # an older commit's writer (one thread), for comparison
 """
 
@@ -70,10 +71,13 @@ def scan_lines(count: int, batch: int, side: float = 100.0, seed: int = 0) -> li
     return [p[i:i + batch] for i in range(0, count, batch)]
 
 
-def write_once(batches, scene, threads: int, folder: Path) -> tuple[float, float, dict]:
+def write_once(batches, scene, threads: int, folder: Path, processes: int = 0) -> tuple[float, float, dict]:
     staging = Staging(folder, scene.name)
     start, cpu = time.perf_counter(), time.process_time()
-    writer = PointWriter(staging, scene, threads=threads) if THREADED else PointWriter(staging, scene)
+    if processes:
+        writer = PointWriter(staging, scene, threads=threads, processes=processes)
+    else:
+        writer = PointWriter(staging, scene, threads=threads) if THREADED else PointWriter(staging, scene)
     for batch in batches:
         writer.add(batch)
     writer.close()
@@ -88,6 +92,8 @@ def main(argv=None):
     p.add_argument("--points", type=int, default=4_000_000)
     p.add_argument("--batch", type=int, default=370_000, help="points per batch (a GPU batch of 1 M slots: ~370 k)")
     p.add_argument("--threads", type=int, nargs="+", help="thread counts (default: 1 and this machine's)")
+    p.add_argument("--processes", type=int, nargs="+", default=[],
+                   help="worker process counts to run too (one thread each; the first run of each starts them)")
     p.add_argument("--formats", nargs="+", default=["pcd", "laz"])
     p.add_argument("--repeat", type=int, default=2)
     p.add_argument("--dir", type=Path, help="where to write (default: the system's temporary folder)")
@@ -107,16 +113,18 @@ def main(argv=None):
           f"{len(os.sched_getaffinity(0))} cores")
     if not THREADED:
         print(f"  the writer of {sys.modules['mitsuforest'].__file__}: one thread, LAZ by laspy's default backend")
-    print(f"  {'threads':>7s} {'wall':>8s} {'CPU':>8s} {'M points/s':>11s}  files")
+    print(f"  {'threads':>9s} {'wall':>8s} {'CPU':>8s} {'M points/s':>11s}  files   (CPU: the writing process's)")
     reference = None
     with tempfile.TemporaryDirectory(dir=args.dir) as tmp:
         for run in range(args.repeat):
-            for n in threads:
-                wall, cpu, digests = write_once(batches, scene, n, Path(tmp))
+            for n in [*threads, *(-k for k in args.processes)]:
+                wall, cpu, digests = write_once(batches, scene, max(n, 1), Path(tmp), processes=max(-n, 0))
                 reference = reference or digests
                 if digests != reference:
-                    raise SystemExit(f"{n} threads wrote other bytes: {digests} != {reference}")
-                print(f"  {n:7d} {wall:6.2f} s {cpu:6.2f} s {args.points / wall / 1e6:11.2f}  "
+                    raise SystemExit(f"{abs(n)} {'threads' if n > 0 else 'processes'} wrote other bytes: "
+                                     f"{digests} != {reference}")
+                label = f"{n} thr" if n > 0 else f"{-n} proc"
+                print(f"  {label:>9s} {wall:6.2f} s {cpu:6.2f} s {args.points / wall / 1e6:11.2f}  "
                       f"{' '.join(f'{k}:{v}' for k, v in sorted(digests.items()))}")
 
 

@@ -20,6 +20,7 @@ from .scene import scene_variant
 from .survey import Batches, PreparedSurvey, prepare, scan, write as write_survey
 from .threads import writer_threads
 from .write import Staging, check_output_folder, earlier_results, output_lock
+from .write.processes import start_processes, writer_processes
 
 
 @dataclass
@@ -54,6 +55,7 @@ def render(scene, *, output_dir=None, seed=None, variant=None, overwrite=False, 
     keep_points = (not write) if keep_points is None else keep_points
     if write:
         check_output(scene, overwrite)
+        start_processes(scene, keep_points)
     else:
         writer_threads()
     prepared = prepared or prepare(scene, log=log)
@@ -71,9 +73,10 @@ def render(scene, *, output_dir=None, seed=None, variant=None, overwrite=False, 
 
 
 def check_output(scene: Scene, overwrite: bool) -> None:
-    """Refuse, before any work, a bad ``MITSUFOREST_WRITER_THREADS``, an output folder that cannot be
-    written, or one holding results of the scene when not ``overwrite``."""
+    """Refuse, before any work, a bad ``MITSUFOREST_WRITER_THREADS`` or ``MITSUFOREST_WRITER_PROCESSES``,
+    an output folder that cannot be written, or one holding results of the scene when not ``overwrite``."""
     writer_threads()
+    writer_processes()
     out = Path(scene.output.dir)
     check_output_folder(out)
     _refuse_existing(out, scene.name, overwrite)

@@ -1,5 +1,8 @@
-"""The point writer's threads: the same bytes with one thread and with several, LAZ and PCD that read
-back as the points written, LAS records as laspy makes them, and the thread count's setting."""
+"""The point writer's threads and worker processes: the same bytes with one thread, with several and
+with processes, LAZ and PCD that read back as the points written, LAS records as laspy makes them, and
+the thread and process counts' settings."""
+
+import io
 
 import laspy
 import numpy as np
@@ -11,6 +14,7 @@ from mitsuforest.errors import UserError
 from mitsuforest.scan import POINT_DTYPE
 from mitsuforest.threads import THREADS_VARIABLE, row_ranges, writer_threads
 from mitsuforest.write import PointWriter, Staging, read_pcd
+from mitsuforest.write.processes import PROCESSES_VARIABLE, writer_processes
 from mitsuforest.write.las import ASPRS_CODE, COORDINATE_SCALE, LasStream, las_header, las_records
 
 DEFAULT_GAIN = 1e6   # the default intensity mapping: counts per unit of amplitude
@@ -73,6 +77,117 @@ def test_one_thread_and_many_write_the_same_bytes_and_statistics(tmp_path, offse
     assert np.array_equal(one.counts.by_height, many.counts.by_height)
     assert np.array_equal(one.counts.by_return, many.counts.by_return)
     assert one.count == many.count == sum(BATCHES)
+
+
+def _write_apart(tmp_path, name, scene, processes, batches=None) -> tuple[dict, PointWriter]:
+    staging = Staging(tmp_path / name, scene.name)
+    writer = PointWriter(staging, scene, threads=1, processes=processes)
+    for batch in _batches() if batches is None else batches:
+        writer.add(batch)
+    writer.close()
+    return {p.suffix: p.read_bytes() for p in staging.path.iterdir()}, writer
+
+
+@pytest.mark.parametrize("offset, formats", [((0.0, 0.0, 0.0), ("pcd", "laz")), (OFFSET, ("pcd", "laz")),
+                                             (OFFSET, ("laz",)), (OFFSET, ("pcd",))])
+def test_worker_processes_write_the_bytes_and_statistics_of_one_thread(tmp_path, offset, formats):
+    """Two worker processes take parts of two LAZ chunks (the batches' rows past a whole chunk held for
+    the next, the file's last part short): the files and every statistic of one thread's writer, the top
+    view's pixels merged from the parts included."""
+    scene = _scene(offset, formats)
+    serial, one = _write_apart(tmp_path, "one", scene, processes=0)
+    apart, many = _write_apart(tmp_path, "apart", scene, processes=2)
+    assert one._parts is None and many._parts is not None
+    assert set(serial) == {"." + f for f in formats} and serial == apart
+    assert one.statistics() == many.statistics()
+    assert np.array_equal(one.top.top, many.top.top) and np.array_equal(one.top.cls, many.top.cls)
+    assert np.array_equal(one.side.points(), many.side.points())
+    assert np.array_equal(one.counts.by_height, many.counts.by_height)
+    assert np.array_equal(one.counts.by_return, many.counts.by_return)
+    assert many.count == sum(BATCHES)
+    if ".laz" in serial:
+        las = laspy.read(io.BytesIO(apart[".laz"]))
+        assert las.header.point_count == sum(BATCHES)
+        assert las.header.number_of_points_by_return[0] == sum((b["return_number"] == 1).sum() for b in _batches())
+        assert np.allclose(las.x, np.concatenate(_batches())["x"] + offset[0], atol=1e-4)
+
+
+def test_top_view_merged_from_parts_is_the_view_of_all_points():
+    """Pixels hit by many points at equal heights: the class of the last point at the top, whichever way
+    the points are cut into parts."""
+    from mitsuforest.write.quicklook import TopView
+    rng = np.random.default_rng(2)
+    p = np.zeros(20_000, POINT_DTYPE)
+    p["x"], p["y"] = rng.uniform(0, 2, 20_000), rng.uniform(0, 2, 20_000)
+    p["z"] = rng.integers(0, 4, 20_000)                          # many ties
+    p["classification"] = rng.integers(1, 9, 20_000)
+    whole, parts = TopView((2, 2)), TopView((2, 2))
+    whole.add(p)
+    for cut in np.split(p, [3, 7000, 7001, 15_000]):
+        parts.merge(parts.part(cut))
+    assert np.array_equal(whole.top, parts.top) and np.array_equal(whole.cls, parts.cls)
+
+
+def test_a_part_that_fails_in_a_worker_fails_the_writer_and_leaves_no_shared_memory(tmp_path):
+    """A coordinate that LAS cannot hold raises the threads' error from the worker; abort removes the
+    batches' shared files, and the pool serves the next writer."""
+    import glob
+    scene = _scene(OFFSET, ("pcd", "laz"))
+    far = _batches()[0].copy()
+    far["x"] = 1e9
+    writer = PointWriter(Staging(tmp_path / "far", scene.name), scene, threads=1, processes=2)
+    with pytest.raises(OverflowError, match="do not fit"):
+        writer.add(far)
+        writer.close()
+    writer.abort()
+    assert not writer._parts._folder.exists()
+    assert glob.glob("/dev/shm/mitsuforest-writer-*") == []
+    again, _ = _write_apart(tmp_path, "again", scene, processes=2)
+    assert again == _write_apart(tmp_path, "one", scene, processes=0)[0]
+
+
+def test_a_script_without_a_main_guard_runs_once_beside_the_writer_processes(tmp_path):
+    """Spawned workers would run the parent's main module first; they start while it is hidden."""
+    import subprocess
+    import sys
+    script = tmp_path / "plain.py"
+    script.write_text(
+        "import numpy as np\nprint('top level ran')\n"
+        "from mitsuforest.config import load_scene\nfrom mitsuforest.scan import POINT_DTYPE\n"
+        "from mitsuforest.write import PointWriter, Staging\n"
+        f"scene = load_scene({str(ROOT / 'scenes' / 'demo.yaml')!r})\n"
+        "p = np.zeros(120_000, POINT_DTYPE)\np['x'] = np.arange(120_000) * 1e-4\np['return_number'] = 1\n"
+        "w = PointWriter(Staging('out', scene.name), scene, processes=2)\nw.add(p)\nw.close()\n"
+        "print(w.count, w._parts is not None)\n")
+    run = subprocess.run([sys.executable, str(script)], cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr
+    assert run.stdout.count("top level ran") == 1 and "120000 True" in run.stdout
+
+
+def test_writer_processes_from_eight_cores_or_the_variable(monkeypatch):
+    monkeypatch.delenv(PROCESSES_VARIABLE, raising=False)
+    assert writer_processes(2) == 0 and writer_processes(7) == 0 and writer_processes(16) == 15
+    monkeypatch.setenv(PROCESSES_VARIABLE, "0")
+    assert writer_processes(16) == 0
+    monkeypatch.setenv(PROCESSES_VARIABLE, "3")
+    assert writer_processes(2) == 3
+    for bad in ("many", "-1", "1.5"):
+        monkeypatch.setenv(PROCESSES_VARIABLE, bad)
+        with pytest.raises(UserError, match=f"{PROCESSES_VARIABLE}: must be a whole number >= 0, got '{bad}'"):
+            writer_processes(2)
+
+
+def test_outputs_the_processes_do_not_write_keep_the_threads(tmp_path):
+    """LAS, COPC, an output profile or points kept in memory: the threads write them."""
+    for formats, keep in ((("pcd", "las"), False), (("laz", "copc"), False), (("pcd", "laz"), True)):
+        writer = PointWriter(Staging(tmp_path / "-".join(formats), "demo"), _scene(OFFSET, formats), keep=keep,
+                             processes=2)
+        assert writer._processes == 0
+        writer.abort()
+    scene = _scene(OFFSET, ("laz",)).with_({"output.profile": "for-instance"})
+    writer = PointWriter(Staging(tmp_path / "profile", "demo"), scene, processes=2)
+    assert writer._processes == 0
+    writer.abort()
 
 
 def test_files_read_back_as_the_points_written(tmp_path):

@@ -24,13 +24,16 @@ import contextlib
 import dataclasses
 import datetime
 import errno
+import io
 import json
 import os
+import struct
 from pathlib import Path
 
 import laspy
 import numpy as np
-from laspy.vlrs.known import WktCoordinateSystemVlr
+from laspy._pointwriter import IPointWriter
+from laspy.vlrs.known import LasZipVlr, WktCoordinateSystemVlr
 
 from ..classes import BUSH, DEADWOOD, GROUND, GROUND_VEGETATION, ROCK, SPECIES_CODES, STUMP, TREE_LEAVES, TREE_WOOD
 from ..config.types import IntensityMapping
@@ -46,9 +49,10 @@ LAS_MAX_RETURNS = (1 << LAS_DIMENSION["return_number"].width) - 1   # 15: 4 bits
 DEFAULT_CREATION_DATE = datetime.date(2000, 1, 1)   # the header's date without SOURCE_DATE_EPOCH (not today)
 
 try:
-    from lazrs import LazrsError
-    CODEC_ERRORS: tuple = (LazrsError,)
+    import lazrs
+    CODEC_ERRORS: tuple = (lazrs.LazrsError,)
 except ImportError:          # laspy without the lazrs backend writes no LAZ
+    lazrs = None
     CODEC_ERRORS = ()
 
 
@@ -190,6 +194,104 @@ LAZ_CHUNK = 50_000   # points per LAZ chunk (lazrs' default); chunks are compres
 MAX_CHUNKS_PER_CALL = 16   # LAZ records held back for one call: at most 37 MB
 
 
+def laz_vlr(point_format) -> lazrs.LazVlr:
+    """The LasZip VLR that lazrs writes for ``point_format`` (chunks of :data:`LAZ_CHUNK` points)."""
+    return lazrs.LazVlr.new_for_compression(point_format.id, point_format.num_extra_bytes)
+
+
+def compress_chunks(header: laspy.LasHeader, records: np.ndarray) -> tuple[bytes, list[tuple[int, int]]]:
+    """Packed point ``records`` of ``header``'s format compressed as LAZ chunks of :data:`LAZ_CHUNK`
+    points (each chunk on its own, as lazrs' writer compresses it): the chunks' bytes, and their (point
+    count, byte count) entries of the chunk table, for :meth:`LasStream.write_chunks`."""
+    vlr = laz_vlr(header.point_format)
+    compressed = lazrs.compress_points(vlr, records.view(np.uint8).reshape(-1), False)
+    table = lazrs.read_chunk_table(io.BytesIO(compressed), vlr)   # after the 8-byte offset to the table
+    return bytes(compressed[8:8 + sum(size for _, size in table)]), table
+
+
+@dataclasses.dataclass
+class HeaderSummary:
+    """What laspy's header takes from a file's points (``LasHeader.grow``), of some records alone: the
+    count, the least and greatest X, Y, Z (stored integers), GPS times and the points by return number."""
+
+    count: int
+    lowest: tuple
+    highest: tuple
+    gps_time: tuple
+    return_numbers: tuple
+
+    @classmethod
+    def of(cls, records: np.ndarray, point_format=LAS_FORMAT) -> HeaderSummary:
+        points = laspy.PackedPointRecord(records, laspy.PointFormat(point_format))
+        lowest = tuple(points[axis].min() for axis in "XYZ")
+        highest = tuple(points[axis].max() for axis in "XYZ")
+        return cls(len(records), lowest, highest, (points["gps_time"].min(), points["gps_time"].max()),
+                   tuple(np.unique(points.return_number, return_counts=True)))
+
+    def grow(self, header: laspy.LasHeader) -> None:
+        """``header.grow`` of the records summed up, with its arithmetic."""
+        for axis, low, high in zip("xyz", self.lowest, self.highest):
+            scale, offset = getattr(header, axis + "_scale"), getattr(header, axis + "_offset")
+            setattr(header, axis + "_max", max(getattr(header, axis + "_max"), (high * scale) + offset))
+            setattr(header, axis + "_min", min(getattr(header, axis + "_min"), (low * scale) + offset))
+        header.max_gps_time = max(header.max_gps_time, self.gps_time[1])
+        header.min_gps_time = min(header.min_gps_time, self.gps_time[0])
+        by_return = header.number_of_points_by_return
+        for return_number, count in zip(*self.return_numbers):
+            if return_number == 0:
+                continue
+            if return_number > len(by_return):
+                break
+            by_return[return_number - 1] += count
+        header.point_count += self.count
+
+
+class _ChunkWriter(IPointWriter):
+    """laspy's point writer for a LAZ file whose chunks come compressed (:func:`compress_chunks`):
+    written in order, then the chunk table and its offset, as lazrs' writer lays them out."""
+
+    def __init__(self, dest, point_format):
+        self.dest = dest
+        self.vlr = laz_vlr(point_format)
+        self._table: list = []
+        self._table_offset_at = None
+
+    @property
+    def destination(self):
+        return self.dest
+
+    def write_initial_header_and_vlrs(self, header, encoding_errors) -> None:
+        header.vlrs.append(LasZipVlr(self.vlr.record_data()))
+        super().write_initial_header_and_vlrs(header, encoding_errors)
+        self._table_offset_at = self.dest.tell()
+        self.dest.write(struct.pack("<q", -1))         # the chunk table's offset, known once it is written
+
+    def write_points(self, points) -> None:
+        raise TypeError("this LAZ file takes compressed chunks (LasStream.write_chunks)")
+
+    def write_chunks(self, data: bytes, table: list) -> None:
+        self.dest.write(data)
+        self._table += table
+
+    def done(self) -> None:
+        table_at = self.dest.tell()
+        lazrs.write_chunk_table(self.dest, self._table, self.vlr)
+        end = self.dest.tell()
+        self.dest.seek(self._table_offset_at)
+        self.dest.write(struct.pack("<q", table_at))
+        self.dest.seek(end)
+
+
+class _ChunkBackend:
+    """A laspy LAZ backend (what ``laz_backend`` takes) whose writer takes compressed chunks."""
+
+    def is_available(self) -> bool:
+        return True
+
+    def create_writer(self, dest, header) -> _ChunkWriter:
+        return _ChunkWriter(dest, header.point_format)
+
+
 class LasStream:
     """A ``.las`` or ``.laz`` file written batch by batch (laspy updates the header on close).
 
@@ -203,15 +305,20 @@ class LasStream:
     :param intensity: the sensor's intensity mapping (by default amplitude × 1e6).
     :param header: another header than ours (:func:`las_header`), for records the caller packs
         (:meth:`write_records`).
+    :param chunks: a LAZ file that takes its points as chunks compressed elsewhere (:meth:`write_chunks`),
+        and only so.
     """
 
     def __init__(self, path, offset, crs: str | None = None, compress: bool | None = None, threads: int = 2,
-                 intensity: IntensityMapping | None = None, header: laspy.LasHeader | None = None):
+                 intensity: IntensityMapping | None = None, header: laspy.LasHeader | None = None,
+                 chunks: bool = False):
         self.path = Path(path)
         self.intensity = intensity
         self.header = header or las_header(offset, crs, intensity)
         compress = str(path).endswith(".laz") if compress is None else compress
         backend = laspy.LazBackend.LazrsParallel if threads > 1 else laspy.LazBackend.Lazrs
+        if chunks:
+            backend, compress = _ChunkBackend(), True
         with self._io_errors():
             self._writer = laspy.open(str(path), mode="w", header=self.header, do_compress=compress,
                                       laz_backend=backend if compress else None)
@@ -234,6 +341,14 @@ class LasStream:
         """Write georeferenced points (x, y, z include the offset)."""
         las_records(self.header, points, self.reserve(len(points)), self.intensity)
         self.commit(len(points))
+
+    def write_chunks(self, data: bytes, table: list[tuple[int, int]], summary: HeaderSummary) -> None:
+        """Write LAZ chunks compressed elsewhere (:func:`compress_chunks`), in the file's order, and their
+        points' :class:`HeaderSummary` (a stream made with ``chunks``)."""
+        self._refuse_if_closed()
+        summary.grow(self._writer.header)
+        with self._io_errors():
+            self._writer.point_writer.write_chunks(data, table)
 
     def write_records(self, records: np.ndarray) -> None:
         """Write packed point records (:func:`las_records`)."""

@@ -51,14 +51,36 @@ class TopView:
     def add(self, points) -> None:
         if len(points) == 0:
             return
-        w, h = self.size
-        i = np.clip((points["x"] * np.float32(self.scale)).astype(np.int32), 0, w - 1)
-        j = np.clip(((np.float32(self.area[1]) - points["y"]) * np.float32(self.scale)).astype(np.int32), 0, h - 1)
-        pix = j * np.int32(w) + i
-        z = points["z"].astype(np.float32)
+        pix, z = self._pixels(points)
         np.maximum.at(self.top, pix, z)
         highest = np.flatnonzero(z >= self.top[pix])     # the points now on top of their pixel
         self.cls[pix[highest]] = points["classification"][highest]
+
+    def _pixels(self, points) -> tuple[np.ndarray, np.ndarray]:
+        w, h = self.size
+        i = np.clip((points["x"] * np.float32(self.scale)).astype(np.int32), 0, w - 1)
+        j = np.clip(((np.float32(self.area[1]) - points["y"]) * np.float32(self.scale)).astype(np.int32), 0, h - 1)
+        return j * np.int32(w) + i, points["z"].astype(np.float32)
+
+    def part(self, points) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The top of ``points`` alone, for :meth:`merge` (parts of the points can be viewed side by
+        side): the pixels they fall in (k,), each one's highest z (k,) and the class of its last point at
+        that height (k,)."""
+        pix, z = self._pixels(points)
+        pixels, inverse = np.unique(pix, return_inverse=True)
+        top = np.full(len(pixels), -np.inf, np.float32)
+        np.maximum.at(top, inverse, z)
+        cls = np.zeros(len(pixels), np.uint8)
+        highest = np.flatnonzero(z >= top[inverse])
+        cls[inverse[highest]] = points["classification"][highest]
+        return pixels, top, cls
+
+    def merge(self, part: tuple[np.ndarray, np.ndarray, np.ndarray]) -> None:
+        """Add a :meth:`part`, as :meth:`add` would have added its points (parts merged in order)."""
+        pixels, top, cls = part
+        on_top = top >= self.top[pixels]
+        self.top[pixels] = np.maximum(self.top[pixels], top)
+        self.cls[pixels[on_top]] = cls[on_top]
 
     def image(self, fill_m: float = 0.5) -> np.ndarray:
         """(h, w, 3) uint8, north up. A pixel no point fell in takes the class of the nearest pixel one did

@@ -6,7 +6,8 @@ classes, returns, spacing) and the quick-look rasters are accumulated batch by b
 A batch is cut into row ranges that the writer's threads (:mod:`mitsuforest.threads`) handle side
 by side: each tallies its statistics, georeferences its points, writes its PCD records at their own
 offset in the file and packs its LAS records into their own rows; the LAS records are then
-compressed in file order. The files are the same bytes whatever the number of threads.
+compressed in file order. The files are the same bytes whatever the number of threads. On a machine of
+many cores the parts go to worker processes instead (:mod:`.processes`), with the same bytes.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from .ground import fill_height, ground_surface, with_room_for_height
 from .las import LasStream, las_records
 from .pcd import COUNT_DIGITS, pcd_header
 from .output_profiles import PROFILES
+from .processes import PartWork, ProcessParts, fits_processes, writer_processes
 from .profile import ReturnCounts
 from .quicklook import SideTile, TopView
 
@@ -41,25 +43,29 @@ class PointWriter:
         alone.
     :param stems: sorted object ids of the stem components, for an ``output.profile`` that tells stems from
         branches (:func:`~.output_profiles.stem_ids`).
+    :param processes: worker processes for the points of a render that writes PCD and LAZ alone, kept
+        nowhere else (default: :func:`~.processes.writer_processes`, none below 8 cores); 0: the threads.
     """
 
     def __init__(self, staging, scene: dict, keep: bool = False, terrain=None, threads: int | None = None,
-                 stems=()):
+                 stems=(), processes: int | None = None):
         self.threads = writer_threads() if threads is None else threads
         self.offset = np.asarray(scene.origin.offset, np.float64)
         self.area = scene.area.size
         formats = scene.output.formats if staging else []
+        profile = PROFILES.get(scene.output.profile) if staging else None     # None: ours only
+        processes = writer_processes() if processes is None else processes
+        self._processes = processes if staging and fits_processes(scene, keep) else 0
         self._pcd_file = open(staging.file(".pcd"), "wb") if staging and "pcd" in formats else None  # noqa: SIM115
         self._pcd_end = 0          # where the next batch's records go in the PCD file
         self._las = [LasStream(staging.file("." + f), self.offset, scene.origin.crs, threads=self.threads,
-                               intensity=scene.sensor.intensity)
+                               intensity=scene.sensor.intensity, chunks=self._processes > 0)
                      for f in ("las", "laz") if f in formats]
         self._workers = Workers(self.threads)
         self._others = []      # written whole batch by batch, after the threaded LAS and PCD records
         if "copc" in formats:                        # spooled, then built into an octree on close
             self._others.append(CopcStream(staging.file(".copc.laz"), self.offset, scene.origin.crs,
                                            scene.sensor.intensity))
-        profile = PROFILES.get(scene.output.profile) if staging else None     # None: ours only
         if profile:
             self._others.append(profile.stream(staging.file(profile.suffix), self.offset, scene.origin.crs, stems))
         self._kept = [] if keep else None
@@ -76,6 +82,12 @@ class PointWriter:
         self._tile_points = [[] for _ in self._tiles]
         self._seed = scene.seed
         self.dtype = None
+        self._terrain = terrain
+        self._parts: ProcessParts | None = None
+
+    @property
+    def laz_stream(self) -> LasStream:
+        return self._las[0]
 
     def add(self, points: np.ndarray) -> None:
         """Add a batch of local-frame points (POINT_DTYPE); each file gets ``height_above_ground`` too.
@@ -88,8 +100,13 @@ class PointWriter:
                 self._pcd_file.write(header)
                 self._pcd_file.flush()       # the records are written at their offsets, past the buffer
             self._pcd_end = len(header)
+        if self.dtype is None and self._processes:
+            self._parts = ProcessParts(self, self._part_work(), self._processes)
         self.dtype = batch.dtype
         if len(points) == 0:
+            return
+        if self._parts:
+            self._parts.add(points)
             return
         records = [las.reserve(len(points)) for las in self._las]
         tasks = [self._workers.submit(self.top.add, points)]       # in order: a pixel keeps its last highest point
@@ -101,14 +118,8 @@ class PointWriter:
                 las.commit(len(points))
         finally:
             Workers.finish(tasks)          # none is left writing when an error is raised
-        for classes, returns, counts, side, tiles in tallies:
-            self.classes += classes
-            self.returns += returns
-            self.counts.merge(counts)
-            self.side.parts.append(side)
-            for bucket, xyz in zip(self._tile_points, tiles):
-                bucket.append(xyz)
-        self.count += len(points)
+        for (start, stop), tally in zip(row_ranges(len(points), self.threads), tallies):
+            self.merge_part(stop - start, tally)
         if self._pcd_file:
             self._pcd_end += len(points) * self._pcd_record.itemsize
         if self._others or self._kept is not None:
@@ -117,6 +128,30 @@ class PointWriter:
                 stream.write(geo)
             if self._kept is not None:
                 self._kept.append(geo)
+
+    def merge_part(self, rows: int, tally: tuple) -> None:
+        """Add the statistics of a part of ``rows`` points (:func:`tallies`; its counts by height and by
+        return may come as (flat indices, counts) of their non-zero cells)."""
+        classes, returns, counts, side, tiles = tally
+        self.classes += classes
+        self.returns += returns
+        if counts and isinstance(counts[0], tuple):
+            for total, (cells, values) in zip((self.counts.by_height, self.counts.by_return), counts):
+                total.ravel()[cells] += values
+        else:
+            self.counts.merge(counts)
+        self.side.parts.append(side)
+        for bucket, xyz in zip(self._tile_points, tiles):
+            bucket.append(xyz)
+        self.count += rows
+
+    def _part_work(self) -> PartWork:
+        """What the worker processes write and tally parts with (the batches' PCD records from the
+        header's end on)."""
+        pcd = (self._pcd_file.name, self._pcd_record, self._pcd_end) if self._pcd_file else None
+        laz = (self._las[0].header, self._las[0].intensity) if self._las else None
+        return PartWork(self.offset, self._terrain, pcd, laz, TopView(self.area), SideTile(self.area),
+                        ReturnCounts(self._terrain, self.area), self._tiles)
 
     def _part(self, scanned: np.ndarray, batch: np.ndarray, start: int, stop: int, records: list[np.ndarray]) -> tuple:
         """Rows ``start:stop`` of a batch: copied from the ``scanned`` points into ``batch`` with their
@@ -128,28 +163,15 @@ class PointWriter:
             record = self._pcd_record
             data = geo if record == geo.dtype else geo.astype(record)
             with naming_errors(self._pcd_file.name):
-                _write_at(self._pcd_file.fileno(), data, self._pcd_end + start * record.itemsize)
+                write_at(self._pcd_file.fileno(), data, self._pcd_end + start * record.itemsize)
         for las, rows in zip(self._las, records):
             las_records(las.header, geo, rows[start:stop])
-        first = points["return_number"] == 1
-        return (np.bincount(points["classification"], minlength=256),
-                np.bincount(points["number_of_returns"][first], minlength=256),
-                self.counts.tally(points), self.side.select(points), self._in_tiles(points))
-
-    def _in_tiles(self, points: np.ndarray) -> list[np.ndarray]:
-        """(k, 3) x, y, z of the points in each spacing tile."""
-        x, y = points["x"].copy(), points["y"].copy()      # contiguous: four times faster to compare
-        tiles = []
-        for x0, y0 in self._tiles:
-            inside = (x >= x0) & (x < x0 + SPACING_TILE)
-            inside &= y >= y0
-            inside &= y < y0 + SPACING_TILE
-            rows = np.flatnonzero(inside)
-            tiles.append(np.column_stack([x[rows], y[rows], points["z"][rows]]))
-        return tiles
+        return tallies(points, self.counts, self.side, self._tiles)
 
     def close(self) -> None:
         """Finish the files: the PCD header is written once the point count is known."""
+        if self._parts:
+            self._parts.close()
         self._workers.close()
         for las in (*self._las, *self._others):
             las.close()
@@ -163,6 +185,8 @@ class PointWriter:
 
     def abort(self) -> None:
         """Close whatever is still open (after a failure, possibly inside :meth:`close`)."""
+        if self._parts:
+            self._parts.abort()
         self._workers.close()
         for las in (*self._las, *self._others):
             las.abort()
@@ -192,6 +216,30 @@ class PointWriter:
             "returns_histogram": {int(k): int(v) for k, v in enumerate(self.returns) if v},
             "mean_spacing_m": float(np.concatenate(spacings).mean()) if spacings else None,
         }
+
+
+def tallies(points: np.ndarray, counts: ReturnCounts, side: SideTile, tiles: np.ndarray) -> tuple:
+    """The statistics of a part of a batch, for :meth:`PointWriter.merge_part`: (256,) points by class,
+    (256,) pulses by their number of returns (from first returns), the ``counts`` by height and by return
+    (:meth:`~.profile.ReturnCounts.tally`), the points in the ``side`` tile and (k, 3) x, y, z of those in
+    each spacing tile of ``tiles`` ((4, 2) corners)."""
+    first = points["return_number"] == 1
+    return (np.bincount(points["classification"], minlength=256),
+            np.bincount(points["number_of_returns"][first], minlength=256),
+            counts.tally(points), side.select(points), in_tiles(points, tiles))
+
+
+def in_tiles(points: np.ndarray, tiles: np.ndarray) -> list[np.ndarray]:
+    """(k, 3) x, y, z of the points in each spacing tile (corners ``tiles``, side :data:`SPACING_TILE`)."""
+    x, y = points["x"].copy(), points["y"].copy()      # contiguous: four times faster to compare
+    out = []
+    for x0, y0 in tiles:
+        inside = (x >= x0) & (x < x0 + SPACING_TILE)
+        inside &= y >= y0
+        inside &= y < y0 + SPACING_TILE
+        rows = np.flatnonzero(inside)
+        out.append(np.column_stack([x[rows], y[rows], points["z"][rows]]))
+    return out
 
 
 def spacing_queries(n: int, rng: np.random.Generator, most: int = SPACING_QUERIES) -> np.ndarray | None:
@@ -237,7 +285,7 @@ def georeference(points: np.ndarray, offset) -> np.ndarray:
     return out
 
 
-def _write_at(fd: int, data: np.ndarray, offset: int) -> None:
+def write_at(fd: int, data: np.ndarray, offset: int) -> None:
     """Write a contiguous array at ``offset`` of file ``fd`` (``os.pwrite``: threads write their parts
     of one file at once)."""
     view = memoryview(np.ascontiguousarray(data).view(np.uint8))

@@ -1,0 +1,329 @@
+"""The point writer's work on many cores: parts of each batch written and tallied in worker processes.
+
+The writer's threads (:mod:`mitsuforest.threads`) share Python's lock with each other and with the scan,
+and lazrs holds it while it compresses, so on a machine of many cores they use a few of them. With
+worker processes each part of a batch is handled whole where it is sent: its heights above the ground,
+its PCD records (written at their own offset in the file), its LAS records compressed into whole LAZ
+chunks (a chunk's coder starts afresh, so chunks compressed apart and joined in order are the bytes of
+one compressor), and its statistics. The writing process only copies each batch into shared memory,
+hands out its parts and takes back, in order, the compressed chunks and the tallies: the files are the
+bytes of the threaded writer, whatever the number of processes.
+
+Parts are whole LAZ chunks of the file (:data:`~.las.LAZ_CHUNK` points): the rows of a batch past its
+last whole chunk wait for the next batch, and the file's last part takes the rest.
+"""
+
+from __future__ import annotations
+
+import collections
+import os
+import signal
+import sys
+import tempfile
+import types
+from concurrent.futures import Future, ProcessPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import UserError
+from .atomic import naming_errors
+from .ground import fill_height, ground_surface, with_room_for_height
+from .output_profiles import PROFILES
+from .las import LAZ_CHUNK, HeaderSummary, compress_chunks, las_records
+
+PROCESSES_VARIABLE = "MITSUFOREST_WRITER_PROCESSES"
+MIN_CORES = 8              # from this many cores on, the writer uses processes by default
+CHUNKS_PER_PART = 2        # LAZ chunks a worker handles at a time
+SLOTS = 4                  # batches held in shared memory at once: one being copied, the rest in the workers' hands
+FORMATS = {"pcd", "laz"}   # the point files written in worker processes; other outputs keep the threads
+
+
+def writer_processes(cores: int | None = None) -> int:
+    """Worker processes for the point writer: ``MITSUFOREST_WRITER_PROCESSES`` if set (0: the writer's
+    threads), else one less than the cores this process may use from :data:`MIN_CORES` cores on, and 0
+    below.
+
+    :raises UserError: for a value that is not a whole number of at least 0.
+    """
+    text = os.environ.get(PROCESSES_VARIABLE, "").strip()
+    if text:
+        if not text.isdigit():
+            raise UserError(f"{PROCESSES_VARIABLE}: must be a whole number >= 0, got {text!r}")
+        return int(text)
+    cores = len(os.sched_getaffinity(0)) if cores is None else cores
+    return cores - 1 if cores >= MIN_CORES else 0
+
+
+def fits_processes(scene, keep: bool = False) -> bool:
+    """Whether a render of ``scene`` can write its points in worker processes: its point files all of
+    :data:`FORMATS`, no other ``output.profile`` than ours, and the points not kept in memory."""
+    return not keep and scene.output.profile not in PROFILES and set(scene.output.formats) <= FORMATS
+
+
+def uses_processes(scene, keep: bool = False) -> int:
+    """The worker processes a render of ``scene`` writes its points with (0: the writer's threads)."""
+    return writer_processes() if fits_processes(scene, keep) else 0
+
+
+def start_processes(scene, keep: bool = False) -> None:
+    """Start the worker processes that a render of ``scene`` will write with, if any, now: they start
+    while the render plans and loads its scene."""
+    processes = uses_processes(scene, keep)
+    if processes:
+        process_pool(processes)
+
+
+_POOLS: dict[int, ProcessPoolExecutor] = {}
+
+
+def process_pool(processes: int) -> ProcessPoolExecutor:
+    """The process-wide pool of ``processes`` writer workers, kept for later files and renders, started
+    (not waited for) on first use; a broken pool is replaced. The workers are fresh interpreters
+    (``spawn``: no copy of this process's threads, Dr.Jit's and CUDA's among them)."""
+    pool = _POOLS.get(processes)
+    if pool is None or getattr(pool, "_broken", False):
+        pool = _POOLS[processes] = _started_pool(processes)
+    return pool
+
+
+def _started_pool(processes: int) -> ProcessPoolExecutor:
+    import multiprocessing
+    # A spawned worker runs the parent's main module first (multiprocessing's rule), which for a script
+    # that renders at its top level, with no ``if __name__ == "__main__"``, would render again in every
+    # worker: all of them start now, while the main module is an empty one.
+    main = sys.modules["__main__"]
+    sys.modules["__main__"] = types.ModuleType("__main__")
+    try:
+        pool = ProcessPoolExecutor(processes, mp_context=multiprocessing.get_context("spawn"),
+                                   initializer=_ignore_interrupts)
+        for _ in range(processes):        # each submit starts one more worker while none is idle
+            pool.submit(_ready)
+    finally:
+        sys.modules["__main__"] = main
+    return pool
+
+
+def _ignore_interrupts() -> None:
+    """A worker's initializer: Ctrl-C reaches the whole process group, and the parent, not each worker,
+    answers it."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _ready() -> None:
+    """A task that makes the pool start a worker."""
+
+
+@dataclass
+class PartWork:
+    """What a worker needs to write and tally its parts of a writer's batches (pickled once per writer,
+    read by each worker once).
+
+    :param pcd: the PCD file's path, its record dtype and where its records begin; None without a PCD.
+    :param laz: the LAZ file's header and the sensor's intensity mapping; None without a LAZ.
+    """
+
+    offset: np.ndarray
+    terrain: object
+    pcd: tuple[str, np.dtype, int] | None
+    laz: tuple | None
+    top: object            # the writer's TopView, SideTile and ReturnCounts (empty: their settings)
+    side: object
+    counts: object
+    tiles: np.ndarray      # (4, 2) spacing tiles' corners
+    _cache: dict = field(default_factory=dict, repr=False)
+
+    def __getstate__(self):
+        return {k: v for k, v in self.__dict__.items() if k != "_cache"}
+
+    def __setstate__(self, state):
+        self.__dict__.update(state, _cache={})
+
+    def write(self, scanned: np.ndarray, first_row: int) -> PartResult:
+        """Rows ``scanned`` (local frame, POINT_DTYPE), the file's rows from ``first_row`` on: written to the
+        PCD at their offset, compressed as LAZ chunks, and their statistics."""
+        from .stream import georeference, tallies, write_at
+        if "ground" not in self._cache:
+            self._cache["ground"] = ground_surface(self.terrain)
+        points = fill_height(scanned, with_room_for_height(scanned), self._cache["ground"])
+        geo = georeference(points, self.offset)
+        if self.pcd:
+            path, record, start = self.pcd
+            if "pcd" not in self._cache:
+                self._cache["pcd"] = os.open(path, os.O_WRONLY)
+            data = geo if record == geo.dtype else geo.astype(record)
+            with naming_errors(path):
+                write_at(self._cache["pcd"], data, start + first_row * record.itemsize)
+        laz = None
+        if self.laz:
+            header, intensity = self.laz
+            records = las_records(header, geo, intensity=intensity)
+            laz = (*compress_chunks(header, records), HeaderSummary.of(records))
+        classes, returns, (by_height, by_return), side, tiles = tallies(points, self.counts, self.side, self.tiles)
+        counts = [(np.flatnonzero(c), c.ravel()[np.flatnonzero(c)]) for c in (by_height, by_return)]   # sparse: a few kB
+        return PartResult(len(points), (classes, returns, counts, side, tiles), self.top.part(points), laz)
+
+    def close(self) -> None:
+        if "pcd" in self._cache:
+            os.close(self._cache.pop("pcd"))
+
+
+@dataclass
+class PartResult:
+    rows: int
+    tallies: tuple
+    top: tuple
+    laz: tuple | None      # chunks' bytes, chunk table, header summary
+
+
+_WORKS: collections.OrderedDict = collections.OrderedDict()     # a worker's PartWork by path
+
+
+def write_part(work_path: str, slot_path: str, dtype: np.dtype, start: int, stop: int, first_row: int) -> PartResult:
+    """A worker's task: rows ``start:stop`` of the batch slot ``slot_path`` through the writer's
+    :class:`PartWork` stored at ``work_path``."""
+    work = _WORKS.get(work_path)
+    if work is None:
+        import pickle
+        work = _WORKS[work_path] = pickle.loads(Path(work_path).read_bytes())
+        while len(_WORKS) > 2:
+            _WORKS.popitem(last=False)[1].close()
+    rows = np.memmap(slot_path, dtype, "r", offset=start * dtype.itemsize, shape=(stop - start,))
+    return work.write(np.asarray(rows), first_row)
+
+
+def shared_folder(size: int) -> str:
+    """A folder for ``size`` bytes of batch slots: ``/dev/shm`` when it has room for them twice over
+    (shared memory that no disk writes back), else the temporary folder."""
+    try:
+        if os.statvfs("/dev/shm").f_bavail * os.statvfs("/dev/shm").f_frsize > 2 * size:
+            return "/dev/shm"
+    except OSError:
+        pass
+    return tempfile.gettempdir()
+
+
+class ProcessParts:
+    """A :class:`~.stream.PointWriter`'s batches handed to worker processes (see module docstring);
+    what comes back is merged into the writer and its LAZ stream in the file's order.
+
+    :param writer: the writer whose statistics and LAZ stream take the results.
+    :param work: what the workers need (:class:`PartWork`).
+    """
+
+    def __init__(self, writer, work: PartWork, processes: int):
+        self.writer, self.work, self.processes = writer, work, processes
+        self.pool = process_pool(processes)
+        self.chunked = work.laz is not None
+        self._folder = Path(tempfile.mkdtemp(prefix="mitsuforest-writer-", dir=shared_folder(SLOTS * 200 << 20)))
+        self._work_path = self._folder / "work.pickle"
+        import pickle
+        self._work_path.write_bytes(pickle.dumps(work))
+        self._pending: collections.deque = collections.deque()   # (slot path, [futures]) in the file's order
+        self._free: dict[Path, np.memmap] = {}     # batch files not in the workers' hands
+        self._busy: dict[Path, np.memmap] = {}
+        self._held = None            # rows waiting for a whole chunk
+        self._sent = 0               # the file's rows handed out so far
+        self._made = 0
+
+    def add(self, points: np.ndarray) -> None:
+        """Hand out the whole chunks of ``points`` (and of the rows held from earlier batches)."""
+        held = self._held if self._held is not None else points[:0]
+        rows = len(held) + len(points)
+        whole = (self._sent + rows) // LAZ_CHUNK * LAZ_CHUNK - self._sent if self.chunked else rows
+        if whole <= 0:
+            self._held = np.concatenate([held, points])
+            return
+        self._collect_done()
+        slot, batch = self._slot(rows, points.dtype)
+        _copy_rows(held, batch[:len(held)])
+        _copy_rows(points, batch[len(held):])
+        self._held = np.array(batch[whole:])
+        self._send(slot, points.dtype, whole)
+
+    def _send(self, slot: Path, dtype: np.dtype, rows: int) -> None:
+        step = CHUNKS_PER_PART * LAZ_CHUNK
+        tasks = [self.pool.submit(write_part, str(self._work_path), str(slot), dtype, start,
+                                  min(start + step, rows), self._sent + start)
+                 for start in range(0, rows, step)]
+        self._pending.append((slot, tasks))
+        self._sent += rows
+
+    def _slot(self, rows: int, dtype: np.dtype) -> tuple[Path, np.ndarray]:
+        """``rows`` records in a file in shared memory, once a slot is free (the oldest batch's results
+        taken back): a free file of the size or larger, mapped once, else a new one."""
+        while len(self._pending) >= SLOTS:
+            self._collect(self._pending.popleft())
+        size = rows * dtype.itemsize
+        fits = [path for path, mapped in self._free.items() if len(mapped) >= size]
+        if fits:
+            path = min(fits, key=lambda p: len(self._free[p]))
+        else:
+            if len(self._free) >= SLOTS:                        # the smallest free file makes room
+                smallest = min(self._free, key=lambda p: len(self._free[p]))
+                del self._free[smallest]
+                smallest.unlink()
+            self._made += 1
+            path = self._folder / f"batch-{self._made}"
+            self._free[path] = np.memmap(path, np.uint8, "w+", shape=(max(size, 1),))
+        mapped = self._free.pop(path)
+        self._busy[path] = mapped
+        return path, mapped[:size].view(dtype)
+
+    def _collect_done(self) -> None:
+        while self._pending and all(t.done() for t in self._pending[0][1]):
+            self._collect(self._pending.popleft())
+
+    def _collect(self, pending: tuple[Path, list[Future]]) -> None:
+        slot, tasks = pending
+        try:
+            for task in tasks:
+                self._merge(task.result())
+        finally:
+            for task in tasks:
+                task.cancel()
+            self._free[slot] = self._busy.pop(slot)
+
+    def _merge(self, part: PartResult) -> None:
+        self.writer.merge_part(part.rows, part.tallies)
+        self.writer.top.merge(part.top)
+        if part.laz:
+            self.writer.laz_stream.write_chunks(*part.laz)
+
+    def close(self) -> None:
+        """Hand out the rows held back (the file's last chunk) and take back every result."""
+        if self._held is not None and len(self._held):
+            slot, batch = self._slot(len(self._held), self._held.dtype)
+            _copy_rows(self._held, batch)
+            self._held = None
+            self._send(slot, batch.dtype, len(batch))
+        while self._pending:
+            self._collect(self._pending.popleft())
+        self._remove_folder()
+
+    def abort(self) -> None:
+        """Drop what is not yet written; wait for the parts being written (none writes after this)."""
+        for _, tasks in self._pending:
+            for task in tasks:
+                task.cancel()
+        for _, tasks in self._pending:
+            for task in tasks:
+                try:
+                    task.exception()
+                except BaseException:  # noqa: BLE001 (cancelled)
+                    pass
+        self._pending.clear()
+        self._remove_folder()
+
+    def _remove_folder(self) -> None:
+        import shutil
+        self._free.clear()
+        self._busy.clear()
+        shutil.rmtree(self._folder, ignore_errors=True)
+
+
+def _copy_rows(source: np.ndarray, target: np.ndarray) -> None:
+    """``target[:] = source`` for records of one dtype, as bytes (a structured copy goes field by field)."""
+    if len(source):
+        target.view(np.uint8)[:] = np.ascontiguousarray(source).view(np.uint8)
