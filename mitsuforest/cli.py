@@ -121,6 +121,8 @@ def main(argv=None) -> int:
         return e.exit_code
     previous = signal.signal(signal.SIGTERM, raise_terminated) if in_main_thread() else None
     try:
+        if args.command == "render":
+            _start_writer_processes(args)
         if args.command not in ("info", "compare"):
             _preload()
         code = _COMMANDS[args.command](args) or 0
@@ -157,6 +159,21 @@ def main(argv=None) -> int:
 
 def _stopped(by_sigterm: bool) -> str:
     return "stopped (SIGTERM)" if by_sigterm else "interrupted"
+
+
+def _start_writer_processes(args) -> None:
+    """Start the point writer's worker processes, if the scene file's render will use them, before the
+    heavy imports: they start on cores the imports leave idle. A scene that does not load is left for
+    the render to report."""
+    if args.scene.suffix.lower() == ".xml":
+        return
+    from .config import load_scene
+    from .write.processes import start_processes
+    try:
+        scene = load_scene(args.scene, seed=args.seed, variant=args.variant, output_dir=args.output)
+    except (UserError, OSError):
+        return
+    start_processes(scene)
 
 
 def _preload() -> None:

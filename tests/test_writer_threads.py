@@ -14,7 +14,7 @@ from mitsuforest.errors import UserError
 from mitsuforest.scan import POINT_DTYPE
 from mitsuforest.threads import THREADS_VARIABLE, row_ranges, writer_threads
 from mitsuforest.write import PointWriter, Staging, read_pcd
-from mitsuforest.write.processes import PROCESSES_VARIABLE, writer_processes
+from mitsuforest.write.processes import PROCESSES_VARIABLE, fits_processes, writer_processes
 from mitsuforest.write.las import ASPRS_CODE, COORDINATE_SCALE, LasStream, las_header, las_records
 
 DEFAULT_GAIN = 1e6   # the default intensity mapping: counts per unit of amplitude
@@ -179,11 +179,12 @@ def test_writer_processes_from_eight_cores_or_the_variable(monkeypatch):
 
 def test_outputs_the_processes_do_not_write_keep_the_threads(tmp_path):
     """LAS, COPC, an output profile or points kept in memory: the threads write them."""
-    for formats, keep in ((("pcd", "las"), False), (("laz", "copc"), False), (("pcd", "laz"), True)):
+    for formats, keep in ((("pcd", "las"), False), (("pcd", "laz"), True)):
         writer = PointWriter(Staging(tmp_path / "-".join(formats), "demo"), _scene(OFFSET, formats), keep=keep,
                              processes=2)
         assert writer._processes == 0
         writer.abort()
+    assert not fits_processes(_scene(OFFSET, ("laz", "copc"))) and fits_processes(_scene(OFFSET, ("laz",)))
     scene = _scene(OFFSET, ("laz",)).with_({"output.profile": "for-instance"})
     writer = PointWriter(Staging(tmp_path / "profile", "demo"), scene, processes=2)
     assert writer._processes == 0
@@ -330,3 +331,26 @@ def test_point_array_filled_by_threads_is_the_echoes(monkeypatch):
     assert np.array_equal(points["species"], located["object_species"][obj])
     assert np.array_equal(points["object_id"], located["object_id_base"][obj] + located["triangle_component"][tri])
     assert np.array_equal(points["classification"], located["triangle_class"][tri])
+
+
+def test_a_render_written_by_worker_processes_is_the_render_written_by_threads(tmp_path_factory, variant,
+                                                                                 monkeypatch):
+    """The demo scanned along one leg and written with two worker processes (its four pictures drawn
+    in them too) and with the threads: every file the same bytes, the manifest but for paths and times."""
+    import json
+
+    from conftest import _demo_scene
+
+    from mitsuforest.pipeline import render
+    files = {}
+    for processes in ("0", "2"):
+        monkeypatch.setenv(PROCESSES_VARIABLE, processes)
+        result = render(_demo_scene(tmp_path_factory, variant), progress=False, log=lambda *_: None)
+        files[processes] = {p.name: p.read_bytes() for p in result.files}
+    threads, apart = files["0"], files["2"]
+    assert len(threads) == 11 and threads.keys() == apart.keys()
+    assert all(threads[name] == apart[name] for name in threads if not name.endswith("_manifest.json"))
+    manifests = [json.loads(f["demo_manifest.json"]) for f in (threads, apart)]
+    for manifest in manifests:
+        manifest.pop("timings_s"), manifest["scene"]["output"].pop("dir")
+    assert manifests[0] == manifests[1] and manifests[0]["points"] > 10_000

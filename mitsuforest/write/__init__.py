@@ -12,6 +12,7 @@ import fcntl
 import os
 import shutil
 import tempfile
+from concurrent.futures import wait
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -221,15 +222,27 @@ def write_tables(file, *, scene, plan, models) -> None:
 
 
 def write_render_outputs(staging: Staging, *, scene, plan, models, writer) -> None:
-    """Write the tables, plan, trajectory and quick looks of one render into ``staging``."""
-    write_tables(staging.file, scene=scene, plan=plan, models=models)
-    if not scene.output.pictures:
-        return
-    classes = [int(c) for c in np.flatnonzero(writer.classes)]
-    write_top_figure(staging.file("_top.png"), writer.top, writer.side, classes)
-    write_tile_figure(staging.file("_side.png"), writer.side)
-    write_profile_figure(staging.file("_profile.png"), writer.counts)
-    write_returns_figure(staging.file("_returns.png"), writer.returns, writer.counts)
+    """Write the tables, plan, trajectory and quick looks of one render into ``staging``. The four
+    pictures are drawn side by side in the writer's worker processes when it wrote its points with
+    them (:attr:`PointWriter.pool`), while this process writes the tables."""
+    pictures = []
+    if scene.output.pictures:
+        classes = [int(c) for c in np.flatnonzero(writer.classes)]
+        pictures = [(write_top_figure, "_top.png", writer.top, writer.side, classes),
+                    (write_tile_figure, "_side.png", writer.side),
+                    (write_profile_figure, "_profile.png", writer.counts),
+                    (write_returns_figure, "_returns.png", writer.returns, writer.counts)]
+    pool = writer.pool if pictures else None
+    drawn = [pool.submit(draw, staging.file(suffix), *inputs) for draw, suffix, *inputs in pictures] if pool else []
+    try:
+        write_tables(staging.file, scene=scene, plan=plan, models=models)
+        if not pool:
+            for draw, suffix, *inputs in pictures:
+                draw(staging.file(suffix), *inputs)
+    finally:
+        wait(drawn)                   # none draws into the staging folder after this
+    for picture in drawn:
+        picture.result()
 
 
 def write_manifest(staging: Staging, manifest: dict) -> None:

@@ -86,6 +86,11 @@ class PointWriter:
         self._parts: ProcessParts | None = None
 
     @property
+    def pool(self):
+        """The worker processes' pool when the points were written with them, else None."""
+        return self._parts.pool if self._parts else None
+
+    @property
     def laz_stream(self) -> LasStream:
         return self._las[0]
 
