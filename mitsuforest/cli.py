@@ -121,10 +121,8 @@ def main(argv=None) -> int:
         return e.exit_code
     previous = signal.signal(signal.SIGTERM, raise_terminated) if in_main_thread() else None
     try:
-        if args.command == "render":
-            _start_writer_processes(args)
         if args.command not in ("info", "compare"):
-            _preload()
+            _preload(args)
         code = _COMMANDS[args.command](args) or 0
         sys.stdout.flush()                    # a closed pipe shows here, not in a traceback at exit
         return code
@@ -176,9 +174,12 @@ def _start_writer_processes(args) -> None:
     start_processes(scene)
 
 
-def _preload() -> None:
-    """Import the heavy libraries up front, with signals held (see :func:`deferred_signals`)."""
+def _preload(args) -> None:
+    """Import the heavy libraries up front, with signals held (see :func:`deferred_signals`); a render
+    starts its writer's worker processes first."""
     with deferred_signals():
+        if args.command == "render":
+            _start_writer_processes(args)
         import drjit  # noqa: F401
         import laspy  # noqa: F401
         import manifold3d  # noqa: F401
