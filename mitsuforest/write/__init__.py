@@ -26,7 +26,8 @@ from .las import write_las
 from .pcd import read_pcd
 from .output_profiles import PROFILE_SUFFIXES
 from .figures import write_profile_figure, write_returns_figure, write_tile_figure, write_top_figure
-from .stream import PointWriter, georeference
+from .parts import georeference
+from .stream import PointWriter
 from .tables import write_ids, write_trajectory, write_volumes
 
 __all__ = ["Staging", "check_output_folder", "output_lock", "PointWriter", "georeference", "output_files", "existing_outputs",

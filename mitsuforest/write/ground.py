@@ -34,14 +34,14 @@ def fill_height(points: np.ndarray, out: np.ndarray, surface) -> np.ndarray:
     """``out`` (rows of :func:`with_room_for_height`'s array) holding ``points`` (local frame) and
     their ``height_above_ground`` (float32, m): z less the ``surface`` at x, y."""
     if out is not points:
-        _copy_fields(points, out)
+        copy_fields(points, out)
     if len(out):
         out[FIELD] = out["z"] - surface(out["x"], out["y"])
     return out
 
 
 
-def _copy_fields(points: np.ndarray, out: np.ndarray) -> None:
+def copy_fields(points: np.ndarray, out: np.ndarray) -> None:
     """``out[name] = points[name]`` for every field of ``points``: as one copy of each row's bytes where
     ``out``'s records begin with ``points``' (as :func:`with_room_for_height` makes them), twice as fast
     as field by field."""

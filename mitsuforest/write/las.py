@@ -221,8 +221,8 @@ class HeaderSummary:
     return_numbers: tuple
 
     @classmethod
-    def of(cls, records: np.ndarray, point_format=LAS_FORMAT) -> HeaderSummary:
-        points = laspy.PackedPointRecord(records, laspy.PointFormat(point_format))
+    def of(cls, records: np.ndarray, point_format: laspy.PointFormat) -> HeaderSummary:
+        points = laspy.PackedPointRecord(records, point_format)
         lowest = tuple(points[axis].min() for axis in "XYZ")
         highest = tuple(points[axis].max() for axis in "XYZ")
         return cls(len(records), lowest, highest, (points["gps_time"].min(), points["gps_time"].max()),

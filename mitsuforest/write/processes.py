@@ -16,22 +16,25 @@ last whole chunk wait for the next batch, and the file's last part takes the res
 from __future__ import annotations
 
 import collections
+import multiprocessing
 import os
+import pickle
+import shutil
 import signal
 import sys
 import tempfile
 import types
-from concurrent.futures import Future, ProcessPoolExecutor
+from concurrent.futures import Future, ProcessPoolExecutor, wait
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import UserError
-from .atomic import naming_errors
-from .ground import fill_height, ground_surface, with_room_for_height
+from .ground import copy_fields, fill_height, ground_surface, with_room_for_height
 from .output_profiles import PROFILES
 from .las import LAZ_CHUNK, HeaderSummary, compress_chunks, las_records
+from .parts import georeference, tallies, write_pcd_rows
 
 PROCESSES_VARIABLE = "MITSUFOREST_WRITER_PROCESSES"
 MIN_CORES = 8              # from this many cores on, the writer uses processes by default
@@ -62,15 +65,10 @@ def fits_processes(scene, keep: bool = False) -> bool:
     return not keep and scene.output.profile not in PROFILES and set(scene.output.formats) <= FORMATS
 
 
-def uses_processes(scene, keep: bool = False) -> int:
-    """The worker processes a render of ``scene`` writes its points with (0: the writer's threads)."""
-    return writer_processes() if fits_processes(scene, keep) else 0
-
-
 def start_processes(scene, keep: bool = False) -> None:
     """Start the worker processes that a render of ``scene`` will write with, if any, now: they start
     while the render plans and loads its scene."""
-    processes = uses_processes(scene, keep)
+    processes = writer_processes() if fits_processes(scene, keep) else 0
     if processes:
         process_pool(processes)
 
@@ -89,7 +87,6 @@ def process_pool(processes: int) -> ProcessPoolExecutor:
 
 
 def _started_pool(processes: int) -> ProcessPoolExecutor:
-    import multiprocessing
     # A spawned worker runs the parent's main module first (multiprocessing's rule), which for a script
     # that renders at its top level, with no ``if __name__ == "__main__"``, would render again in every
     # worker: all of them start now, while the main module is an empty one.
@@ -143,7 +140,6 @@ class PartWork:
     def write(self, scanned: np.ndarray, first_row: int) -> PartResult:
         """Rows ``scanned`` (local frame, POINT_DTYPE), the file's rows from ``first_row`` on: written to the
         PCD at their offset, compressed as LAZ chunks, and their statistics."""
-        from .stream import georeference, tallies, write_at
         if "ground" not in self._cache:
             self._cache["ground"] = ground_surface(self.terrain)
         points = fill_height(scanned, with_room_for_height(scanned), self._cache["ground"])
@@ -152,17 +148,13 @@ class PartWork:
             path, record, start = self.pcd
             if "pcd" not in self._cache:
                 self._cache["pcd"] = os.open(path, os.O_WRONLY)
-            data = geo if record == geo.dtype else geo.astype(record)
-            with naming_errors(path):
-                write_at(self._cache["pcd"], data, start + first_row * record.itemsize)
+            write_pcd_rows(self._cache["pcd"], path, record, start + first_row * record.itemsize, geo)
         laz = None
         if self.laz:
             header, intensity = self.laz
             records = las_records(header, geo, intensity=intensity)
-            laz = (*compress_chunks(header, records), HeaderSummary.of(records))
-        classes, returns, (by_height, by_return), side, tiles = tallies(points, self.counts, self.side, self.tiles)
-        counts = [(np.flatnonzero(c), c.ravel()[np.flatnonzero(c)]) for c in (by_height, by_return)]   # sparse: a few kB
-        return PartResult(len(points), (classes, returns, counts, side, tiles), self.top.part(points), laz)
+            laz = (*compress_chunks(header, records), HeaderSummary.of(records, header.point_format))
+        return PartResult(len(points), tallies(points, self.counts, self.side, self.tiles), self.top.part(points), laz)
 
     def close(self) -> None:
         if "pcd" in self._cache:
@@ -185,7 +177,6 @@ def write_part(work_path: str, slot_path: str, dtype: np.dtype, start: int, stop
     :class:`PartWork` stored at ``work_path``."""
     work = _WORKS.get(work_path)
     if work is None:
-        import pickle
         work = _WORKS[work_path] = pickle.loads(Path(work_path).read_bytes())
         while len(_WORKS) > 2:
             _WORKS.popitem(last=False)[1].close()
@@ -197,7 +188,8 @@ def shared_folder(size: int) -> str:
     """A folder for ``size`` bytes of batch slots: ``/dev/shm`` when it has room for them twice over
     (shared memory that no disk writes back), else the temporary folder."""
     try:
-        if os.statvfs("/dev/shm").f_bavail * os.statvfs("/dev/shm").f_frsize > 2 * size:
+        shm = os.statvfs("/dev/shm")
+        if shm.f_bavail * shm.f_frsize > 2 * size:
             return "/dev/shm"
     except OSError:
         pass
@@ -213,12 +205,11 @@ class ProcessParts:
     """
 
     def __init__(self, writer, work: PartWork, processes: int):
-        self.writer, self.work, self.processes = writer, work, processes
+        self.writer = writer
         self.pool = process_pool(processes)
         self.chunked = work.laz is not None
         self._folder = Path(tempfile.mkdtemp(prefix="mitsuforest-writer-", dir=shared_folder(SLOTS * 200 << 20)))
         self._work_path = self._folder / "work.pickle"
-        import pickle
         self._work_path.write_bytes(pickle.dumps(work))
         self._pending: collections.deque = collections.deque()   # (slot path, [futures]) in the file's order
         self._free: dict[Path, np.memmap] = {}     # batch files not in the workers' hands
@@ -237,8 +228,8 @@ class ProcessParts:
             return
         self._collect_done()
         slot, batch = self._slot(rows, points.dtype)
-        _copy_rows(held, batch[:len(held)])
-        _copy_rows(points, batch[len(held):])
+        copy_fields(held, batch[:len(held)])
+        copy_fields(points, batch[len(held):])
         self._held = np.array(batch[whole:])
         self._send(slot, points.dtype, whole)
 
@@ -295,7 +286,7 @@ class ProcessParts:
         """Hand out the rows held back (the file's last chunk) and take back every result."""
         if self._held is not None and len(self._held):
             slot, batch = self._slot(len(self._held), self._held.dtype)
-            _copy_rows(self._held, batch)
+            copy_fields(self._held, batch)
             self._held = None
             self._send(slot, batch.dtype, len(batch))
         while self._pending:
@@ -304,26 +295,15 @@ class ProcessParts:
 
     def abort(self) -> None:
         """Drop what is not yet written; wait for the parts being written (none writes after this)."""
-        for _, tasks in self._pending:
-            for task in tasks:
-                task.cancel()
-        for _, tasks in self._pending:
-            for task in tasks:
-                try:
-                    task.exception()
-                except BaseException:  # noqa: BLE001 (cancelled)
-                    pass
+        tasks = [task for _, slot_tasks in self._pending for task in slot_tasks]
+        for task in tasks:
+            task.cancel()
+        wait(tasks)
         self._pending.clear()
         self._remove_folder()
 
     def _remove_folder(self) -> None:
-        import shutil
         self._free.clear()
         self._busy.clear()
         shutil.rmtree(self._folder, ignore_errors=True)
 
-
-def _copy_rows(source: np.ndarray, target: np.ndarray) -> None:
-    """``target[:] = source`` for records of one dtype, as bytes (a structured copy goes field by field)."""
-    if len(source):
-        target.view(np.uint8)[:] = np.ascontiguousarray(source).view(np.uint8)

@@ -33,6 +33,12 @@ class GroundHeight:
         return ((1 - v) * ((1 - u) * z[j, i] + u * z[j, i + 1]) + v * ((1 - u) * z[j + 1, i] + u * z[j + 1, i + 1]))
 
 
+def _nonzero(counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The flat indices of the non-zero cells of ``counts`` and the counts there."""
+    cells = np.flatnonzero(counts)
+    return cells, counts[cells]
+
+
 def _grid_heights(terrain, x, y) -> np.ndarray:
     """(ny, nx) ground heights at the grid points: from the terrain's height field, or, for a ground
     that is only a mesh (a HELIOS++ scene's), from its triangles (their mean height where none is)."""
@@ -55,23 +61,24 @@ class ReturnCounts:
     def add(self, points) -> None:
         self.merge(self.tally(points))
 
-    def tally(self, points) -> tuple[np.ndarray, np.ndarray] | None:
-        """The counts of ``points`` alone, (BINS, 256) by height and (MAX_RETURN + 1, 256) by return,
-        for :meth:`merge` (parts of a batch can be tallied side by side); None for no points."""
+    def tally(self, points) -> tuple | None:
+        """The counts of ``points`` alone, for :meth:`merge` (parts of a batch can be tallied side by side,
+        in threads or processes): those by height and by return as the flat indices of their non-zero cells
+        of :attr:`by_height` and :attr:`by_return` and the counts there, a few kB; None for no points."""
         if len(points) == 0:
             return None
         cls = points["classification"].astype(np.int64)
         height = points["z"] - self.ground(points["x"], points["y"])
         row = np.clip(((height - LOWEST_M) / BIN_M).astype(np.int64), 0, BINS - 1)
-        by_height = np.bincount(row * 256 + cls, minlength=BINS * 256).reshape(BINS, 256)
+        by_height = np.bincount(row * 256 + cls, minlength=BINS * 256)
         rn = np.minimum(points["return_number"].astype(np.int64), MAX_RETURN)
-        by_return = np.bincount(rn * 256 + cls, minlength=(MAX_RETURN + 1) * 256).reshape(-1, 256)
-        return by_height, by_return
+        by_return = np.bincount(rn * 256 + cls, minlength=(MAX_RETURN + 1) * 256)
+        return _nonzero(by_height), _nonzero(by_return)
 
     def merge(self, tally) -> None:
         if tally is not None:
-            self.by_height += tally[0]
-            self.by_return += tally[1]
+            for total, (cells, counts) in zip((self.by_height, self.by_return), tally):
+                total.flat[cells] += counts
 
     @property
     def first(self) -> np.ndarray:

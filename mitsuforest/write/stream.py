@@ -12,9 +12,6 @@ many cores the parts go to worker processes instead (:mod:`.processes`), with th
 
 from __future__ import annotations
 
-import errno
-import os
-
 import numpy as np
 
 from .. import seeds
@@ -26,11 +23,11 @@ from .ground import fill_height, ground_surface, with_room_for_height
 from .las import LasStream, las_records
 from .pcd import COUNT_DIGITS, pcd_header
 from .output_profiles import PROFILES
+from .parts import SPACING_TILE, georeference, tallies, write_pcd_rows
 from .processes import PartWork, ProcessParts, fits_processes, writer_processes
 from .profile import ReturnCounts
 from .quicklook import SideTile, TopView
 
-SPACING_TILE = 5.0  # m, side of the tiles in which the mean nearest-neighbour spacing is measured
 SPACING_QUERIES = 10_000  # points of a tile drawn to ask for their nearest neighbour (the tree holds them all)
 
 
@@ -135,16 +132,11 @@ class PointWriter:
                 self._kept.append(geo)
 
     def merge_part(self, rows: int, tally: tuple) -> None:
-        """Add the statistics of a part of ``rows`` points (:func:`tallies`; its counts by height and by
-        return may come as (flat indices, counts) of their non-zero cells)."""
+        """Add the statistics of a part of ``rows`` points (:func:`~.parts.tallies`)."""
         classes, returns, counts, side, tiles = tally
         self.classes += classes
         self.returns += returns
-        if counts and isinstance(counts[0], tuple):
-            for total, (cells, values) in zip((self.counts.by_height, self.counts.by_return), counts):
-                total.ravel()[cells] += values
-        else:
-            self.counts.merge(counts)
+        self.counts.merge(counts)
         self.side.parts.append(side)
         for bucket, xyz in zip(self._tile_points, tiles):
             bucket.append(xyz)
@@ -165,10 +157,8 @@ class PointWriter:
         points = fill_height(scanned[start:stop], batch[start:stop], self._ground)
         geo = georeference(points, self.offset)
         if self._pcd_file:
-            record = self._pcd_record
-            data = geo if record == geo.dtype else geo.astype(record)
-            with naming_errors(self._pcd_file.name):
-                write_at(self._pcd_file.fileno(), data, self._pcd_end + start * record.itemsize)
+            write_pcd_rows(self._pcd_file.fileno(), self._pcd_file.name, self._pcd_record,
+                           self._pcd_end + start * self._pcd_record.itemsize, geo)
         for las, rows in zip(self._las, records):
             las_records(las.header, geo, rows[start:stop])
         return tallies(points, self.counts, self.side, self._tiles)
@@ -223,30 +213,6 @@ class PointWriter:
         }
 
 
-def tallies(points: np.ndarray, counts: ReturnCounts, side: SideTile, tiles: np.ndarray) -> tuple:
-    """The statistics of a part of a batch, for :meth:`PointWriter.merge_part`: (256,) points by class,
-    (256,) pulses by their number of returns (from first returns), the ``counts`` by height and by return
-    (:meth:`~.profile.ReturnCounts.tally`), the points in the ``side`` tile and (k, 3) x, y, z of those in
-    each spacing tile of ``tiles`` ((4, 2) corners)."""
-    first = points["return_number"] == 1
-    return (np.bincount(points["classification"], minlength=256),
-            np.bincount(points["number_of_returns"][first], minlength=256),
-            counts.tally(points), side.select(points), in_tiles(points, tiles))
-
-
-def in_tiles(points: np.ndarray, tiles: np.ndarray) -> list[np.ndarray]:
-    """(k, 3) x, y, z of the points in each spacing tile (corners ``tiles``, side :data:`SPACING_TILE`)."""
-    x, y = points["x"].copy(), points["y"].copy()      # contiguous: four times faster to compare
-    out = []
-    for x0, y0 in tiles:
-        inside = (x >= x0) & (x < x0 + SPACING_TILE)
-        inside &= y >= y0
-        inside &= y < y0 + SPACING_TILE
-        rows = np.flatnonzero(inside)
-        out.append(np.column_stack([x[rows], y[rows], points["z"][rows]]))
-    return out
-
-
 def spacing_queries(n: int, rng: np.random.Generator, most: int = SPACING_QUERIES) -> np.ndarray | None:
     """Rows of a tile's n points that ask for their nearest neighbour: ``most`` of them drawn at random
     without replacement, in increasing order, or None (all) when there are no more than that. A random
@@ -277,25 +243,3 @@ def nearest_distances(xyz: np.ndarray, rows: np.ndarray | None = None, cell: flo
     distances = np.empty(len(xyz))
     distances[asked] = tree.query(xyz[asked], k=2)[0][:, 1]
     return distances if rows is None else distances[rows]
-
-
-def georeference(points: np.ndarray, offset) -> np.ndarray:
-    """Add the float64 origin offset to local-frame points: a copy, or ``points`` itself when the
-    offset is zero."""
-    if not np.any(offset):
-        return points
-    out = points.copy()
-    for axis, o in zip("xyz", offset):
-        out[axis] += o
-    return out
-
-
-def write_at(fd: int, data: np.ndarray, offset: int) -> None:
-    """Write a contiguous array at ``offset`` of file ``fd`` (``os.pwrite``: threads write their parts
-    of one file at once)."""
-    view = memoryview(np.ascontiguousarray(data).view(np.uint8))
-    while view:
-        written = os.pwrite(fd, view, offset)
-        if written == 0:
-            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
-        view, offset = view[written:], offset + written
