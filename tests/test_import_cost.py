@@ -35,3 +35,17 @@ def test_a_render_of_cached_models_imports_no_trimesh():
             "print(boundary_loops(np.array([[0, 1, 2]])), 'trimesh' in sys.modules)\n")
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True)
     assert out.stdout.splitlines() == ["False", "1 True"]
+
+
+def test_the_writers_worker_processes_load_neither_the_plan_nor_scipy():
+    """A writer's worker process imports ``write.processes`` (0.25 s on a 2-core Xeon): the scan package's
+    navigation (which reads the plan package's frames, and so scipy's qhull) loads on first use, not
+    through the radiometry that the LAS records read."""
+    modules = "sorted(m for m in ('mitsuforest.plan', 'scipy', 'mitsuba', 'drjit') if m in sys.modules)"
+    code = ("import sys\n"
+            "import mitsuforest.write.processes\n"
+            f"print({modules})\n"
+            "from mitsuforest.scan import NavigationModel\n"
+            f"print({modules}, NavigationModel.__module__)\n")
+    out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True)
+    assert out.stdout.splitlines() == ["[]", "['mitsuforest.plan', 'scipy'] mitsuforest.scan.navigation"]

@@ -28,21 +28,22 @@ import numpy as np
 
 from .. import _imported_on_first_use
 from ..fields import POINT_DTYPE
-from .navigation import NavigationModel
 
 if TYPE_CHECKING:
+    from .navigation import NavigationModel
     from .platform import Platform
     from .tracer import PulseTracer
 
 __all__ = ["HIT_DTYPE", "POINT_DTYPE", "NavigationModel", "Platform", "PulseTracer", "ScanResult", "default_batch",
            "navigation_model", "next_batch", "scan", "scan_batches"]
 
-# The Dr.Jit side imports Mitsuba: loaded on first use, so that what only reads the radiometry
-# (write, and so ``mitsuforest info`` and ``compare``) does not start it.
-_ON_DEVICE = {"Platform": "platform", "PulseTracer": "tracer"}
+# Loaded on first use, so that what only reads the radiometry (write, and so ``mitsuforest info``,
+# ``compare`` and the writer's worker processes) starts neither Mitsuba (the Dr.Jit side) nor the plan
+# package and scipy (the navigation's frames).
+_ON_FIRST_USE = {"Platform": "platform", "PulseTracer": "tracer", "NavigationModel": "navigation"}
 
 
-__getattr__ = _imported_on_first_use(__name__, _ON_DEVICE)
+__getattr__ = _imported_on_first_use(__name__, _ON_FIRST_USE)
 
 # What an echo hit: its strongest sub-ray's object row and triangle row in the scene's HitTable.located.
 HIT_DTYPE = np.dtype([("object_row", "<u4"), ("triangle", "<u4")])
@@ -163,6 +164,8 @@ def scan_batches(scene, plan, scan_scene, result: ScanResult, progress: bool = T
 
 def navigation_model(scene, plan, platform: Platform) -> NavigationModel | None:
     """The survey's navigation errors (``survey.navigation_errors``), or None when they are all zero."""
+    from .navigation import NavigationModel
+
     errors = scene.survey.navigation_errors
     if errors.zero or not plan.legs:
         return None
