@@ -1,5 +1,6 @@
 """Host threads for the numpy work on each batch of points: how many, and a batch cut into row ranges
-that they handle side by side (the scan's point array, the writer's encoding and statistics).
+that they handle side by side (the scan's point array, the writer's encoding and statistics); and
+:class:`ReadAhead`, which makes the scan's next batch while this one is labelled and written.
 
 numpy's copies, casts and arithmetic and the kernel's file writes release the GIL, so threads handle
 the parts of one batch in parallel. Each part lands at its own rows or file offset, so the bytes
@@ -9,6 +10,8 @@ written do not depend on the number of threads.
 from __future__ import annotations
 
 import os
+import queue
+import threading
 from concurrent.futures import Future, ThreadPoolExecutor, wait
 
 from .errors import UserError
@@ -93,3 +96,62 @@ def shared_workers() -> Workers:
     if _shared is None:
         _shared = Workers(writer_threads())
     return _shared
+
+
+
+class ReadAhead:
+    """The items of ``items`` in order, made up to ``depth`` ahead on a thread of their own: the scan
+    traces its next batch while the caller labels and writes this one (Dr.Jit waits for its kernels,
+    and numpy works, without Python's lock). An exception raised making an item is raised again where
+    that item would have come. :meth:`close`, or the end of a ``with`` block, stops the thread once the
+    item it is making is made."""
+
+    _END = object()
+
+    def __init__(self, items, depth: int = 1):
+        self._queue: queue.Queue = queue.Queue(maxsize=depth)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, args=(iter(items),), name="mitsuforest-scan", daemon=True)
+        self._thread.start()
+
+    def _run(self, items) -> None:
+        try:
+            for item in items:
+                if not self._put((item, None)):
+                    return
+        except BaseException as e:  # noqa: BLE001 (raised again in the caller's thread)
+            self._put((self._END, e))
+            return
+        self._put((self._END, None))
+
+    def _put(self, entry) -> bool:
+        """Queue ``entry`` once there is room, unless stopped first (then False)."""
+        while not self._stop.is_set():
+            try:
+                self._queue.put(entry, timeout=0.1)
+                return True
+            except queue.Full:
+                pass
+        return False
+
+    def __iter__(self):
+        return self
+
+    def __next__(self):
+        item, error = self._queue.get()
+        if item is self._END:
+            self._thread.join()
+            if error is not None:
+                raise error
+            raise StopIteration
+        return item
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join()
+
+    def __enter__(self) -> ReadAhead:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

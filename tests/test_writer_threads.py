@@ -1,8 +1,9 @@
 """The point writer's threads and worker processes: the same bytes with one thread, with several and
 with processes, LAZ and PCD that read back as the points written, LAS records as laspy makes them, and
-the thread and process counts' settings."""
+the thread and process counts' settings; the scan's read-ahead."""
 
 import io
+import time
 
 import laspy
 import numpy as np
@@ -12,7 +13,7 @@ from conftest import ROOT
 
 from mitsuforest.errors import UserError
 from mitsuforest.scan import POINT_DTYPE
-from mitsuforest.threads import THREADS_VARIABLE, row_ranges, writer_threads
+from mitsuforest.threads import THREADS_VARIABLE, ReadAhead, row_ranges, writer_threads
 from mitsuforest.write import PointWriter, Staging, read_pcd
 from mitsuforest.write.processes import PROCESSES_VARIABLE, fits_processes, writer_processes
 from mitsuforest.write.las import ASPRS_CODE, COORDINATE_SCALE, LasStream, las_header, las_records
@@ -282,6 +283,35 @@ def test_row_ranges_cover_the_rows_once():
     assert len(ranges) == 7 and ranges[0][0] == 0 and ranges[-1][1] == 1_000_003
     assert all(a[1] == b[0] for a, b in zip(ranges, ranges[1:]))
     assert max(b - a for a, b in ranges) - min(b - a for a, b in ranges) <= 1
+
+
+def test_read_ahead_gives_the_items_in_order_and_raises_where_the_failure_came():
+    def items():
+        yield from range(5)
+        raise OSError("disk full")
+    ahead, got = ReadAhead(items()), []
+    with pytest.raises(OSError, match="disk full"):
+        for item in ahead:
+            got.append(item)
+    assert got == [0, 1, 2, 3, 4] and not ahead._thread.is_alive()
+    assert list(ReadAhead(iter(()))) == []
+
+
+def test_read_ahead_makes_no_more_than_its_depth_ahead_and_stops_when_closed():
+    made = []
+
+    def items():
+        for i in range(100):
+            made.append(i)
+            yield i
+    with ReadAhead(items(), depth=1) as ahead:
+        assert next(ahead) == 0
+        deadline = time.monotonic() + 10
+        while len(made) < 3 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        time.sleep(0.3)
+        assert made == [0, 1, 2]      # the item taken, one queued, one made and waiting for room
+    assert not ahead._thread.is_alive() and made == [0, 1, 2]
 
 
 def test_a_bad_thread_count_is_refused_before_any_work(tmp_path, monkeypatch, capsys):

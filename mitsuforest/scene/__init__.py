@@ -176,6 +176,7 @@ def _build(plan, models, sensor, variant, legs, reflectance) -> ScanScene:
     bbox = np.array([np.min([b[0] for b in all_bounds], 0), np.max([b[1] for b in all_bounds], 0)])
     survey_models = {name: models[name] for name in sorted({obj.model for obj, _, _ in survey})}
     triangles = sum(m.triangles for m in survey_models.values()) + len(ground_f)
+    dr.sync_thread()     # the scene's buffers complete before kernels on another thread (the scan's) read them
     return ScanScene(mi_scene, table, bbox, variant, len(survey), len(placed) - len(survey), triangles, len(keep),
                      np.array(all_bounds), reflectance, [(obj.model, m) for obj, m, _ in survey], survey_models)
 
