@@ -1,8 +1,9 @@
 """``prepare``, ``scan`` and ``write``: a survey prepared for some legs loads only the objects in their
 reach and scans them into the same bytes as the whole survey's scene; batches scanned apart and
-written by a survey prepared for no legs are the render's points."""
+written by a survey prepared for no legs are the render's points; the scan's thread ends with its batches."""
 
 import itertools
+import threading
 
 import numpy as np
 import pytest
@@ -10,7 +11,7 @@ import pytest
 from conftest import ROOT
 from mitsuforest.config import load_scene
 from mitsuforest.pipeline import render
-from mitsuforest.scan import ScanResult
+from mitsuforest.scan import POINT_DTYPE, ScanResult
 from mitsuforest.survey import Batches, prepare, scan, write
 
 
@@ -74,6 +75,20 @@ def test_batches_scanned_leg_by_leg_and_written_together_are_the_render(narrow, 
     assert written.points.tobytes() == rendered.points.tobytes()
     assert written.manifest["scene_objects"] == rendered.manifest["scene_objects"]
     assert written.manifest["classes"] == rendered.manifest["classes"]
+
+
+def test_the_scan_runs_a_batch_ahead_on_its_own_thread_which_ends_when_the_batches_are_left(narrow, whole):
+    """The scan traces the next batch on a thread of its own while the caller takes this one; a caller that
+    stops early (an error, an interrupt) ends the thread, and a scan run to its end leaves none."""
+    def scanning():
+        return [t for t in threading.enumerate() if t.name == "mitsuforest-scan"]
+    small = prepare(narrow.with_({"simulation.pulses_per_batch": 20_000}), legs=range(0, 1))
+    batches = iter(scan(small))
+    first = next(batches)      # more than two batches left: the thread waits to queue the next but one
+    assert first.dtype == POINT_DTYPE and len(scanning()) == 1
+    batches.close()
+    assert scanning() == []
+    assert len(_points(scan(whole, legs=range(0, 1)))) > 10_000 and scanning() == []
 
 
 def test_versions_are_read_once_and_each_caller_gets_its_own_copy(monkeypatch):
