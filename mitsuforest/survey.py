@@ -29,7 +29,6 @@ from .labels import label_points
 from .realism import realism_table
 from .scan import ScanResult, scan_batches
 from .scene import HitTable, ScanScene, build_scene
-from .threads import ReadAhead
 from .trees import build_models, tree_shape
 from .write.manifest import import_report
 from .write import PointWriter, Staging, write_manifest, write_render_outputs
@@ -172,13 +171,10 @@ def scan(prepared: PreparedSurvey, legs: range | None = None, *, progress: bool 
 
 
 def _labelled(scanned: Iterable[tuple[np.ndarray, np.ndarray]], table: HitTable) -> Iterator[np.ndarray]:
-    """The scan's batches (points, hits), each batch's points labelled (stage labels). The scan runs a
-    batch ahead on a thread of its own (:class:`~mitsuforest.threads.ReadAhead`), so the device traces
-    the next batch while this one is labelled and handed to the writer."""
-    with ReadAhead(scanned) as ahead:
-        for points, hits in ahead:
-            label_points(points, hits, table)
-            yield points
+    """The scan's batches (points, hits), each batch's points labelled (stage labels)."""
+    for points, hits in scanned:
+        label_points(points, hits, table)
+        yield points
 
 
 def write(prepared: PreparedSurvey, batches: Batches, staging: Staging | None, *, keep_points: bool = False) -> Written:

@@ -11,7 +11,9 @@ and each batch has a fixed cost), at most twice the last, its cast pulses traced
 once). For each batch the :class:`~mitsuforest.scan.tracer.PulseTracer` decides on the
 device which pulses fire and can reach the scene's box, then traces them (sub-rays, radiometry,
 waveform, ranging noise); only finished echoes come back to numpy, as points and, beside them, what
-each hit (:data:`HIT_DTYPE`), which the labels stage turns into ids. Memory is bounded by the
+each hit (:data:`HIT_DTYPE`), which the labels stage turns into ids. The device's part of each batch (pulses,
+rays, waveform, the echoes brought back) runs a batch ahead on a thread of its own while the host
+places, labels and writes the last (:class:`~mitsuforest.threads.ReadAhead`). Memory is bounded by the
 batch size. Ranging noise is keyed on (seed, pulse id, return number), so the same scene and seed
 give the same points, byte for byte, whatever the batch size. Pulses leave from the leg's pose
 (platform.py: attitude, mount, a flown trajectory); the points are then placed with the navigation
@@ -28,6 +30,7 @@ import numpy as np
 
 from .. import _imported_on_first_use
 from ..fields import POINT_DTYPE
+from ..threads import ReadAhead
 
 if TYPE_CHECKING:
     from .navigation import NavigationModel
@@ -131,35 +134,46 @@ def scan_batches(scene, plan, scan_scene, result: ScanResult, progress: bool = T
                          pulse_records=scene.output.pulses and on_pulses is not None,
                          launch_pulses=None if sim.pulses_per_batch else
                          max(1, LAUNCH_SUB_RAYS[backend] // sim.beam_samples))
-    counts = [leg.pulse_count(scene.pulse_frequency) for leg in plan.legs]
     legs = range(len(plan.legs)) if legs is None else legs
-    first_id = sum(counts[:legs.start])
     start = time.perf_counter()
-    for leg_no in legs:
-        leg, total = plan.legs[leg_no], counts[leg_no]
-        pose = platform.table(leg)
-        bar = _bar(progress, total, f"leg {leg_no + 1}/{len(plan.legs)}")
-        batch, first = sim.pulses_per_batch or default_batch(scan_scene.variant, sim.beam_samples), 0
-        while first < total:
-            count = min(batch, total - first)
-            points, hits, fired, cast, *records = tracer.trace_slots(leg, scene.pulse_frequency, scene.scan_frequency,
-                                                               first, count, first_id, leg_no + 1, pose)
+    # The device traces a batch ahead on a thread of its own while this one is placed, labelled and written.
+    with ReadAhead(_device_batches(scene, plan, tracer, platform, result, progress, legs)) as traced:
+        for leg_no, leg, pose, slots in traced:
+            points, hits, fired, cast, *records = tracer.place_echoes(slots, leg, leg_no + 1, pose)
             result.pulses_fired += fired
             result.pulses_cast += cast
             result.rays += cast * tracer.samples
             if records:
                 on_pulses(records[0])
             yield points, hits
+    result.seconds = time.perf_counter() - start
+
+
+def _device_batches(scene, plan, tracer: PulseTracer, platform: Platform, result: ScanResult, progress: bool,
+                    legs: range):
+    """The device's part of :func:`scan_batches`: each batch's (leg number, leg, pose, slot echoes) in
+    survey order, the batches sized as the module docstring says; counts the slots flown into ``result``."""
+    sim, variant = scene.simulation, tracer.variant
+    counts = [leg.pulse_count(scene.pulse_frequency) for leg in plan.legs]
+    first_id = sum(counts[:legs.start])
+    for leg_no in legs:
+        leg, total = plan.legs[leg_no], counts[leg_no]
+        pose = platform.table(leg)
+        bar = _bar(progress, total, f"leg {leg_no + 1}/{len(plan.legs)}")
+        batch, first = sim.pulses_per_batch or default_batch(variant, sim.beam_samples), 0
+        while first < total:
+            count = min(batch, total - first)
+            slots = tracer.echo_slots(leg, scene.pulse_frequency, scene.scan_frequency, first, count, first_id, pose)
+            yield leg_no, leg, pose, slots
             if bar:
                 bar.update(count)
             first += count
             if not sim.pulses_per_batch:
-                batch = next_batch(scan_scene.variant, sim.beam_samples, cast, count)
+                batch = next_batch(variant, sim.beam_samples, slots.cast, count)
         if bar:
             bar.close()
         result.pulses_emitted += total
         first_id += total
-    result.seconds = time.perf_counter() - start
 
 
 def navigation_model(scene, plan, platform: Platform) -> NavigationModel | None:

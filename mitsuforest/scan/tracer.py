@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np
@@ -17,6 +19,17 @@ from .echo_kernel import EchoKernel
 from .pulses import DevicePulses, aimed_at, reaching_pulses, upload_pulses
 from .radiometry import reflectance_db, reflectance_table
 from .waveform import PulseBatch
+
+
+@dataclass
+class SlotEchoes:
+    """What the device made of a batch of time slots (:meth:`PulseTracer.echo_slots`), in numpy."""
+
+    echoes: dict                  # (E,) arrays of the echo kernel's fields, in pulse then range order
+    waveforms: dict | None        # the cast pulses' sampled waveforms (``waveforms`` or ``pulse_records``)
+    fired: int                    # pulses fired in the slots
+    cast: int                     # ... and cast (aimed at an object's proxy or the ground's box)
+    fired_pulses: dict | None     # every fired pulse (``pulse_records``)
 
 
 class PulseTracer:
@@ -92,6 +105,7 @@ class PulseTracer:
             self.caster = EchoKernel(scan_scene.mitsuba, weights=self.weights, table=self.table,
                                      reflectance=self.reflectance, sensor=sensor, seed=seed,
                                      point_position=point_position, record=waveforms, **beam)
+            dr.sync_thread()     # its tables complete before the scan's thread (scan_batches) reads them
 
     @property
     def samples(self) -> int:
@@ -100,7 +114,7 @@ class PulseTracer:
     def trace_slots(self, leg, pulse_frequency: float, scan_frequency: float, first: int, count: int,
                     first_id: int = 0, source_id: int = 0, pose=None) -> tuple[np.ndarray, np.ndarray, int, int]:
         """Points of the time slots ``first .. first+count-1`` of a leg; only pulses that fire and can
-        reach the scene are cast.
+        reach the scene are cast: :meth:`echo_slots` on the device, then :meth:`place_echoes` on the host.
 
         :param leg: a :class:`~mitsuforest.plan.types.Leg`.
         :param first_id: the survey's pulse number of the leg's first time slot (pulse ids are
@@ -113,6 +127,13 @@ class PulseTracer:
             or ``pulse_records``, also the batch's
             :class:`~mitsuforest.scan.waveform.PulseBatch`.
         """
+        return self.place_echoes(self.echo_slots(leg, pulse_frequency, scan_frequency, first, count, first_id, pose),
+                                 leg, source_id, pose)
+
+    def echo_slots(self, leg, pulse_frequency: float, scan_frequency: float, first: int, count: int,
+                   first_id: int = 0, pose=None) -> SlotEchoes:
+        """The device's part of :meth:`trace_slots`: the pulses of the slots that fire and can reach the
+        scene, traced, and their echoes brought back to numpy."""
         records = self.waveforms or self.pulse_records
         with variant_scope(self.variant):
             made = reaching_pulses(leg, self.sensor, pulse_frequency, scan_frequency, first, count, self.box,
@@ -120,15 +141,21 @@ class PulseTracer:
             pulses, fired = made[:2]
             pulses = aimed_at(pulses, self.target_scenes, self.bounds, self.box, self.sensor.range_max)
             echoes, returns = self._echoes(pulses, records)
-            points, hits = self._points(echoes)
+        return SlotEchoes(echoes, returns, fired, pulses.count, made[2] if self.pulse_records else None)
+
+    def place_echoes(self, slots: SlotEchoes, leg, source_id: int = 0, pose=None) -> tuple:
+        """The host's part of :meth:`trace_slots` (numpy only, so it can run beside the device's next
+        batch): the echoes as points, placed with the navigation solution's errors, with their hits and
+        the pulse counts, and the batch's :class:`~mitsuforest.scan.waveform.PulseBatch` when asked for."""
+        points, hits = self._points(slots.echoes)
         points["point_source_id"] = source_id
         if self.navigation is not None:
             self.navigation.place(points, leg, pose)
-        if not records:
-            return points, hits, fired, pulses.count
+        if not (self.waveforms or self.pulse_records):
+            return points, hits, slots.fired, slots.cast
         kept = ("pulse_id", "return_number", "range", "amplitude", *(("energy",) if self.waveforms else ()))
-        batch = PulseBatch(returns, {k: echoes[k] for k in kept}, made[2] if self.pulse_records else None, source_id)
-        return points, hits, fired, pulses.count, batch
+        batch = PulseBatch(slots.waveforms, {k: slots.echoes[k] for k in kept}, slots.fired_pulses, source_id)
+        return points, hits, slots.fired, slots.cast, batch
 
     def _echoes(self, pulses: DevicePulses, records: bool) -> tuple[dict, dict | None]:
         """The caster's echoes of ``pulses`` and, with ``records``, their waveforms (else None), traced
