@@ -1,6 +1,6 @@
 """Host threads for the numpy work on each batch of points: how many, and a batch cut into row ranges
 that they handle side by side (the scan's point array, the writer's encoding and statistics); and
-:class:`ReadAhead`, which makes the scan's next batch while this one is labelled and written.
+:class:`ReadAhead`, on which the device traces the scan's next batch while the host handles this one.
 
 numpy's copies, casts and arithmetic and the kernel's file writes release the GIL, so threads handle
 the parts of one batch in parallel. Each part lands at its own rows or file offset, so the bytes
@@ -98,19 +98,19 @@ def shared_workers() -> Workers:
     return _shared
 
 
-
 class ReadAhead:
-    """The items of ``items`` in order, made up to ``depth`` ahead on a thread of their own: the scan
-    traces its next batch while the caller labels and writes this one (Dr.Jit waits for its kernels,
-    and numpy works, without Python's lock). An exception raised making an item is raised again where
-    that item would have come. :meth:`close`, or the end of a ``with`` block, stops the thread once the
-    item it is making is made."""
+    """The items of ``items`` in order, made up to ``depth`` ahead on a thread of their own: the device
+    traces the scan's next batch while the caller makes the points of this one, labels and writes them
+    (Dr.Jit waits for its kernels, and numpy works, without Python's lock). An exception raised making
+    an item is raised again where that item would have come. :meth:`close`, or the end of a ``with``
+    block, stops the thread once the item it is making is made."""
 
     _END = object()
 
     def __init__(self, items, depth: int = 1):
         self._queue: queue.Queue = queue.Queue(maxsize=depth)
         self._stop = threading.Event()
+        self._ended = False
         self._thread = threading.Thread(target=self._run, args=(iter(items),), name="mitsuforest-scan", daemon=True)
         self._thread.start()
 
@@ -138,8 +138,11 @@ class ReadAhead:
         return self
 
     def __next__(self):
+        if self._ended:
+            raise StopIteration
         item, error = self._queue.get()
         if item is self._END:
+            self._ended = True
             self._thread.join()
             if error is not None:
                 raise error

@@ -294,6 +294,7 @@ def test_read_ahead_gives_the_items_in_order_and_raises_where_the_failure_came()
         for item in ahead:
             got.append(item)
     assert got == [0, 1, 2, 3, 4] and not ahead._thread.is_alive()
+    assert list(ahead) == []                         # ended: it stays ended
     assert list(ReadAhead(iter(()))) == []
 
 
