@@ -16,8 +16,8 @@ import functools
 import importlib.metadata
 import platform
 import time
-from collections.abc import Callable, Iterable, Iterator
-from contextlib import ExitStack
+from collections.abc import Callable, Generator, Iterable, Iterator
+from contextlib import ExitStack, closing
 from dataclasses import dataclass
 
 import numpy as np
@@ -88,6 +88,13 @@ class Batches:
 
     def __iter__(self) -> Iterator[np.ndarray]:
         return self.points
+
+    def close(self) -> None:
+        """Stop the scan behind the batches if they have not run out (its device thread stops after the
+        batch it is tracing)."""
+        close = getattr(self.points, "close", None)
+        if close is not None:
+            close()
 
 
 @dataclass
@@ -170,11 +177,12 @@ def scan(prepared: PreparedSurvey, legs: range | None = None, *, progress: bool 
     return batches
 
 
-def _labelled(scanned: Iterable[tuple[np.ndarray, np.ndarray]], table: HitTable) -> Iterator[np.ndarray]:
+def _labelled(scanned: Generator[tuple[np.ndarray, np.ndarray], None, None], table: HitTable) -> Iterator[np.ndarray]:
     """The scan's batches (points, hits), each batch's points labelled (stage labels)."""
-    for points, hits in scanned:
-        label_points(points, hits, table)
-        yield points
+    with closing(scanned):
+        for points, hits in scanned:
+            label_points(points, hits, table)
+            yield points
 
 
 def write(prepared: PreparedSurvey, batches: Batches, staging: Staging | None, *, keep_points: bool = False) -> Written:
@@ -218,11 +226,13 @@ def write(prepared: PreparedSurvey, batches: Batches, staging: Staging | None, *
     return Written(manifest, writer.points)
 
 
-def _drain(batches: Iterable[np.ndarray], sinks: list[Background]) -> None:
-    """Each batch to the first sink (the points' writer); every sink closed in order, even on failure."""
-    with ExitStack() as closing:
+def _drain(batches: Batches, sinks: list[Background]) -> None:
+    """Each batch to the first sink (the points' writer); every sink closed in order, and the scan
+    stopped, even on failure."""
+    with ExitStack() as stack:
         for sink in reversed(sinks):
-            closing.callback(sink.close)
+            stack.callback(sink.close)
+        stack.callback(batches.close)
         for points in batches:
             sinks[0](points)
 

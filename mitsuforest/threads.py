@@ -9,6 +9,7 @@ written do not depend on the number of threads.
 
 from __future__ import annotations
 
+import functools
 import os
 import queue
 import threading
@@ -83,8 +84,8 @@ _shared: Workers | None = None
 
 
 def _forget_shared() -> None:
-    global _shared
-    _shared = None   # a forked child has none of its parent's threads: it makes its own
+    global _shared, _readers
+    _shared = _readers = None   # a forked child has none of its parent's threads: it makes its own
 
 
 os.register_at_fork(after_in_child=_forget_shared)
@@ -99,39 +100,43 @@ def shared_workers() -> Workers:
 
 
 class ReadAhead:
-    """The items of ``items`` in order, made up to ``depth`` ahead on a thread of their own: the device
-    traces the scan's next batch while the caller makes the points of this one, labels and writes them
-    (Dr.Jit waits for its kernels, and numpy works, without Python's lock). An exception raised making
-    an item is raised again where that item would have come. :meth:`close`, or the end of a ``with``
-    block, stops the thread once the item it is making is made."""
+    """The items of ``items`` in order, made ``depth`` ahead on a thread of their own: the device traces
+    the scan's next batch while the caller makes the points of this one, labels and writes them (Dr.Jit
+    waits for its kernels, and numpy works, without Python's lock). The thread makes an item only while
+    fewer than ``depth`` made items wait to be taken. An exception raised making an item is raised again
+    where that item would have come. :meth:`close`, or the end of a ``with`` block, stops the making once
+    the item being made is made."""
 
     _END = object()
 
     def __init__(self, items, depth: int = 1):
-        self._queue: queue.Queue = queue.Queue(maxsize=depth)
-        self._stop = threading.Event()
+        self._queue: queue.SimpleQueue = queue.SimpleQueue()
+        self._room = threading.Semaphore(depth)
+        self._stop, self._done = threading.Event(), threading.Event()
+        self._maker: int | None = None        # the making thread's ident
         self._ended = False
-        self._thread = threading.Thread(target=self._run, args=(iter(items),), name="mitsuforest-scan", daemon=True)
-        self._thread.start()
+        _reader_threads().run(functools.partial(self._make, iter(items)))
 
-    def _run(self, items) -> None:
+    def _make(self, items) -> None:
+        self._maker = threading.get_ident()
         try:
-            for item in items:
-                if not self._put((item, None)):
+            while self._wait_for_room():
+                try:
+                    item = next(items)
+                except StopIteration:
+                    self._queue.put((self._END, None))
                     return
+                self._queue.put((item, None))
         except BaseException as e:  # noqa: BLE001 (raised again in the caller's thread)
-            self._put((self._END, e))
-            return
-        self._put((self._END, None))
+            self._queue.put((self._END, e))
+        finally:
+            self._done.set()
 
-    def _put(self, entry) -> bool:
-        """Queue ``entry`` once there is room, unless stopped first (then False)."""
+    def _wait_for_room(self) -> bool:
+        """Take a place for the next item; False once stopped."""
         while not self._stop.is_set():
-            try:
-                self._queue.put(entry, timeout=0.1)
-                return True
-            except queue.Full:
-                pass
+            if self._room.acquire(timeout=0.1):
+                return not self._stop.is_set()
         return False
 
     def __iter__(self):
@@ -143,18 +148,58 @@ class ReadAhead:
         item, error = self._queue.get()
         if item is self._END:
             self._ended = True
-            self._thread.join()
+            self._done.wait()
             if error is not None:
                 raise error
             raise StopIteration
+        self._room.release()
         return item
 
     def close(self) -> None:
+        """Stop making items and wait for the one being made (not when the making thread itself closes
+        it, as a garbage collection there may)."""
         self._stop.set()
-        self._thread.join()
+        self._ended = True
+        if threading.get_ident() != self._maker:
+            self._done.wait()
 
     def __enter__(self) -> ReadAhead:
         return self
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+class _ReaderThreads:
+    """Daemon threads that make read-aheads' items, kept for the process: Dr.Jit keeps a thread's state
+    (on a GPU its CUDA stream) until the process ends, so a scan after another takes the idle thread of
+    the last, and only scans that run at once have threads of their own."""
+
+    def __init__(self):
+        self._idle: queue.SimpleQueue = queue.SimpleQueue()     # the idle threads' inboxes
+
+    def run(self, task) -> None:
+        """Run ``task()`` (which raises nothing) on an idle thread, or a new one."""
+        try:
+            inbox = self._idle.get_nowait()
+        except queue.Empty:
+            inbox = queue.SimpleQueue()
+            threading.Thread(target=self._serve, args=(inbox,), name="mitsuforest-scan", daemon=True).start()
+        inbox.put(task)
+
+    def _serve(self, inbox: queue.SimpleQueue) -> None:
+        while True:
+            task = inbox.get()
+            task()
+            task = None          # the task's items let go before the thread waits for the next
+            self._idle.put(inbox)
+
+
+_readers: _ReaderThreads | None = None
+
+
+def _reader_threads() -> _ReaderThreads:
+    global _readers
+    if _readers is None:
+        _readers = _ReaderThreads()
+    return _readers

@@ -1,9 +1,10 @@
 """``prepare``, ``scan`` and ``write``: a survey prepared for some legs loads only the objects in their
 reach and scans them into the same bytes as the whole survey's scene; batches scanned apart and
-written by a survey prepared for no legs are the render's points; the scan's thread ends with its batches."""
+written by a survey prepared for no legs are the render's points; the device's part of the scan runs a batch ahead."""
 
 import itertools
 import threading
+import time
 
 import numpy as np
 import pytest
@@ -11,7 +12,7 @@ import pytest
 from conftest import ROOT
 from mitsuforest.config import load_scene
 from mitsuforest.pipeline import render
-from mitsuforest.scan import POINT_DTYPE, ScanResult
+from mitsuforest.scan import POINT_DTYPE, PulseTracer, ScanResult
 from mitsuforest.survey import Batches, prepare, scan, write
 
 
@@ -77,18 +78,29 @@ def test_batches_scanned_leg_by_leg_and_written_together_are_the_render(narrow, 
     assert written.manifest["classes"] == rendered.manifest["classes"]
 
 
-def test_the_scan_runs_a_batch_ahead_on_its_own_thread_which_ends_when_the_batches_are_left(narrow, whole):
-    """The scan traces the next batch on a thread of its own while the caller takes this one; a caller that
-    stops early (an error, an interrupt) ends the thread, and a scan run to its end leaves none."""
-    def scanning():
-        return [t for t in threading.enumerate() if t.name == "mitsuforest-scan"]
+def test_the_device_traces_one_batch_ahead_and_stops_when_the_batches_are_left(narrow, monkeypatch):
+    """The scan's device part traces the next batch on a thread of its own while the caller takes this
+    one; a caller that stops early (an error, an interrupt) stops it."""
+    traced = []
+    echo_slots = PulseTracer.echo_slots
+
+    def counted(self, *args):
+        traced.append(threading.get_ident())
+        return echo_slots(self, *args)
+    monkeypatch.setattr(PulseTracer, "echo_slots", counted)
+
+    def settled(count):
+        deadline = time.monotonic() + 10
+        while len(traced) < count and time.monotonic() < deadline:
+            time.sleep(0.01)
+        time.sleep(0.3)
+        return len(traced)
     small = prepare(narrow.with_({"simulation.pulses_per_batch": 20_000}), legs=range(0, 1))
     batches = iter(scan(small))
-    first = next(batches)      # more than two batches left: the thread waits to queue the next but one
-    assert first.dtype == POINT_DTYPE and len(scanning()) == 1
+    assert next(batches).dtype == POINT_DTYPE
+    assert settled(2) == 2 and threading.get_ident() not in traced     # the batch taken, one more ahead
     batches.close()
-    assert scanning() == []
-    assert len(_points(scan(whole, legs=range(0, 1)))) > 10_000 and scanning() == []
+    assert settled(3) == 2
 
 
 def test_versions_are_read_once_and_each_caller_gets_its_own_copy(monkeypatch):

@@ -3,6 +3,7 @@ with processes, LAZ and PCD that read back as the points written, LAS records as
 the thread and process counts' settings; the scan's read-ahead."""
 
 import io
+import threading
 import time
 
 import laspy
@@ -293,26 +294,37 @@ def test_read_ahead_gives_the_items_in_order_and_raises_where_the_failure_came()
     with pytest.raises(OSError, match="disk full"):
         for item in ahead:
             got.append(item)
-    assert got == [0, 1, 2, 3, 4] and not ahead._thread.is_alive()
+    assert got == [0, 1, 2, 3, 4]
     assert list(ahead) == []                         # ended: it stays ended
     assert list(ReadAhead(iter(()))) == []
 
 
-def test_read_ahead_makes_no_more_than_its_depth_ahead_and_stops_when_closed():
-    made = []
+def test_read_ahead_makes_its_depth_ahead_stops_when_closed_and_its_thread_serves_the_next():
+    made, threads = [], set()
 
     def items():
         for i in range(100):
             made.append(i)
+            threads.add(threading.get_ident())
             yield i
-    with ReadAhead(items(), depth=1) as ahead:
-        assert next(ahead) == 0
+
+    def settled(count):
         deadline = time.monotonic() + 10
-        while len(made) < 3 and time.monotonic() < deadline:
+        while len(made) < count and time.monotonic() < deadline:
             time.sleep(0.01)
         time.sleep(0.3)
-        assert made == [0, 1, 2]      # the item taken, one queued, one made and waiting for room
-    assert not ahead._thread.is_alive() and made == [0, 1, 2]
+        return list(made)
+    with ReadAhead(items(), depth=1) as ahead:
+        assert next(ahead) == 0
+        assert settled(2) == [0, 1]          # the item taken, and one made ahead waiting to be taken
+        assert next(ahead) == 1
+        assert settled(3) == [0, 1, 2]
+    assert settled(3) == [0, 1, 2]           # closed: nothing more is made
+    with pytest.raises(StopIteration):
+        next(ahead)
+    made.clear()
+    assert list(ReadAhead(items(), depth=2))[:3] == [0, 1, 2]
+    assert len(threads) == 1 and threading.get_ident() not in threads     # one thread, kept, not the caller's
 
 
 def test_a_bad_thread_count_is_refused_before_any_work(tmp_path, monkeypatch, capsys):

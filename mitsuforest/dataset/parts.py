@@ -62,6 +62,7 @@ def write_part(path: Path, batches, scene, tiles, surface, whole_points: bool) -
     from ..write.atomic import atomic_path
     info = {"batches": []}
     with ExitStack() as stack:
+        stack.callback(batches.close)       # the scan stopped if a write fails
         points = tiled = None
         if whole_points:
             tmp = stack.enter_context(atomic_path(path.with_suffix(".points")))

@@ -46,8 +46,9 @@ class PulseTracer:
     :attr:`HitTable.located <mitsuforest.scene.HitTable.located>`), returned beside the points for
     the labels stage (:func:`mitsuforest.labels.label_points`); the points' label fields are left 0.
 
-    :meth:`trace_slots` is what a render runs; :meth:`trace_pulses` traces hand-made pulses the same
-    way. Both run on the device and return finished points and their hits. The numpy twin of the echo
+    :meth:`trace_slots` is what a render runs: :meth:`echo_slots` on the device, then :meth:`place_echoes`
+    on the host (a render runs the first a batch ahead on a thread of its own); :meth:`trace_pulses`
+    traces hand-made pulses the same way. Both return finished points and their hits. The numpy twin of the echo
     stage is :func:`mitsuforest.testing.reference.trace_reference`.
 
     :param sensor: a :class:`~mitsuforest.config.types.Sensor`.
@@ -135,6 +136,7 @@ class PulseTracer:
         """The device's part of :meth:`trace_slots`: the pulses of the slots that fire and can reach the
         scene, traced, and their echoes brought back to numpy."""
         records = self.waveforms or self.pulse_records
+        # Mitsuba's variant is the process's: nothing on another thread may use another during a scan.
         with variant_scope(self.variant):
             made = reaching_pulses(leg, self.sensor, pulse_frequency, scan_frequency, first, count, self.box,
                                    first_id, self._device_table(pose), keep_fired=self.pulse_records)
