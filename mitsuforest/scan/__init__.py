@@ -12,8 +12,8 @@ once). For each batch the :class:`~mitsuforest.scan.tracer.PulseTracer` decides 
 device which pulses fire and can reach the scene's box, then traces them (sub-rays, radiometry,
 waveform, ranging noise); only finished echoes come back to numpy, as points and, beside them, what
 each hit (:data:`HIT_DTYPE`), which the labels stage turns into ids. The device's part of each batch (pulses,
-rays, waveform, the echoes brought back) runs a batch ahead on a thread of its own while the host
-places, labels and writes the last (:class:`~mitsuforest.threads.ReadAhead`). Memory is bounded by the
+rays, waveform, the echoes brought back) runs up to two batches ahead on a thread of its own while the
+host places, labels and writes the last (:class:`~mitsuforest.threads.ReadAhead`). Memory is bounded by the
 batch size. Ranging noise is keyed on (seed, pulse id, return number), so the same scene and seed
 give the same points, byte for byte, whatever the batch size. Pulses leave from the leg's pose
 (platform.py: attitude, mount, a flown trajectory); the points are then placed with the navigation
@@ -136,8 +136,9 @@ def scan_batches(scene, plan, scan_scene, result: ScanResult, progress: bool = T
                          max(1, LAUNCH_SUB_RAYS[backend] // sim.beam_samples))
     legs = range(len(plan.legs)) if legs is None else legs
     start = time.perf_counter()
-    # The device traces a batch ahead on a thread of its own while this one is placed, labelled and written.
-    with ReadAhead(_device_batches(scene, plan, tracer, platform, result, progress, legs)) as traced:
+    # The device traces up to two batches ahead on a thread of its own while this one is placed, labelled
+    # and written (two: a batch that is quick on one side does not leave the other waiting).
+    with ReadAhead(_device_batches(scene, plan, tracer, platform, result, progress, legs), depth=2) as traced:
         for leg_no, leg, pose, slots in traced:
             points, hits, fired, cast, *records = tracer.place_echoes(slots, leg, leg_no + 1, pose)
             result.pulses_fired += fired
