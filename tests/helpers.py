@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 
 from mitsuforest.testing.analytic import analytic_scene, bare_scene_file, plane_model, pulses  # noqa: F401
@@ -51,3 +52,13 @@ def write_obj(path, pieces, scale: float = 1.0, y_up: bool = False) -> Path:
     Path(path).write_text("\n".join(lines) + "\n")
     Path(path).with_suffix(".mtl").write_text("".join(f"newmtl {m}\nKd 0.5 0.5 0.5\n" for m in dict.fromkeys(materials)))
     return Path(path)
+
+
+def settled(items: list, count: int, timeout: float = 10.0, rest: float = 0.3) -> list:
+    """A copy of ``items``, a list another thread appends to, once it holds ``count`` entries (or after
+    ``timeout`` seconds) and ``rest`` seconds more, in which a thread that should stop there adds none."""
+    deadline = time.monotonic() + timeout
+    while len(items) < count and time.monotonic() < deadline:
+        time.sleep(0.01)
+    time.sleep(rest)
+    return list(items)

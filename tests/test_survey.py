@@ -4,12 +4,12 @@ written by a survey prepared for no legs are the render's points; the device's p
 
 import itertools
 import threading
-import time
 
 import numpy as np
 import pytest
 
 from conftest import ROOT
+from helpers import settled
 from mitsuforest.config import load_scene
 from mitsuforest.pipeline import render
 from mitsuforest.scan import POINT_DTYPE, PulseTracer, ScanResult
@@ -88,20 +88,12 @@ def test_the_device_traces_two_batches_ahead_and_stops_when_the_batches_are_left
         traced.append(threading.get_ident())
         return echo_slots(self, *args)
     monkeypatch.setattr(PulseTracer, "echo_slots", counted)
-
-    def settled(count):
-        deadline = time.monotonic() + 10
-        while len(traced) < count and time.monotonic() < deadline:
-            time.sleep(0.01)
-        time.sleep(0.3)
-        return len(traced)
     small = prepare(narrow.with_({"simulation.pulses_per_batch": 20_000}), legs=range(0, 1))
     batches = iter(scan(small))
     assert next(batches).dtype == POINT_DTYPE
-    assert settled(3) == 3 and threading.get_ident() not in traced     # the batch taken, two ahead
+    assert len(settled(traced, 3)) == 3 and threading.get_ident() not in traced    # the batch taken, two ahead
     batches.close()
-    time.sleep(0.3)
-    assert len(traced) == 3
+    assert len(settled(traced, 4, timeout=0)) == 3
 
 
 def test_versions_are_read_once_and_each_caller_gets_its_own_copy(monkeypatch):

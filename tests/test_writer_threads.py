@@ -4,13 +4,13 @@ the thread and process counts' settings; the scan's read-ahead."""
 
 import io
 import threading
-import time
 
 import laspy
 import numpy as np
 import numpy.lib.recfunctions  # noqa: F401 (np.lib.recfunctions)
 import pytest
 from conftest import ROOT
+from helpers import settled
 
 from mitsuforest.errors import UserError
 from mitsuforest.scan import POINT_DTYPE
@@ -307,20 +307,12 @@ def test_read_ahead_makes_its_depth_ahead_stops_when_closed_and_its_thread_serve
             made.append(i)
             threads.add(threading.get_ident())
             yield i
-
-    def settled(count):
-        deadline = time.monotonic() + 10
-        while len(made) < count and time.monotonic() < deadline:
-            time.sleep(0.01)
-        time.sleep(0.3)
-        return list(made)
     with ReadAhead(items(), depth=1) as ahead:
         assert next(ahead) == 0
-        assert settled(2) == [0, 1]          # the item taken, and one made ahead waiting to be taken
+        assert settled(made, 2) == [0, 1]          # the item taken, and one made ahead waiting to be taken
         assert next(ahead) == 1
-        assert settled(3) == [0, 1, 2]
-    time.sleep(0.3)
-    assert made == [0, 1, 2]                 # closed: nothing more is made
+        assert settled(made, 3) == [0, 1, 2]
+    assert settled(made, 4, timeout=0) == [0, 1, 2]      # closed: nothing more is made
     with pytest.raises(StopIteration):
         next(ahead)
     made.clear()
