@@ -1,6 +1,6 @@
 """``prepare``, ``scan`` and ``write``: a survey prepared for some legs loads only the objects in their
 reach and scans them into the same bytes as the whole survey's scene; batches scanned apart and
-written by a survey prepared for no legs are the render's points; the device's part of the scan runs ahead."""
+written by a survey prepared for no legs are the render's points; on a GPU the device's part of the scan runs ahead."""
 
 import itertools
 import threading
@@ -12,7 +12,7 @@ from conftest import ROOT
 from helpers import settled
 from mitsuforest.config import load_scene
 from mitsuforest.pipeline import render
-from mitsuforest.scan import POINT_DTYPE, PulseTracer, ScanResult
+from mitsuforest.scan import POINT_DTYPE, READ_AHEAD, PulseTracer, ScanResult
 from mitsuforest.survey import Batches, prepare, scan, write
 
 
@@ -78,9 +78,14 @@ def test_batches_scanned_leg_by_leg_and_written_together_are_the_render(narrow, 
     assert written.manifest["classes"] == rendered.manifest["classes"]
 
 
-def test_the_device_traces_two_batches_ahead_and_stops_when_the_batches_are_left(narrow, monkeypatch):
-    """The scan's device part traces the next two batches on a thread of its own while the caller takes
-    this one; a caller that stops early (an error, an interrupt) stops it."""
+@pytest.mark.parametrize("ahead", [0, 2])
+def test_the_device_traces_ahead_as_set_and_stops_when_the_batches_are_left(narrow, monkeypatch, ahead):
+    """With ``READ_AHEAD`` batches (a GPU's 2; a CPU's 0, where the device is the host's own cores) the
+    scan's device part traces the next batches on a thread of its own while the caller takes this one,
+    into the same bytes; a caller that stops early (an error, an interrupt) stops it."""
+    monkeypatch.setitem(READ_AHEAD, "llvm", ahead)
+    monkeypatch.setitem(READ_AHEAD, "cuda", ahead)
+    small = prepare(narrow.with_({"simulation.pulses_per_batch": 20_000}), legs=range(0, 1))
     traced = []
     echo_slots = PulseTracer.echo_slots
 
@@ -88,12 +93,17 @@ def test_the_device_traces_two_batches_ahead_and_stops_when_the_batches_are_left
         traced.append(threading.get_ident())
         return echo_slots(self, *args)
     monkeypatch.setattr(PulseTracer, "echo_slots", counted)
-    small = prepare(narrow.with_({"simulation.pulses_per_batch": 20_000}), legs=range(0, 1))
     batches = iter(scan(small))
     assert next(batches).dtype == POINT_DTYPE
-    assert len(settled(traced, 3)) == 3 and threading.get_ident() not in traced    # the batch taken, two ahead
+    assert len(settled(traced, 1 + ahead)) == 1 + ahead       # the batch taken, and those ahead
+    assert (threading.get_ident() in traced) == (ahead == 0)
     batches.close()
-    assert len(settled(traced, 4, timeout=0)) == 3
+    assert len(settled(traced, 2 + ahead, timeout=0)) == 1 + ahead
+    monkeypatch.setattr(PulseTracer, "echo_slots", echo_slots)
+    points = _points(scan(small))
+    monkeypatch.setitem(READ_AHEAD, "llvm", 2 - ahead)
+    monkeypatch.setitem(READ_AHEAD, "cuda", 2 - ahead)
+    assert len(points) > 10_000 and _points(scan(small)).tobytes() == points.tobytes()
 
 
 def test_versions_are_read_once_and_each_caller_gets_its_own_copy(monkeypatch):

@@ -11,9 +11,9 @@ and each batch has a fixed cost), at most twice the last, its cast pulses traced
 once). For each batch the :class:`~mitsuforest.scan.tracer.PulseTracer` decides on the
 device which pulses fire and can reach the scene's box, then traces them (sub-rays, radiometry,
 waveform, ranging noise); only finished echoes come back to numpy, as points and, beside them, what
-each hit (:data:`HIT_DTYPE`), which the labels stage turns into ids. The device's part of each batch (pulses,
-rays, waveform, the echoes brought back) runs up to two batches ahead on a thread of its own while the
-host places, labels and writes the last (:class:`~mitsuforest.threads.ReadAhead`). Memory is bounded by the
+each hit (:data:`HIT_DTYPE`), which the labels stage turns into ids. On a GPU the device's part of each batch
+(pulses, rays, waveform, the echoes brought back) runs up to :data:`READ_AHEAD` batches ahead on a thread
+of its own while the host places, labels and writes the last (:class:`~mitsuforest.threads.ReadAhead`). Memory is bounded by the
 batch size. Ranging noise is keyed on (seed, pulse id, return number), so the same scene and seed
 give the same points, byte for byte, whatever the batch size. Pulses leave from the leg's pose
 (platform.py: attitude, mount, a flown trajectory); the points are then placed with the navigation
@@ -23,6 +23,7 @@ solution's errors (navigation.py), and carry their leg's number from 1 as ``poin
 from __future__ import annotations
 
 import time
+from contextlib import closing
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -37,8 +38,8 @@ if TYPE_CHECKING:
     from .platform import Platform
     from .tracer import PulseTracer
 
-__all__ = ["HIT_DTYPE", "POINT_DTYPE", "NavigationModel", "Platform", "PulseTracer", "ScanResult", "default_batch",
-           "navigation_model", "next_batch", "scan", "scan_batches"]
+__all__ = ["HIT_DTYPE", "POINT_DTYPE", "READ_AHEAD", "NavigationModel", "Platform", "PulseTracer", "ScanResult",
+           "default_batch", "navigation_model", "next_batch", "scan", "scan_batches"]
 
 # Loaded on first use, so that what only reads the radiometry (write, and so ``mitsuforest info``,
 # ``compare`` and the writer's worker processes) starts neither Mitsuba (the Dr.Jit side) nor the plan
@@ -55,6 +56,9 @@ BATCH_SUB_RAYS = {"llvm": 2_000_000, "cuda": 20_000_000}   # default sub-rays pe
 MAX_BATCH_SLOTS = {"llvm": 400_000, "cuda": 1_000_000}     # ... and at most this many time slots
 CAST_SUB_RAYS = {"llvm": 1_000_000, "cuda": 10_000_000}    # sub-rays cast per batch that next_batch aims at
 LAUNCH_SUB_RAYS = {"llvm": 1_000_000, "cuda": 20_000_000}  # an automatic batch's sub-rays traced at once, at most
+# Batches the device traces ahead of the host, on a thread of its own. On a CPU the device is the host's
+# own cores, busy either way: a split plot's leg tasks took 3-4 % more CPU with it (RESULTS, twelfth session).
+READ_AHEAD = {"llvm": 0, "cuda": 2}
 
 
 def default_batch(variant: str, beam_samples: int) -> int:
@@ -136,9 +140,11 @@ def scan_batches(scene, plan, scan_scene, result: ScanResult, progress: bool = T
                          max(1, LAUNCH_SUB_RAYS[backend] // sim.beam_samples))
     legs = range(len(plan.legs)) if legs is None else legs
     start = time.perf_counter()
-    # The device traces up to two batches ahead on a thread of its own while this one is placed, labelled
-    # and written (two: a batch that is quick on one side does not leave the other waiting).
-    with ReadAhead(_device_batches(scene, plan, tracer, platform, result, progress, legs), depth=2) as traced:
+    device = _device_batches(scene, plan, tracer, platform, result, progress, legs)
+    ahead = READ_AHEAD[backend]
+    # On a GPU the device traces the next batches while this one is placed, labelled and written (two
+    # ahead: a batch that is quick on one side does not leave the other waiting).
+    with ReadAhead(device, depth=ahead) if ahead else closing(device) as traced:
         for leg_no, leg, pose, slots in traced:
             points, hits, fired, cast, *records = tracer.place_echoes(slots, leg, leg_no + 1, pose)
             result.pulses_fired += fired
