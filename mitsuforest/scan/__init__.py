@@ -57,7 +57,7 @@ MAX_BATCH_SLOTS = {"llvm": 400_000, "cuda": 1_000_000}     # ... and at most thi
 CAST_SUB_RAYS = {"llvm": 1_000_000, "cuda": 10_000_000}    # sub-rays cast per batch that next_batch aims at
 LAUNCH_SUB_RAYS = {"llvm": 1_000_000, "cuda": 20_000_000}  # an automatic batch's sub-rays traced at once, at most
 # Batches the device traces ahead of the host, on a thread of its own. On a CPU the device is the host's
-# own cores, busy either way: a split plot's leg tasks took 3-4 % more CPU with it (RESULTS, twelfth session).
+# own cores, busy either way: the overlap moved renders within 4 % either way there (RESULTS, twelfth session).
 READ_AHEAD = {"llvm": 0, "cuda": 2}
 
 
