@@ -11,11 +11,12 @@ and each batch has a fixed cost), at most twice the last, its cast pulses traced
 once). For each batch the :class:`~mitsuforest.scan.tracer.PulseTracer` decides on the
 device which pulses fire and can reach the scene's box, then traces them (sub-rays, radiometry,
 waveform, ranging noise); only finished echoes come back to numpy, as points and, beside them, what
-each hit (:data:`HIT_DTYPE`), which the labels stage turns into ids. On a GPU the device's part of each batch
-(pulses, rays, waveform, the echoes brought back) runs up to :data:`READ_AHEAD` batches ahead on a thread
-of its own while the host places, labels and writes the last (:class:`~mitsuforest.threads.ReadAhead`). Memory is bounded by the
-batch size. Ranging noise is keyed on (seed, pulse id, return number), so the same scene and seed
-give the same points, byte for byte, whatever the batch size. Pulses leave from the leg's pose
+each hit (:data:`HIT_DTYPE`), which the labels stage turns into ids. On a GPU the device's part of
+each batch (pulses, rays, waveform, the echoes brought back) runs up to :data:`READ_AHEAD` batches
+ahead on a thread of its own while the host places, labels and writes the last
+(:class:`~mitsuforest.threads.ReadAhead`). Memory is bounded by the batch size. Ranging noise is
+keyed on (seed, pulse id, return number), so the same scene and seed give the same points, byte for
+byte, whatever the batch size. Pulses leave from the leg's pose
 (platform.py: attitude, mount, a flown trajectory); the points are then placed with the navigation
 solution's errors (navigation.py), and carry their leg's number from 1 as ``point_source_id``.
 """

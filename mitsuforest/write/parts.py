@@ -45,10 +45,11 @@ def write_at(fd: int, data: np.ndarray, offset: int) -> None:
 
 
 def tallies(points: np.ndarray, counts, side, tiles: np.ndarray) -> tuple:
-    """The statistics of a part of a batch, for :meth:`~.stream.PointWriter.merge_part`: (256,) points by class,
-    (256,) pulses by their number of returns (from first returns), the ``counts`` by height and by return
-    (:meth:`~.profile.ReturnCounts.tally`), the points in the ``side`` tile (:class:`~.quicklook.SideTile`) and (k, 3) x, y, z of those in
-    each spacing tile of ``tiles`` ((4, 2) corners)."""
+    """The statistics of a part of a batch, for :meth:`~.stream.PointWriter.merge_part`: (256,) points by
+    class, (256,) pulses by their number of returns (from first returns), the ``counts`` by height and by
+    return (:meth:`~.profile.ReturnCounts.tally`), the points in the ``side`` tile
+    (:class:`~.quicklook.SideTile`) and (k, 3) x, y, z of those in each spacing tile of ``tiles`` ((4, 2)
+    corners)."""
     first = points["return_number"] == 1
     return (np.bincount(points["classification"], minlength=256),
             np.bincount(points["number_of_returns"][first], minlength=256),
