@@ -196,7 +196,8 @@ def write(prepared: PreparedSurvey, batches: Batches, staging: Staging | None, *
     timings = Timings(prepared.timings)
     writer = records = None
     try:
-        writer = PointWriter(staging, scene, keep=keep_points, terrain=plan.terrain, stems=stem_ids(plan, models))
+        writer = PointWriter(staging, scene, keep=keep_points, terrain=plan.terrain, stems=stem_ids(plan, models),
+                             warm_pictures=bool(staging) and scene.output.pictures and scans_off_host(prepared))
         sinks = [Background(writer.add)]
         if staging and (scene.output.waveforms or scene.output.pulses):
             records = PulseRecordWriter(staging, scene)
@@ -224,6 +225,13 @@ def write(prepared: PreparedSurvey, batches: Batches, staging: Staging | None, *
             records.abort()
         raise
     return Written(manifest, writer.points)
+
+
+def scans_off_host(prepared: PreparedSurvey) -> bool:
+    """Whether the survey's scan runs on a GPU, leaving the host's cores mostly idle: there the writer's
+    workers ready themselves to draw the pictures while the points come; on a CPU that would take from
+    the scan what it gives back at the end (0.7 CPU s a worker)."""
+    return prepared.scan_scene.variant.startswith("cuda")
 
 
 def _drain(batches: Batches, sinks: list[Background]) -> None:

@@ -3,7 +3,12 @@ with processes, LAZ and PCD that read back as the points written, LAS records as
 the thread and process counts' settings; the scan's read-ahead."""
 
 import io
+import pickle
+import subprocess
+import sys
 import threading
+import time
+from types import SimpleNamespace
 
 import laspy
 import numpy as np
@@ -150,8 +155,6 @@ def test_a_part_that_fails_in_a_worker_fails_the_writer_and_leaves_no_shared_mem
 
 def test_a_script_without_a_main_guard_runs_once_beside_the_writer_processes(tmp_path):
     """Spawned workers would run the parent's main module first; they start while it is hidden."""
-    import subprocess
-    import sys
     script = tmp_path / "plain.py"
     script.write_text(
         "import numpy as np\nprint('top level ran')\n"
@@ -333,8 +336,6 @@ def test_point_array_filled_by_threads_is_the_echoes(monkeypatch):
     """The scan's point array, filled by row ranges on four threads, holds each echo field in its place
     (intensity from the amplitude, the scan angle in degrees), and its hits each echo's rows; the labels
     stage, on the same threads, gathers each label from the rows it names."""
-    from types import SimpleNamespace
-
     from mitsuforest import labels
     from mitsuforest.scan import tracer
     from mitsuforest.threads import Workers
@@ -372,12 +373,15 @@ def test_point_array_filled_by_threads_is_the_echoes(monkeypatch):
 def test_a_render_written_by_worker_processes_is_the_render_written_by_threads(tmp_path_factory, variant,
                                                                                  monkeypatch):
     """The demo scanned along one leg and written with two worker processes (its four pictures drawn
-    in them too) and with the threads: every file the same bytes, the manifest but for paths and times."""
+    in them too, the workers readied for them as on a GPU) and with the threads: every file the same
+    bytes, the manifest but for paths and times."""
     import json
 
     from conftest import _demo_scene
 
+    from mitsuforest import survey
     from mitsuforest.pipeline import render
+    monkeypatch.setattr(survey, "scans_off_host", lambda prepared: True)
     files = {}
     for processes in ("0", "2"):
         monkeypatch.setenv(PROCESSES_VARIABLE, processes)
@@ -390,3 +394,65 @@ def test_a_render_written_by_worker_processes_is_the_render_written_by_threads(t
     for manifest in manifests:
         manifest.pop("timings_s"), manifest["scene"]["output"].pop("dir")
     assert manifests[0] == manifests[1] and manifests[0]["points"] > 10_000
+
+
+def test_a_worker_readies_itself_for_the_pictures_on_its_first_part_and_draws_once_ready(tmp_path, monkeypatch):
+    """A writer made with ``warm_pictures`` hands its workers a PartWork that says so; a worker starts
+    readying itself (once a process) when it first reads it, and a picture drawn there waits for that."""
+    from mitsuforest.write import figures, processes
+    events = []
+
+    def slow_warm_up():
+        time.sleep(0.2)
+        events.append("warm")
+
+    monkeypatch.setattr(figures, "warm_up", slow_warm_up)
+    monkeypatch.setattr(processes, "_WARMING", [])
+    monkeypatch.setattr(processes, "_WORKS", processes.collections.OrderedDict())
+    scene = _scene(OFFSET, ("pcd", "laz"))
+    for warm in (False, True):
+        writer = PointWriter(Staging(tmp_path / str(warm), scene.name), scene, threads=1, warm_pictures=warm)
+        writer.add(_batches()[0][:0])              # the PCD header: where the workers' records begin
+        work = writer._part_work()
+        assert work.warm_pictures is warm
+        path = tmp_path / f"work-{warm}.pickle"
+        path.write_bytes(pickle.dumps(work))
+        rows = _batches()[0][:1000]
+        slot = tmp_path / f"slot-{warm}"
+        slot.write_bytes(rows.tobytes())
+        part = processes.write_part(str(path), str(slot), rows.dtype, 0, len(rows), 0)
+        assert part.rows == len(rows)
+        assert len(processes._WARMING) == int(warm)
+        writer.abort()
+    processes.start_warming()                    # once a process
+    assert len(processes._WARMING) == 1
+    processes.draw_picture(lambda path, *inputs: events.append(("drawn", path, inputs)), "a.png", 1, 2)
+    assert events == ["warm", ("drawn", "a.png", (1, 2))]
+    processes._WORKS.popitem()[1].close()
+
+
+def test_only_a_scan_off_the_host_readies_the_workers_for_the_pictures():
+    from mitsuforest.survey import scans_off_host
+    assert scans_off_host(SimpleNamespace(scan_scene=SimpleNamespace(variant="cuda_ad_mono")))
+    assert not scans_off_host(SimpleNamespace(scan_scene=SimpleNamespace(variant="llvm_ad_mono")))
+
+
+def test_warm_up_leaves_the_pictures_as_they_were(tmp_path):
+    """The pictures drawn after :func:`~mitsuforest.write.figures.warm_up` in a fresh process are those
+    drawn cold in another."""
+    code = ("import sys, numpy as np\n"
+            "from mitsuforest.write import figures\n"
+            "from mitsuforest.write.profile import ReturnCounts\n"
+            "if sys.argv[2] == 'warm': figures.warm_up()\n"
+            "counts = ReturnCounts(None, (20.0, 20.0))\n"
+            "p = np.zeros(3, [(f, 'f4') for f in 'xyz'] + [('classification', 'u1'), ('return_number', 'u1')])\n"
+            "p['z'] = [1, 5, 9]; p['classification'] = [2, 4, 5]; p['return_number'] = 1\n"
+            "counts.add(p)\n"
+            "figures.write_returns_figure(sys.argv[1] + '/returns.png', np.array([0, 3]), counts)\n"
+            "figures.write_profile_figure(sys.argv[1] + '/profile.png', counts)\n")
+    drawn = {}
+    for how in ("cold", "warm"):
+        (tmp_path / how).mkdir()
+        subprocess.run([sys.executable, "-c", code, str(tmp_path / how), how], cwd=ROOT, check=True)
+        drawn[how] = {name: (tmp_path / how / name).read_bytes() for name in ("returns.png", "profile.png")}
+    assert drawn["cold"] == drawn["warm"] and len(drawn["cold"]["profile.png"]) > 1000

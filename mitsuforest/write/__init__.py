@@ -27,6 +27,7 @@ from .pcd import read_pcd
 from .output_profiles import PROFILE_SUFFIXES
 from .figures import write_profile_figure, write_returns_figure, write_tile_figure, write_top_figure
 from .parts import georeference
+from .processes import draw_picture
 from .stream import PointWriter
 from .tables import write_ids, write_trajectory, write_volumes
 
@@ -234,7 +235,8 @@ def write_render_outputs(staging: Staging, *, scene, plan, models, writer) -> No
                     (write_profile_figure, "_profile.png", writer.counts),
                     (write_returns_figure, "_returns.png", writer.returns, writer.counts)]
     pool = writer.pool if pictures else None
-    drawn = [pool.submit(draw, staging.file(suffix), *inputs) for draw, suffix, *inputs in pictures] if pool else []
+    drawn = [pool.submit(draw_picture, draw, staging.file(suffix), *inputs)
+             for draw, suffix, *inputs in pictures] if pool else []
     try:
         write_tables(staging.file, scene=scene, plan=plan, models=models)
         if not pool:

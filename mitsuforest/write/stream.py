@@ -42,10 +42,12 @@ class PointWriter:
         branches (:func:`~.output_profiles.stem_ids`).
     :param processes: worker processes for the points of a render that writes PCD and LAZ alone, kept
         nowhere else (default: :func:`~.processes.writer_processes`, none below 8 cores); 0: the threads.
+    :param warm_pictures: with worker processes, ready them to draw the pictures while the points come
+        (:func:`~.processes.start_warming`): worth its CPU when the scan leaves the host's cores idle.
     """
 
     def __init__(self, staging, scene: dict, keep: bool = False, terrain=None, threads: int | None = None,
-                 stems=(), processes: int | None = None):
+                 stems=(), processes: int | None = None, warm_pictures: bool = False):
         self.threads = writer_threads() if threads is None else threads
         self.offset = np.asarray(scene.origin.offset, np.float64)
         self.area = scene.area.size
@@ -80,6 +82,7 @@ class PointWriter:
         self._seed = scene.seed
         self.dtype = None
         self._terrain = terrain
+        self._warm_pictures = warm_pictures
         self._parts: ProcessParts | None = None
 
     @property
@@ -148,7 +151,7 @@ class PointWriter:
         pcd = (self._pcd_file.name, self._pcd_record, self._pcd_end) if self._pcd_file else None
         laz = (self._las[0].header, self._las[0].intensity) if self._las else None
         return PartWork(self.offset, self._terrain, pcd, laz, TopView(self.area), SideTile(self.area),
-                        ReturnCounts(self._terrain, self.area), self._tiles)
+                        ReturnCounts(self._terrain, self.area), self._tiles, self._warm_pictures)
 
     def _part(self, scanned: np.ndarray, batch: np.ndarray, start: int, stop: int, records: list[np.ndarray]) -> tuple:
         """Rows ``start:stop`` of a batch: copied from the ``scanned`` points into ``batch`` with their
