@@ -280,3 +280,11 @@ def test_learning_curve_benchmark_smallest():
 def test_fixed_costs_benchmark_quick():
     stdout = _run([str(ROOT / "benchmarks" / "fixed_costs.py"), "--quick", "--profile", "3", "--against", str(ROOT)], ROOT)
     assert stdout.count("| plot_0001 |") == 2 and "| fixed costs |" in stdout and "function calls" in stdout, stdout
+
+
+def test_gpu_check_script_parses_and_refuses_an_unknown_step():
+    """The GPU check runs only where a GPU is lent: here its syntax, and its usage on a wrong step."""
+    script = ROOT / "benchmarks" / "gpu_check.sh"
+    assert subprocess.run(["bash", "-n", str(script)], capture_output=True).returncode == 0
+    wrong = subprocess.run(["bash", str(script), "fly"], capture_output=True, text=True)
+    assert wrong.returncode == 2 and "usage:" in wrong.stderr
