@@ -230,7 +230,7 @@ def write(prepared: PreparedSurvey, batches: Batches, staging: Staging | None, *
 def scans_off_host(prepared: PreparedSurvey) -> bool:
     """Whether the survey's scan runs on a GPU, leaving the host's cores mostly idle: there the writer's
     workers ready themselves to draw the pictures while the points come; on a CPU that would take from
-    the scan what it gives back at the end (0.7 CPU s a worker)."""
+    the scan what it gives back at the end (0.5 CPU s a worker)."""
     return prepared.scan_scene.variant.startswith("cuda")
 
 

@@ -50,8 +50,7 @@ def _save(fig, path) -> None:
 def warm_up() -> None:
     """Take a small figure through every step a picture takes (matplotlib's imports, its fonts, the
     mathtext of log-axis tick labels, the PNG encoder; scipy's ``ndimage`` for the top view), writing
-    nothing: in a fresh process the first picture costs 0.1–0.4 s more than the next, on top of 0.45 s
-    of imports."""
+    nothing: in a process that has drawn none, the first picture costs 0.3–0.4 s more than the next."""
     import io
 
     import scipy.ndimage  # noqa: F401  (TopView.image's; 0.28 s to import)
