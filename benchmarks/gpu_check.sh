@@ -59,6 +59,7 @@ laz = glob.glob(sys.argv[1] + "/*.laz")[0]
 stages = {k: round(v, 2) for k, v in manifest["timings_s"].items()}
 print("   ", f"{manifest['points']:,} points", stages, "laz", hashlib.sha256(open(laz, "rb").read()).hexdigest()[:16])
 PY
+  find "$OUT/$label" -type f ! -name '*_manifest.json' -delete    # 2-3 GB a render in /dev/shm (RAM)
 }
 
 run() {

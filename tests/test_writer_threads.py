@@ -428,7 +428,8 @@ def test_a_worker_readies_itself_for_the_pictures_on_its_first_part_and_draws_on
     assert len(processes._WARMING) == 1
     processes.draw_picture(lambda path, *inputs: events.append(("drawn", path, inputs)), "a.png", 1, 2)
     assert events == ["warm", ("drawn", "a.png", (1, 2))]
-    processes._WORKS.popitem()[1].close()
+    for loaded in processes._WORKS.values():     # their PCD files' descriptors
+        loaded.close()
 
 
 def test_only_a_scan_off_the_host_readies_the_workers_for_the_pictures():
