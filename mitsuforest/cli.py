@@ -10,6 +10,7 @@ down after the command prints one line and exits with the same codes.
 from __future__ import annotations
 
 import argparse
+import gc
 import os
 import signal
 import sys
@@ -151,8 +152,16 @@ def main(argv=None) -> int:
     finally:
         if argv is None and in_main_thread():   # the program itself: signals until the process ends
             quiet_signals_until_exit()
+            _skip_collections_at_exit()
         elif previous is not None:
             signal.signal(signal.SIGTERM, previous)
+
+
+def _skip_collections_at_exit() -> None:
+    """Once the command has ended, spare the interpreter's collections at exit, which walk every object
+    the imports made (0.15 of the 0.2 s a render's exit took). Nothing is lost: every file is closed and
+    in place by now, and exit handlers (threads joined, worker processes ended) still run."""
+    gc.freeze()
 
 
 def _stopped(by_sigterm: bool) -> str:

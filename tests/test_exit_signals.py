@@ -30,3 +30,24 @@ def test_a_signal_during_teardown_exits_with_one_line(tmp_path, sig, code, word)
     assert proc.returncode == code
     assert err.strip().splitlines() == ["mitsuforest: missing.pcd: file not found",
                                         f"mitsuforest: {word} while exiting, after the command had ended"]
+
+
+# `main` called with arguments (as a library would) leaves the collector alone; run as the program
+# (argv None), it freezes what the command leaves, so that the interpreter's collections at exit skip it.
+FREEZE = """
+import gc, sys
+from mitsuforest.cli import main
+main(["info", "missing.pcd"])
+print(gc.get_freeze_count())
+sys.argv = ["mitsuforest", "info", "missing.pcd"]
+main()
+print(gc.get_freeze_count())
+"""
+
+
+def test_the_program_leaves_its_objects_to_the_exit_uncollected():
+    done = subprocess.run([sys.executable, "-c", FREEZE], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    as_library, as_program = map(int, done.stdout.split())
+    assert as_library == 0
+    assert as_program > 10_000          # every object the imports made
+    assert done.stderr.count("mitsuforest: missing.pcd: file not found") == 2
