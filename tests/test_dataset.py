@@ -22,6 +22,7 @@ from helpers import tiny_scene
 
 BASE = tiny_scene(2, 2, 1, 1, 1, output="{formats: [pcd, laz]}")
 SKIP_COMPARE = ("_manifest.json",)   # times and machine
+SHARED_MEMORY = Path("/dev/shm")       # where multiprocessing's named semaphores live on Linux
 
 
 def _dataset_file(folder: Path, body: str) -> Path:
@@ -225,12 +226,17 @@ def test_killed_worker_and_killed_client_then_rerun(tmp_path, cluster):
     # kill the whole command (client and its LocalCluster) once a plot is finished, then run it again
     out2 = tmp_path / "out2"
     cmd = [sys.executable, "-m", "mitsuforest.cli", "dataset", str(path), "-o", str(out2), "--workers", "1", "--quiet"]
+    semaphores = set(SHARED_MEMORY.glob("sem.mp-*"))
     proc = subprocess.Popen(cmd, start_new_session=True, stderr=subprocess.PIPE)
     deadline = time.time() + 240
     while not list(out2.glob("plots/*/*_dataset.json")) and time.time() < deadline and proc.poll() is None:
         time.sleep(0.05)
     os.killpg(proc.pid, signal.SIGKILL)
     proc.wait()
+    # The killed command's cluster leaves its named semaphores behind (its resource tracker, which would
+    # have removed them, was killed with it); the test removes them.
+    for leftover in set(SHARED_MEMORY.glob("sem.mp-*")) - semaphores:
+        leftover.unlink(missing_ok=True)
     rerun = run_dataset(path, out2, scheduler=cluster.scheduler_address, progress=False, log=lambda *_: None)
     assert 1 <= rerun["plots"]["skipped"] < 4
     _assert_complete(out2, 4)
