@@ -2,8 +2,8 @@
 # The GPU checks of issue 30 as one prepared run on a lent device machine (one H200 or H100, Python 3.12
 # with numpy, scipy, PyYAML, matplotlib and Pillow, no network). Fresh `mitsuforest render` processes of
 # the open scene on `cuda_ad_mono`: this checkout against an earlier commit's, interleaved; the writer's
-# threads once; a thin beam (1 fixed sub-ray) each; the CPU/GPU agreement table when a CPU render's
-# manifest is given; then the scan and writer tests on the GPU.
+# threads once; the scan without its read-ahead once; a thin beam (1 fixed sub-ray) each; the CPU/GPU
+# agreement table when a CPU render's manifest is given; then the scan and writer tests on the GPU.
 #
 #   bash benchmarks/gpu_check.sh prepare BASE [CPU_MANIFEST]   # here: cp312 wheels into .whl (slimmed
 #                                                             # to ~50 MB), BASE's tree into .gpu/base
@@ -83,6 +83,7 @@ PY
     render "base_$i" "$base" "$SCENE"
   done
   render head_threads "$ROOT" "$SCENE" MITSUFOREST_WRITER_PROCESSES=0
+  render head_no_read_ahead "$ROOT" "$SCENE" MITSUFOREST_READ_AHEAD=0   # the device and host in turn
   render head_thin "$ROOT" scenes/_thin.yaml
   render base_thin "$base" scenes/_thin.yaml
   if [ -f .gpu/cpu_manifest.json ]; then

@@ -16,6 +16,7 @@ import numpy as np
 from .config import Scene, load_scene, scene_from_mapping
 from .errors import UserError
 from .plan import Plan
+from .scan import read_ahead_variable
 from .scene import scene_variant
 from .survey import Batches, PreparedSurvey, prepare, scan, write as write_survey
 from .threads import writer_threads
@@ -57,7 +58,7 @@ def render(scene, *, output_dir=None, seed=None, variant=None, overwrite=False, 
         check_output(scene, overwrite)
         start_processes(scene, keep_points)
     else:
-        writer_threads()
+        check_variables()
     prepared = prepared or prepare(scene, log=log)
     batches = scan(prepared, progress=progress)
     if write:
@@ -73,13 +74,20 @@ def render(scene, *, output_dir=None, seed=None, variant=None, overwrite=False, 
 
 
 def check_output(scene: Scene, overwrite: bool) -> None:
-    """Refuse, before any work, a bad ``MITSUFOREST_WRITER_THREADS`` or ``MITSUFOREST_WRITER_PROCESSES``,
-    an output folder that cannot be written, or one holding results of the scene when not ``overwrite``."""
-    writer_threads()
-    writer_processes()
+    """Refuse, before any work, a bad variable (:func:`check_variables`), an output folder that cannot
+    be written, or one holding results of the scene when not ``overwrite``."""
+    check_variables()
     out = Path(scene.output.dir)
     check_output_folder(out)
     _refuse_existing(out, scene.name, overwrite)
+
+
+def check_variables() -> None:
+    """Refuse a bad ``MITSUFOREST_WRITER_THREADS``, ``MITSUFOREST_WRITER_PROCESSES`` or
+    ``MITSUFOREST_READ_AHEAD`` (one line naming it, see :class:`~mitsuforest.errors.UserError`)."""
+    writer_threads()
+    writer_processes()
+    read_ahead_variable()
 
 
 def write_files(prepared: PreparedSurvey, batches: Batches, *, overwrite: bool = False,

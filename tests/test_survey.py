@@ -12,7 +12,7 @@ from conftest import ROOT
 from helpers import settled
 from mitsuforest.config import load_scene
 from mitsuforest.pipeline import render
-from mitsuforest.scan import POINT_DTYPE, READ_AHEAD, PulseTracer, ScanResult
+from mitsuforest.scan import POINT_DTYPE, READ_AHEAD, READ_AHEAD_VARIABLE, PulseTracer, ScanResult, read_ahead
 from mitsuforest.survey import Batches, prepare, scan, write
 
 
@@ -104,6 +104,48 @@ def test_the_device_traces_ahead_as_set_and_stops_when_the_batches_are_left(narr
     monkeypatch.setitem(READ_AHEAD, "llvm", 2 - ahead)
     monkeypatch.setitem(READ_AHEAD, "cuda", 2 - ahead)
     assert len(points) > 10_000 and _points(scan(small)).tobytes() == points.tobytes()
+
+
+def test_the_read_ahead_by_backend_or_the_variable(monkeypatch):
+    from mitsuforest.errors import UserError
+    monkeypatch.delenv(READ_AHEAD_VARIABLE, raising=False)
+    assert read_ahead("llvm") == 0 and read_ahead("cuda") == 2
+    monkeypatch.setenv(READ_AHEAD_VARIABLE, "0")
+    assert read_ahead("cuda") == 0
+    monkeypatch.setenv(READ_AHEAD_VARIABLE, " 3 ")
+    assert read_ahead("llvm") == 3 and read_ahead("cuda") == 3
+    for bad in ("two", "-1", "1.5"):
+        monkeypatch.setenv(READ_AHEAD_VARIABLE, bad)
+        with pytest.raises(UserError, match=f"{READ_AHEAD_VARIABLE}: must be a whole number >= 0, got '{bad}'"):
+            read_ahead("cuda")
+
+
+def test_the_variable_sets_the_read_ahead_of_a_render(narrow, monkeypatch):
+    """``MITSUFOREST_READ_AHEAD`` traces ahead on a CPU too (and would stop it on a GPU): the same bytes."""
+    small = prepare(narrow.with_({"simulation.pulses_per_batch": 20_000}), legs=range(0, 1))
+    traced = []
+    echo_slots = PulseTracer.echo_slots
+
+    def counted(self, *args):
+        traced.append(threading.get_ident())
+        return echo_slots(self, *args)
+    monkeypatch.setattr(PulseTracer, "echo_slots", counted)
+    monkeypatch.delenv(READ_AHEAD_VARIABLE, raising=False)
+    points = _points(scan(small))
+    assert set(traced) == {threading.get_ident()}
+    traced.clear()
+    monkeypatch.setenv(READ_AHEAD_VARIABLE, "1")
+    assert _points(scan(small)).tobytes() == points.tobytes()
+    assert len(traced) > 2 and threading.get_ident() not in traced
+
+
+def test_a_bad_read_ahead_is_refused_before_any_work(tmp_path, monkeypatch, capsys):
+    from mitsuforest.cli import main
+    monkeypatch.setenv(READ_AHEAD_VARIABLE, "two")
+    code = main(["render", str(ROOT / "scenes" / "demo.yaml"), "-o", str(tmp_path / "out")])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and err == f"mitsuforest: {READ_AHEAD_VARIABLE}: must be a whole number >= 0, got 'two'"
+    assert not (tmp_path / "out").exists()
 
 
 def test_versions_are_read_once_and_each_caller_gets_its_own_copy(monkeypatch):

@@ -12,7 +12,7 @@ once). For each batch the :class:`~mitsuforest.scan.tracer.PulseTracer` decides 
 device which pulses fire and can reach the scene's box, then traces them (sub-rays, radiometry,
 waveform, ranging noise); only finished echoes come back to numpy, as points and, beside them, what
 each hit (:data:`HIT_DTYPE`), which the labels stage turns into ids. On a GPU the device's part of
-each batch (pulses, rays, waveform, the echoes brought back) runs up to :data:`READ_AHEAD` batches
+each batch (pulses, rays, waveform, the echoes brought back) runs up to :func:`read_ahead` batches
 ahead on a thread of its own while the host places, labels and writes the last
 (:class:`~mitsuforest.threads.ReadAhead`). Memory is bounded by the batch size. Ranging noise is
 keyed on (seed, pulse id, return number), so the same scene and seed give the same points, byte for
@@ -23,6 +23,7 @@ solution's errors (navigation.py), and carry their leg's number from 1 as ``poin
 
 from __future__ import annotations
 
+import os
 import time
 from contextlib import closing
 from dataclasses import dataclass
@@ -31,6 +32,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .. import _imported_on_first_use
+from ..errors import UserError
 from ..fields import POINT_DTYPE
 from ..threads import ReadAhead
 
@@ -40,7 +42,8 @@ if TYPE_CHECKING:
     from .tracer import PulseTracer
 
 __all__ = ["HIT_DTYPE", "POINT_DTYPE", "READ_AHEAD", "NavigationModel", "Platform", "PulseTracer", "ScanResult",
-           "default_batch", "navigation_model", "next_batch", "scan", "scan_batches"]
+           "default_batch", "navigation_model", "next_batch", "read_ahead", "read_ahead_variable", "scan",
+           "scan_batches"]
 
 # Loaded on first use, so that what only reads the radiometry (write, and so ``mitsuforest info``,
 # ``compare`` and the writer's worker processes) starts neither Mitsuba (the Dr.Jit side) nor the plan
@@ -60,6 +63,27 @@ LAUNCH_SUB_RAYS = {"llvm": 1_000_000, "cuda": 20_000_000}  # an automatic batch'
 # Batches the device traces ahead of the host, on a thread of its own. On a CPU the device is the host's
 # own cores, busy either way: the overlap moved renders within 4 % either way there (RESULTS, twelfth session).
 READ_AHEAD = {"llvm": 0, "cuda": 2}
+READ_AHEAD_VARIABLE = "MITSUFOREST_READ_AHEAD"
+
+
+def read_ahead(backend: str) -> int:
+    """Batches the device traces ahead: ``MITSUFOREST_READ_AHEAD`` if set (0: none, the device and the
+    host take turns), else :data:`READ_AHEAD` for the Dr.Jit ``backend``."""
+    set_to = read_ahead_variable()
+    return READ_AHEAD[backend] if set_to is None else set_to
+
+
+def read_ahead_variable() -> int | None:
+    """``MITSUFOREST_READ_AHEAD``'s value, None when it is not set.
+
+    :raises UserError: for a value that is not a whole number of at least 0.
+    """
+    text = os.environ.get(READ_AHEAD_VARIABLE, "").strip()
+    if not text:
+        return None
+    if not text.isdigit():
+        raise UserError(f"{READ_AHEAD_VARIABLE}: must be a whole number >= 0, got {text!r}")
+    return int(text)
 
 
 def default_batch(variant: str, beam_samples: int) -> int:
@@ -142,7 +166,7 @@ def scan_batches(scene, plan, scan_scene, result: ScanResult, progress: bool = T
     legs = range(len(plan.legs)) if legs is None else legs
     start = time.perf_counter()
     device = _device_batches(scene, plan, tracer, platform, result, progress, legs)
-    ahead = READ_AHEAD[backend]
+    ahead = read_ahead(backend)
     # On a GPU the device traces the next batches while this one is placed, labelled and written (two
     # ahead: a batch that is quick on one side does not leave the other waiting).
     with ReadAhead(device, depth=ahead) if ahead else closing(device) as traced:
