@@ -120,8 +120,12 @@ def test_the_read_ahead_by_backend_or_the_variable(monkeypatch):
             read_ahead("cuda")
 
 
-def test_the_variable_sets_the_read_ahead_of_a_render(narrow, monkeypatch):
-    """``MITSUFOREST_READ_AHEAD`` traces ahead on a CPU too (and would stop it on a GPU): the same bytes."""
+@pytest.mark.parametrize("default, variable", [(0, "1"), (2, "0")])
+def test_the_variable_sets_the_read_ahead_of_a_render(narrow, monkeypatch, default, variable):
+    """``MITSUFOREST_READ_AHEAD`` starts the read-ahead where the backend's default has none (a CPU's)
+    and stops it where the default has some (a GPU's): the same bytes either way."""
+    monkeypatch.setitem(READ_AHEAD, "llvm", default)
+    monkeypatch.setitem(READ_AHEAD, "cuda", default)
     small = prepare(narrow.with_({"simulation.pulses_per_batch": 20_000}), legs=range(0, 1))
     traced = []
     echo_slots = PulseTracer.echo_slots
@@ -132,11 +136,11 @@ def test_the_variable_sets_the_read_ahead_of_a_render(narrow, monkeypatch):
     monkeypatch.setattr(PulseTracer, "echo_slots", counted)
     monkeypatch.delenv(READ_AHEAD_VARIABLE, raising=False)
     points = _points(scan(small))
-    assert set(traced) == {threading.get_ident()}
+    assert len(traced) > 2 and (threading.get_ident() in traced) == (default == 0)
     traced.clear()
-    monkeypatch.setenv(READ_AHEAD_VARIABLE, "1")
+    monkeypatch.setenv(READ_AHEAD_VARIABLE, variable)
     assert _points(scan(small)).tobytes() == points.tobytes()
-    assert len(traced) > 2 and threading.get_ident() not in traced
+    assert len(traced) > 2 and (threading.get_ident() in traced) == (variable == "0")
 
 
 def test_a_bad_read_ahead_is_refused_before_any_work(tmp_path, monkeypatch, capsys):
