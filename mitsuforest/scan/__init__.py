@@ -41,9 +41,9 @@ if TYPE_CHECKING:
     from .platform import Platform
     from .tracer import PulseTracer
 
-__all__ = ["HIT_DTYPE", "POINT_DTYPE", "READ_AHEAD", "NavigationModel", "Platform", "PulseTracer", "ScanResult",
-           "default_batch", "navigation_model", "next_batch", "read_ahead", "read_ahead_variable", "scan",
-           "scan_batches"]
+__all__ = ["HIT_DTYPE", "POINT_DTYPE", "READ_AHEAD", "READ_AHEAD_VARIABLE", "NavigationModel", "Platform",
+           "PulseTracer", "ScanResult", "default_batch", "navigation_model", "next_batch", "read_ahead",
+           "read_ahead_variable", "scan", "scan_batches"]
 
 # Loaded on first use, so that what only reads the radiometry (write, and so ``mitsuforest info``,
 # ``compare`` and the writer's worker processes) starts neither Mitsuba (the Dr.Jit side) nor the plan
