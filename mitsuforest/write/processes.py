@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import UserError
+from ..threads import row_ranges, shared_workers
 from .ground import copy_fields, fill_height, ground_surface, with_room_for_height
 from .output_profiles import PROFILES
 from .las import LAZ_CHUNK, HeaderSummary, compress_chunks, las_records
@@ -228,6 +229,15 @@ def shared_folder(size: int) -> str:
     return tempfile.gettempdir()
 
 
+def _copy_on_threads(points: np.ndarray, out: np.ndarray) -> None:
+    """``out[:] = points`` by the host's threads, a row range each: one thread's copy into shared memory
+    runs at about a third of what the memory gives (10.5 ms a million points on a 2-core Xeon, 5.5 on
+    both cores), and on a GPU's host it is the writing process's own work on every point."""
+    workers = shared_workers()
+    workers.results([workers.submit(copy_fields, points[start:stop], out[start:stop])
+                     for start, stop in row_ranges(len(points), workers.threads)])
+
+
 class ProcessParts:
     """A :class:`~.stream.PointWriter`'s batches handed to worker processes (see module docstring);
     what comes back is merged into the writer and its LAZ stream in the file's order.
@@ -261,7 +271,7 @@ class ProcessParts:
         self._collect_done()
         slot, batch = self._slot(rows, points.dtype)
         copy_fields(held, batch[:len(held)])
-        copy_fields(points, batch[len(held):])
+        _copy_on_threads(points, batch[len(held):])
         self._held = np.array(batch[whole:])
         self._send(slot, points.dtype, whole)
 
