@@ -18,7 +18,7 @@ from conftest import ROOT
 from helpers import settled
 
 from mitsuforest.errors import UserError
-from mitsuforest.scan import POINT_DTYPE
+from mitsuforest.scan import POINT_DTYPE, READ_AHEAD_VARIABLE
 from mitsuforest.threads import THREADS_VARIABLE, ReadAhead, row_ranges, writer_threads
 from mitsuforest.write import PointWriter, Staging, read_pcd
 from mitsuforest.write.processes import PROCESSES_VARIABLE, fits_processes, writer_processes
@@ -323,12 +323,14 @@ def test_read_ahead_makes_its_depth_ahead_stops_when_closed_and_its_thread_serve
     assert len(threads) == 1 and threading.get_ident() not in threads     # one thread, kept, not the caller's
 
 
-def test_a_bad_thread_count_is_refused_before_any_work(tmp_path, monkeypatch, capsys):
+@pytest.mark.parametrize("variable, least", [(THREADS_VARIABLE, 1), (PROCESSES_VARIABLE, 0),
+                                             (READ_AHEAD_VARIABLE, 0)])
+def test_a_bad_variable_is_refused_before_any_work(tmp_path, monkeypatch, capsys, variable, least):
     from mitsuforest.cli import main
-    monkeypatch.setenv(THREADS_VARIABLE, "many")
+    monkeypatch.setenv(variable, "many")
     code = main(["render", str(ROOT / "scenes" / "demo.yaml"), "-o", str(tmp_path / "out")])
     err = capsys.readouterr().err.strip()
-    assert code == 2 and err == f"mitsuforest: {THREADS_VARIABLE}: must be a whole number >= 1, got 'many'"
+    assert code == 2 and err == f"mitsuforest: {variable}: must be a whole number >= {least}, got 'many'"
     assert not (tmp_path / "out").exists()
 
 
