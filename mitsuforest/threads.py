@@ -21,17 +21,28 @@ THREADS_VARIABLE = "MITSUFOREST_WRITER_THREADS"
 MIN_ROWS = 32768   # the smallest part worth a task of its own
 
 
+def whole_number_variable(name: str, least: int) -> int | None:
+    """The environment variable ``name`` as a whole number, None when it is not set (or blank).
+
+    :raises UserError: for a value that is not a whole number of at least ``least``.
+    """
+    text = os.environ.get(name, "").strip()
+    if not text:
+        return None
+    if not text.isdigit() or int(text) < least:
+        raise UserError(f"{name}: must be a whole number >= {least}, got {text!r}")
+    return int(text)
+
+
 def writer_threads() -> int:
     """The thread count for the points' host work: ``MITSUFOREST_WRITER_THREADS`` if set, else the
     cores this process may run on.
 
     :raises UserError: for a value that is not a whole number of at least 1.
     """
-    text = os.environ.get(THREADS_VARIABLE, "").strip()
-    if text:
-        if not text.isdigit() or int(text) < 1:
-            raise UserError(f"{THREADS_VARIABLE}: must be a whole number >= 1, got {text!r}")
-        return int(text)
+    threads = whole_number_variable(THREADS_VARIABLE, 1)
+    if threads is not None:
+        return threads
     try:
         return len(os.sched_getaffinity(0))
     except AttributeError:   # not on Linux
@@ -44,6 +55,13 @@ def row_ranges(count: int, parts: int, minimum: int = MIN_ROWS) -> list[tuple[in
     parts = max(1, min(parts, count // max(minimum, 1)))
     edges = [count * k // parts for k in range(parts + 1)]
     return list(zip(edges[:-1], edges[1:]))
+
+
+def on_row_ranges(count: int, task, *args) -> None:
+    """``task(*args, start, stop)`` for ``count`` rows cut into :func:`row_ranges`, one range a thread of
+    :func:`shared_workers`; returns once all have finished (the first failure raised)."""
+    workers = shared_workers()
+    workers.results([workers.submit(task, *args, start, stop) for start, stop in row_ranges(count, workers.threads)])
 
 
 class Workers:

@@ -338,7 +338,7 @@ def test_point_array_filled_by_threads_is_the_echoes(monkeypatch):
     """The scan's point array, filled by row ranges on four threads, holds each echo field in its place
     (intensity from the amplitude, the scan angle in degrees), and its hits each echo's rows; the labels
     stage, on the same threads, gathers each label from the rows it names."""
-    from mitsuforest import labels
+    from mitsuforest import labels, threads
     from mitsuforest.scan import tracer
     from mitsuforest.threads import Workers
     rng = np.random.default_rng(5)
@@ -350,8 +350,7 @@ def test_point_array_filled_by_threads_is_the_echoes(monkeypatch):
     echoes.update({k: rng.uniform(0.1, 50, n).astype(np.float32) for k in ("range", "amplitude")})
     echoes["gps_time"], echoes["scan_angle"] = rng.uniform(0, 1e3, n), rng.uniform(-1, 1, n).astype(np.float32)
     workers = Workers(4)
-    monkeypatch.setattr(tracer, "shared_workers", lambda: workers)
-    monkeypatch.setattr(labels, "shared_workers", lambda: workers)
+    monkeypatch.setattr(threads, "shared_workers", lambda: workers)     # on_row_ranges' threads
     points, hits = tracer.PulseTracer._points(echoes)
     for key in ("x", "y", "z", "number_of_returns", "return_number", "gps_time", "pulse_id", "range"):
         assert np.array_equal(points[key], echoes[key].astype(points.dtype[key])), key

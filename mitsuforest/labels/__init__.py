@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..threads import row_ranges, shared_workers
+from ..threads import on_row_ranges
 
 if TYPE_CHECKING:
     from ..scene import HitTable
@@ -32,10 +32,7 @@ def label_points(points: np.ndarray, hits: np.ndarray, table: HitTable) -> None:
     """
     if len(points) != len(hits):
         raise ValueError(f"{len(points)} points but {len(hits)} hits")
-    located = table.located
-    workers = shared_workers()
-    workers.results([workers.submit(_label_rows, points, hits, located, start, stop)
-                     for start, stop in row_ranges(len(points), workers.threads)])
+    on_row_ranges(len(points), _label_rows, points, hits, table.located)
 
 
 def labelled(points: np.ndarray, hits: np.ndarray, table: HitTable) -> np.ndarray:

@@ -23,7 +23,6 @@ solution's errors (navigation.py), and carry their leg's number from 1 as ``poin
 
 from __future__ import annotations
 
-import os
 import time
 from contextlib import closing
 from dataclasses import dataclass
@@ -32,9 +31,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .. import _imported_on_first_use
-from ..errors import UserError
 from ..fields import POINT_DTYPE
-from ..threads import ReadAhead
+from ..threads import ReadAhead, whole_number_variable
 
 if TYPE_CHECKING:
     from .navigation import NavigationModel
@@ -78,12 +76,7 @@ def read_ahead_variable() -> int | None:
 
     :raises UserError: for a value that is not a whole number of at least 0.
     """
-    text = os.environ.get(READ_AHEAD_VARIABLE, "").strip()
-    if not text:
-        return None
-    if not text.isdigit():
-        raise UserError(f"{READ_AHEAD_VARIABLE}: must be a whole number >= 0, got {text!r}")
-    return int(text)
+    return whole_number_variable(READ_AHEAD_VARIABLE, 0)
 
 
 def default_batch(variant: str, beam_samples: int) -> int:

@@ -13,7 +13,7 @@ from ..fields import POINT_DTYPE
 from . import HIT_DTYPE
 from ..scene.proxies import proxy_scene
 from ..scene.variant import variant_scope
-from ..threads import row_ranges, shared_workers
+from ..threads import on_row_ranges
 from .beam import beam_cells, beam_pattern
 from .echo_kernel import EchoKernel
 from .pulses import DevicePulses, aimed_at, reaching_pulses, upload_pulses
@@ -208,9 +208,7 @@ class PulseTracer:
         filled by the host threads at once."""
         out = np.zeros(len(echoes["pulse_id"]), POINT_DTYPE)
         hits = np.empty(len(out), HIT_DTYPE)
-        workers = shared_workers()
-        workers.results([workers.submit(_fill_points, out, hits, echoes, start, stop)
-                         for start, stop in row_ranges(len(out), workers.threads)])
+        on_row_ranges(len(out), _fill_points, out, hits, echoes)
         return out, hits
 
 
