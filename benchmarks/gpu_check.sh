@@ -3,7 +3,8 @@
 # with numpy, scipy, PyYAML, matplotlib and Pillow, no network). Fresh `mitsuforest render` processes of
 # the open scene on `cuda_ad_mono`: this checkout against an earlier commit's, interleaved; the writer's
 # threads once; the scan without its read-ahead once; a thin beam (1 fixed sub-ray) each; the CPU/GPU
-# agreement table when a CPU render's manifest is given; then the scan and writer tests on the GPU.
+# agreement table when a CPU render's manifest is given; one leg stage by stage and one writer worker's part
+# step by step (benchmarks/profile_leg.py, writer.py --parts); then the scan and writer tests on the GPU.
 #
 #   bash benchmarks/gpu_check.sh prepare BASE [CPU_MANIFEST]   # here: cp312 wheels into .whl (slimmed
 #                                                             # to ~50 MB), BASE's tree into .gpu/base
@@ -12,7 +13,7 @@
 # VARIANT and SCENE (defaults cuda_ad_mono, scenes/open.yaml) change what runs: `VARIANT=llvm_ad_mono
 # SCENE=scenes/demo.yaml PATH=.venv/bin:$PATH bash benchmarks/gpu_check.sh run` tries the script on a CPU.
 # Each render line gives the wall time, the manifest's stage times and the LAZ's SHA-256: the same
-# bytes head and base unless the scan changed. About 6 minutes on an H200 with the models cached by
+# bytes head and base unless the scan changed. About 7 minutes on an H200 with the models cached by
 # the first render.
 set -uo pipefail
 VARIANT=${VARIANT:-cuda_ad_mono}
@@ -91,6 +92,10 @@ PY
   fi
   rm -f scenes/_thin.yaml
   echo "renders done at $((SECONDS - start)) s"
+  # Where the scan's time goes on this host: one leg stage by stage, and one writer worker's part step by step.
+  PYTHONPATH="/tmp/site:$ROOT" timeout 120 python3 benchmarks/profile_leg.py --scene "$SCENE" --variant "$VARIANT" \
+    2>&1 | grep -v Warn | tail -11
+  PYTHONPATH="/tmp/site:$ROOT" python3 benchmarks/writer.py --parts --dir /dev/shm 2>&1 | grep -v Warn
   PYTHONPATH="/tmp/site:$ROOT" timeout 200 python3 -m pytest -q -p no:cacheprovider -m "not slow" \
     tests/test_writer_threads.py tests/test_survey.py tests/test_scan.py 2>&1 | tail -15
   echo "all done at $((SECONDS - start)) s"

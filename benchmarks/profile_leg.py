@@ -49,10 +49,16 @@ class Stopwatch:
         return timed
 
 
-def profile(scene, leg_index: int, batch: int, folder: Path) -> tuple[dict, int, int]:
+def profile(scene, leg_index: int | None, batch: int, folder: Path) -> tuple[dict, dict, int, int, int]:
+    """Stage seconds and CPU seconds of leg ``leg_index`` (None: leg 5, or the middle one of a survey of
+    fewer than 11 legs), its time slots, points and index."""
     prepared = prepare(scene)
     plan, scan_scene = prepared.plan, prepared.scan_scene
     sim = scene.simulation
+    if leg_index is None:
+        leg_index = min(5, len(plan.legs) // 2)
+    if not 0 <= leg_index < len(plan.legs):
+        raise SystemExit(f"--leg {leg_index}: the survey has {len(plan.legs)} legs (0 to {len(plan.legs) - 1})")
     tracer = PulseTracer(scan_scene, scene.sensor, sim.beam_samples, scene.seed, sim.beam_pattern, sim.point_position)
     leg = plan.legs[leg_index]
     total = leg.pulse_count(scene.pulse_frequency)
@@ -82,13 +88,13 @@ def profile(scene, leg_index: int, batch: int, folder: Path) -> tuple[dict, int,
         close()
         watch.seconds["total"] = time.perf_counter() - start
         watch.cpu["total"] = time.process_time() - cpu
-    return dict(watch.seconds), dict(watch.cpu), total, points
+    return dict(watch.seconds), dict(watch.cpu), total, points, leg_index
 
 
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--scene", type=Path, default=ROOT / "scenes" / "open.yaml")
-    p.add_argument("--leg", type=int, default=5, help="leg index (0-based)")
+    p.add_argument("--leg", type=int, help="leg index (0-based; default 5, or the middle leg of fewer than 11)")
     p.add_argument("--samples", type=int, help="beam_samples (default: the scene's)")
     p.add_argument("--pattern", choices=["fixed", "stratified"], help="beam_pattern (default: the scene's)")
     p.add_argument("--batch", type=int, help="time slots per launch (default: the backend's)")
@@ -102,9 +108,10 @@ def main(argv=None):
     variant = select_variant(scene.simulation.variant)
     batch = args.batch or scene.simulation.pulses_per_batch or default_batch(variant, scene.simulation.beam_samples)
     with tempfile.TemporaryDirectory() as tmp:
-        seconds, cpu, slots, points = profile(scene.with_({"simulation.variant": variant}), args.leg, batch, Path(tmp))
+        seconds, cpu, slots, points, leg = profile(scene.with_({"simulation.variant": variant}), args.leg, batch,
+                                                   Path(tmp))
     total = seconds.pop("total")
-    print(f"{args.scene.name}, leg {args.leg}: {slots:,} time slots, {points:,} points, {variant}, "
+    print(f"{args.scene.name}, leg {leg}: {slots:,} time slots, {points:,} points, {variant}, "
           f"{scene.simulation.beam_samples} {scene.simulation.beam_pattern} sub-rays, batch {batch:,}")
     print(f"  {'stage':32s} {'wall':>9s}  {'share':>6s}  {'CPU':>9s}")
     for name, s in seconds.items():

@@ -10,6 +10,7 @@ script stops if they do not. CPU time counts every thread of the process.
     python benchmarks/writer.py --quick                          # 400,000 points, 1 and 2 threads (CI)
     python benchmarks/writer.py --threads 1 2 4 8 16 --dir /dev/shm --repeat 3
     python benchmarks/writer.py --threads 16 --processes 15 --dir /dev/shm    # threads against worker processes
+    python benchmarks/writer.py --parts          # one worker's part step by step: ns a point of one core
     PYTHONPATH=../base python benchmarks/writer.py       # an older commit's writer (one thread), for comparison
 """
 
@@ -87,6 +88,53 @@ def write_once(batches, scene, threads: int, folder: Path, processes: int = 0) -
     return wall, cpu, digests
 
 
+def profile_part(points: np.ndarray, folder: Path, repeat: int) -> None:
+    """Time each step a writer worker takes for a part (``write/processes.py``'s ``PartWork.write``) on
+    ``points``, in nanoseconds a point of one core, the best of ``repeat`` runs: on a GPU's host these
+    workers write the points, so their sum bounds the scan at about (cores - 1) / sum points a second."""
+    from mitsuforest.fields import pcd_dtype
+    from mitsuforest.write.ground import fill_height, ground_surface, with_room_for_height
+    from mitsuforest.write.las import HeaderSummary, compress_chunks, las_header, las_records
+    from mitsuforest.write.parts import SPACING_TILE, georeference, tallies, write_pcd_rows
+    from mitsuforest.write.profile import ReturnCounts
+    from mitsuforest.write.quicklook import SideTile, TopView
+
+    area, offset = (100.0, 100.0), np.zeros(3)
+    tiles = np.array([[0.0, 0.0], [50.0, 50.0], [90.0, 10.0], [100.0 - SPACING_TILE, 95.0]])
+    header = las_header(offset)
+    made = {"points": fill_height(points, with_room_for_height(points), ground_surface(None))}
+    made["geo"] = georeference(made["points"], offset)
+    record = pcd_dtype(made["geo"].dtype, local=True)
+    made["records"] = las_records(header, made["geo"])
+    pcd = folder / "part.pcd"
+    fd = os.open(pcd, os.O_WRONLY | os.O_CREAT)
+    steps = {
+        "height above ground": lambda: fill_height(points, with_room_for_height(points), ground_surface(None)),
+        "PCD records written": lambda: write_pcd_rows(fd, pcd, record, 0, made["geo"]),
+        "LAS records packed": lambda: las_records(header, made["geo"]),
+        "LAZ chunks compressed": lambda: compress_chunks(header, made["records"]),
+        "header summary": lambda: HeaderSummary.of(made["records"], header.point_format),
+        "tallies": lambda: tallies(made["points"], ReturnCounts(None, area), SideTile(area), tiles),
+        "top view": lambda: TopView(area).part(made["points"]),
+    }
+    print(f"one worker's part, {len(points):,} points, best of {repeat}:")
+    total = 0.0
+    try:
+        for label, step in steps.items():
+            best = min(_cpu_seconds(step) for _ in range(repeat)) / len(points) * 1e9
+            total += best
+            print(f"  {label:24s} {best:7.1f} ns a point")
+    finally:
+        os.close(fd)
+    print(f"  {'sum':24s} {total:7.1f} ns a point: {1e3 / total:.2f} M points/s a core")
+
+
+def _cpu_seconds(step) -> float:
+    start = time.thread_time()
+    step()
+    return time.thread_time() - start
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--points", type=int, default=4_000_000)
@@ -98,7 +146,14 @@ def main(argv=None):
     p.add_argument("--repeat", type=int, default=2)
     p.add_argument("--dir", type=Path, help="where to write (default: the system's temporary folder)")
     p.add_argument("--quick", action="store_true", help="400,000 points, 1 and 2 threads, once (CI)")
+    p.add_argument("--parts", action="store_true",
+                   help="instead: one worker's part of 100,000 points (two LAZ chunks) step by step, "
+                        "the best of --repeat runs (at least 5)")
     args = p.parse_args(argv)
+    if args.parts:
+        with tempfile.TemporaryDirectory(dir=args.dir) as tmp:
+            profile_part(scan_lines(100_000, 100_000)[0], Path(tmp), max(args.repeat, 5))
+        return
     if args.quick:
         args.points, args.threads, args.repeat = 400_000, [1, 2], 1
     threads = (args.threads or sorted({1, writer_threads()})) if THREADED else [1]

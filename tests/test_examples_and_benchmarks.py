@@ -117,8 +117,8 @@ def test_full_scenes_benchmark_quick(tmp_path):
 
 @pytest.mark.slow
 def test_profile_leg_benchmark():
-    stdout = _run([str(ROOT / "benchmarks" / "profile_leg.py"), "--scene", str(ROOT / "scenes" / "demo.yaml"),
-                   "--leg", "1"], ROOT)
+    stdout = _run([str(ROOT / "benchmarks" / "profile_leg.py"), "--scene", str(ROOT / "scenes" / "demo.yaml")], ROOT)
+    assert "demo.yaml, leg 1: 3,000,000 time slots" in stdout, stdout      # the middle of its three legs
     assert "rays and hit lookup" in stdout and "labels" in stdout and "points/s" in stdout
 
 
@@ -244,6 +244,18 @@ def test_writer_benchmark_quick():
     stdout = _run([str(ROOT / "benchmarks" / "writer.py"), "--quick"], ROOT)
     rows = [line.split() for line in stdout.splitlines() if line.split() and line.split()[0].isdigit()]
     assert [r[0] for r in rows] == ["1", "2"] and rows[0][-2:] == rows[1][-2:], stdout   # same hashes
+
+
+@pytest.mark.slow
+def test_writer_benchmark_parts_adds_up_its_steps():
+    stdout = _run([str(ROOT / "benchmarks" / "writer.py"), "--parts"], ROOT)
+    steps = {line.rsplit(None, 4)[0].strip(): line.split()[-4] for line in stdout.splitlines()
+             if line.endswith(" ns a point")}
+    total = float(stdout.split(" sum ")[1].split()[0])
+    assert len(steps) == 7 and "LAZ chunks compressed" in steps, stdout
+    assert all(float(ns) > 0 for ns in steps.values()), stdout
+    assert total == pytest.approx(sum(float(ns) for ns in steps.values()), abs=0.5), stdout
+    assert float(steps["LAZ chunks compressed"]) > float(steps["header summary"]), stdout   # lazrs' arithmetic coder
 
 
 @pytest.mark.slow
