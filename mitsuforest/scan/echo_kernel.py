@@ -19,7 +19,7 @@ import numpy as np
 
 from ..scene.device import DeviceHitTable
 from .echoes import pulse_echoes, single_chain
-from .kernel import RayCaster
+from .kernel import RayCaster, evaluate_and_wait
 from .pulses import DevicePulses
 from .waveform import device_waveforms, pulse_sigma
 from .noise import noise_key, range_sigma, speckle_gain, speckle_key, standard_normal, varies
@@ -136,7 +136,7 @@ class EchoKernel(RayCaster):
         hit_id = {"row": row, "tri": tri}
         # Evaluate the mask with the lanes, then count: a count taken in the same eval is a second kernel
         # that traces every ray again (measured: the sub-ray stage 1.9x slower).
-        dr.eval(lane, hit_id, unknown)
+        evaluate_and_wait(lane, hit_id, unknown)
         if dr.count(unknown)[0]:
             raise RuntimeError("a ray hit a shape that is neither the ground nor a placed object")
         return lane, hit_id
@@ -156,14 +156,14 @@ class EchoKernel(RayCaster):
         one, slot = single_chain(*self._per_sample(lane, pulse), self.resolving, self.threshold)
         self._scatter(flat, [slot], pulse * S, one)
         returns = mi.UInt32(dr.select(one & slot["kept"], 1, 0))   # one echo at most: within any max_returns
-        dr.eval(flat, returns, one)
+        evaluate_and_wait(flat, returns, one)
         several = dr.compress(~one)
         if dr.width(several):
             slots, chained = pulse_echoes(*self._per_sample(lane, several), self.resolving, self.threshold,
                                           self.max_returns)
             self._scatter(flat, slots, several * S, True)
             dr.scatter(returns, chained, several)
-            dr.eval(flat, returns)
+            evaluate_and_wait(flat, returns)
         return flat, returns
 
     def _per_sample(self, lane: dict, pulse: mi.UInt32) -> tuple[list[mi.Float], list[mi.Float], list | None]:

@@ -26,6 +26,18 @@ def aligned(a: np.ndarray) -> np.ndarray:
     return out
 
 
+def evaluate_and_wait(*values) -> None:
+    """Evaluate ``values`` and wait for the device to finish, without holding Python's lock.
+
+    Dr.Jit launches kernels asynchronously and releases the lock in ``dr.eval`` and ``dr.sync_thread``,
+    but a read-back (``dr.count(...)[0]``, ``dr.compress``) waits for the pending kernels holding it, so
+    the host's other threads (the writer's; on a GPU, the host's part of the last batch) would stand
+    still as long as the device works. Call it before such a read-back.
+    """
+    dr.eval(*values)
+    dr.sync_thread()
+
+
 class RayCaster:
     """Casts the sub-rays of batches of pulses into a loaded Mitsuba scene.
 

@@ -14,7 +14,7 @@ import mitsuba as mi
 import numpy as np
 
 from .deflector import deflect
-from .kernel import aligned
+from .kernel import aligned, evaluate_and_wait
 from .platform import DeviceTable, table_pose
 
 
@@ -91,7 +91,7 @@ def reaching_pulses(leg, sensor, pulse_frequency: float, scan_frequency: float, 
         frame = [[rotation[3 * k + j] for k in range(3)] for j in range(3)]   # rows: the sensor axes, local frame
         direction = _turned(d_sensor, frame)
     reach = fired & reaches_box(origin, direction, box, sensor.range_max)
-    dr.eval(fired, reach)                      # one kernel for both masks, then the count and compaction
+    evaluate_and_wait(fired, reach)            # one kernel for both masks, then the count and compaction
     n_fired = int(dr.count(fired)[0])
     all_fired = _fired_table(fired, slot, t, angle, origin, direction, first_id) if keep_fired else None
     keep = dr.compress(reach)
@@ -174,5 +174,6 @@ def aimed_at(pulses: DevicePulses, targets: list[tuple[float, mi.Scene]], bounds
         dr.eval(hit)   # OptiX traces one scene per kernel: fused, the second ray test would be dropped
         keep |= hit
         tested |= use
+    evaluate_and_wait(keep)
     keep = dr.compress(keep)
     return pulses if dr.width(keep) == pulses.count else pulses.take(keep)
