@@ -119,6 +119,27 @@ def test_worker_processes_write_the_bytes_and_statistics_of_one_thread(tmp_path,
         assert np.allclose(las.x, np.concatenate(_batches())["x"] + offset[0], atol=1e-4)
 
 
+def test_a_parts_results_come_back_in_its_rows_of_shared_memory_or_else_through_the_pipe(tmp_path):
+    """A worker pickles a part's results over its own rows of the batch file, which the writing process
+    reads there; results larger than those rows are returned as they are, and the file is left alone."""
+    from mitsuforest.write.processes import PartResult, placed, taken_back
+    rng = np.random.default_rng(5)
+    part = PartResult(3, (np.arange(256), rng.random((4, 3))), (np.arange(10), rng.random(10)),
+                      (rng.bytes(5000), [(50_000, 5000)], None))
+    batch = tmp_path / "batch"
+    batch.write_bytes(b"\x01" * 30_000)
+    where = placed(part, str(batch), 20_000, 10_000)
+    mapped = np.memmap(batch, np.uint8, "r")
+    assert isinstance(where, tuple) and where[0] == 20_000 and 5000 < where[1] <= 10_000
+    assert mapped[:20_000].min() == 1 and mapped[20_000 + where[1]:].min() == 1          # no byte outside
+    back = taken_back(where, mapped)
+    assert back.rows == 3 and back.laz[0] == part.laz[0] and back.laz[1] == part.laz[1]
+    assert all(np.array_equal(a, b) for a, b in zip(back.tallies + back.top, part.tallies + part.top))
+    before = batch.read_bytes()
+    assert placed(part, str(batch), 0, 4000) is part and batch.read_bytes() == before   # too little room
+    assert taken_back(part, mapped) is part
+
+
 def test_top_view_merged_from_parts_is_the_view_of_all_points():
     """Pixels hit by many points at equal heights: the class of the last point at the top, whichever way
     the points are cut into parts."""

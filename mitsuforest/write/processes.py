@@ -6,8 +6,9 @@ worker processes each part of a batch is handled whole where it is sent: its hei
 its PCD records (written at their own offset in the file), its LAS records compressed into whole LAZ
 chunks (a chunk's coder starts afresh, so chunks compressed apart and joined in order are the bytes of
 one compressor), and its statistics. The writing process only copies each batch into shared memory,
-hands out its parts and takes back, in order, the compressed chunks and the tallies: the files are the
-bytes of the threaded writer, whatever the number of processes.
+hands out its parts and takes back, in order, the compressed chunks and the tallies, which a worker
+leaves pickled over the part's own rows in shared memory rather than sending them through the pool's
+pipe: the files are the bytes of the threaded writer, whatever the number of processes.
 
 Parts are whole LAZ chunks of the file (:data:`~.las.LAZ_CHUNK` points): the rows of a batch past its
 last whole chunk wait for the next batch, and the file's last part takes the rest.
@@ -35,7 +36,7 @@ from ..threads import on_row_ranges, whole_number_variable
 from .ground import copy_fields, fill_height, ground_surface, with_room_for_height
 from .output_profiles import PROFILES
 from .las import LAZ_CHUNK, HeaderSummary, compress_chunks, las_records
-from .parts import georeference, tallies, write_pcd_rows
+from .parts import georeference, tallies, write_at, write_pcd_rows
 
 PROCESSES_VARIABLE = "MITSUFOREST_WRITER_PROCESSES"
 MIN_CORES = 8              # from this many cores on, the writer uses processes by default
@@ -172,9 +173,10 @@ class PartResult:
 _WORKS: collections.OrderedDict = collections.OrderedDict()     # a worker's PartWork by path
 
 
-def write_part(work_path: str, slot_path: str, dtype: np.dtype, start: int, stop: int, first_row: int) -> PartResult:
+def write_part(work_path: str, slot_path: str, dtype: np.dtype, start: int, stop: int,
+               first_row: int) -> PartResult | tuple[int, int]:
     """A worker's task: rows ``start:stop`` of the batch slot ``slot_path`` through the writer's
-    :class:`PartWork` stored at ``work_path``."""
+    :class:`PartWork` stored at ``work_path``; the :class:`PartResult` left in their place (:func:`placed`)."""
     work = _WORKS.get(work_path)
     if work is None:
         work = _WORKS[work_path] = pickle.loads(Path(work_path).read_bytes())
@@ -183,7 +185,38 @@ def write_part(work_path: str, slot_path: str, dtype: np.dtype, start: int, stop
         if work.warm_pictures:
             start_warming()
     rows = np.memmap(slot_path, dtype, "r", offset=start * dtype.itemsize, shape=(stop - start,))
-    return work.write(np.asarray(rows), first_row)
+    part = work.write(np.asarray(rows), first_row)       # holds copies: the rows are free once it returns
+    return placed(part, slot_path, start * dtype.itemsize, (stop - start) * dtype.itemsize)
+
+
+def placed(part: PartResult, path: str, offset: int, size: int) -> PartResult | tuple[int, int]:
+    """``part`` pickled into the ``size`` bytes at ``offset`` of the file ``path`` (its rows of the batch
+    in shared memory, read already), for the writing process to read there (:func:`taken_back`): the
+    pickle's (offset, byte count); or ``part`` itself when its pickle does not fit, to be sent back
+    through the pool's pipe.
+
+    The pipe costs the writing process a copy in 64 kB reads, each taking Python's lock again, while it
+    scans: its LAZ chunks, pixels and side-view points are about 18 bytes a point (the open scene's thin
+    beam), and a row has 72.
+    """
+    data = pickle.dumps(part, protocol=pickle.HIGHEST_PROTOCOL)
+    if len(data) > size:
+        return part
+    fd = os.open(path, os.O_WRONLY)
+    try:
+        write_at(fd, np.frombuffer(data, np.uint8), offset)
+    finally:
+        os.close(fd)
+    return offset, len(data)
+
+
+def taken_back(result: PartResult | tuple[int, int], batch: np.ndarray) -> PartResult:
+    """The :class:`PartResult` of a :func:`write_part` task, read from ``batch`` (the mapped bytes of its
+    batch's file) when it was :func:`placed` there."""
+    if isinstance(result, PartResult):
+        return result
+    offset, size = result
+    return pickle.loads(memoryview(batch)[offset:offset + size])
 
 
 _WARMING: list[threading.Thread] = []     # this worker's warm-up of the pictures, once started
@@ -308,7 +341,7 @@ class ProcessParts:
         slot, tasks = pending
         try:
             for task in tasks:
-                self._merge(task.result())
+                self._merge(taken_back(task.result(), self._busy[slot]))
         finally:
             for task in tasks:
                 task.cancel()
