@@ -51,6 +51,20 @@ def test_tile_figure_spans_the_whole_height(tmp_path):
             assert im.format == "PNG" and min(im.size) > 300
 
 
+def test_the_top_view_outlines_the_tile_from_its_outline_alone(tmp_path):
+    """The top view is sent the tile's outline, not its points: the same picture, the tile untouched."""
+    tile = SideTile((40, 30))
+    tile.add(points([(15, 10, 0.0, GROUND, 0, 1), (20, 14, 12.0, TREE_LEAVES, 3, 1)]))
+    outline = tile.outline()
+    assert len(outline.points()) == 0 and len(tile.points()) == 2
+    assert (outline.x0, outline.y0, outline.tile, outline.x_range) == (tile.x0, tile.y0, 20.0, (10.0, 30.0))
+    top = TopView((40, 30))
+    top.add(tile.points())
+    write_top_figure(tmp_path / "with_points.png", top, tile, [GROUND, TREE_LEAVES])
+    write_top_figure(tmp_path / "outline.png", top, outline, [GROUND, TREE_LEAVES])
+    assert (tmp_path / "with_points.png").read_bytes() == (tmp_path / "outline.png").read_bytes()
+
+
 def test_return_counts_by_height_class_and_return_number():
     counts = ReturnCounts()
     counts.add(points([(1, 1, 0.1, GROUND, 0, 1), (1, 1, 12.2, TREE_LEAVES, 1, 1), (1, 1, 11.0, TREE_WOOD, 1, 2)]))

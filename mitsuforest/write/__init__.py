@@ -230,7 +230,7 @@ def write_render_outputs(staging: Staging, *, scene, plan, models, writer) -> No
     pictures = []
     if scene.output.pictures:
         classes = [int(c) for c in np.flatnonzero(writer.classes)]
-        pictures = [(write_top_figure, "_top.png", writer.top, writer.side, classes),
+        pictures = [(write_top_figure, "_top.png", writer.top, writer.side.outline(), classes),
                     (write_tile_figure, "_side.png", writer.side),
                     (write_profile_figure, "_profile.png", writer.counts),
                     (write_returns_figure, "_returns.png", writer.returns, writer.counts)]

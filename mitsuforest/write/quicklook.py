@@ -8,6 +8,8 @@ rasters with axes, scale and legends.
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 from PIL import Image
 
@@ -110,6 +112,12 @@ class SideTile:
     @property
     def x_range(self) -> tuple[float, float]:
         return self.x0, self.x0 + self.tile
+
+    def outline(self) -> SideTile:
+        """The tile's place without its points: what the top view outlines, cheap to send to a worker."""
+        out = copy.copy(self)
+        out.parts = []
+        return out
 
     def add(self, points) -> None:
         self.parts.append(self.select(points))
