@@ -28,8 +28,9 @@ prepare() {
   rm -rf .gpu/base && mkdir -p .gpu/base
   if ! ls .whl/mitsuba-*.whl >/dev/null 2>&1; then      # wheels kept from an earlier prepare are reused
     rm -rf .whl.new && mkdir -p .whl.new
+    # pip matches a platform tag exactly: lazrs and pymeshfix are manylinux2014 (2_17), Mitsuba 2_28.
     python3 -m pip download -q --no-deps --only-binary=:all: --python-version 3.12 --implementation cp \
-      --platform manylinux_2_28_x86_64 -d .whl.new mitsuba==3.9.1 drjit==1.5.0 trimesh==5.2.0 manifold3d==3.5.4 \
+      --platform manylinux_2_28_x86_64 --platform manylinux_2_17_x86_64 --platform manylinux2014_x86_64 -d .whl.new mitsuba==3.9.1 drjit==1.5.0 trimesh==5.2.0 manifold3d==3.5.4 \
       pymeshfix==0.18.1 laspy==2.7.0 lazrs==0.8.2 pyproj==3.7.2 || { echo "no wheels: pip download failed" >&2; exit 1; }
     # Only cuda_ad_mono and scalar_rgb of Mitsuba's variants, and the plugins a scan loads, travel.
     local wheel=(.whl.new/mitsuba-*.whl) plugin
