@@ -65,6 +65,20 @@ def test_the_top_view_outlines_the_tile_from_its_outline_alone(tmp_path):
     assert (tmp_path / "with_points.png").read_bytes() == (tmp_path / "outline.png").read_bytes()
 
 
+def test_a_stored_tile_reads_its_points_back_and_draws_the_same_side_view(tmp_path):
+    """The side view's points go to a worker in a file: the same points, the same picture."""
+    tile = SideTile((40, 40))
+    tile.add(points([(15, 15, -0.4, GROUND, 0, 1), (20, 20, 31.7, TREE_LEAVES, 3, 1)]))
+    tile.add(points([(25, 21, 3.0, TREE_WOOD, 3, 2)]))
+    stored = tile.stored(tmp_path / "side.npy")
+    assert stored.parts == [] and stored.x_range == tile.x_range
+    assert np.array_equal(stored.points(), tile.points()) and len(stored.points()) == 3
+    assert stored.outline().points().size == 0
+    write_tile_figure(tmp_path / "kept.png", tile)
+    write_tile_figure(tmp_path / "stored.png", stored)
+    assert (tmp_path / "kept.png").read_bytes() == (tmp_path / "stored.png").read_bytes()
+
+
 def test_return_counts_by_height_class_and_return_number():
     counts = ReturnCounts()
     counts.add(points([(1, 1, 0.1, GROUND, 0, 1), (1, 1, 12.2, TREE_LEAVES, 1, 1), (1, 1, 11.0, TREE_WOOD, 1, 2)]))

@@ -27,7 +27,7 @@ from .pcd import read_pcd
 from .output_profiles import PROFILE_SUFFIXES
 from .figures import write_profile_figure, write_returns_figure, write_tile_figure, write_top_figure
 from .parts import georeference
-from .processes import draw_picture
+from .processes import draw_picture, shared_folder
 from .stream import PointWriter
 from .tables import write_ids, write_trajectory, write_volumes
 
@@ -226,26 +226,40 @@ def write_tables(file, *, scene, plan, models) -> None:
 def write_render_outputs(staging: Staging, *, scene, plan, models, writer) -> None:
     """Write the tables, plan, trajectory and quick looks of one render into ``staging``. The four
     pictures are drawn side by side in the writer's worker processes when it wrote its points with
-    them (:attr:`PointWriter.pool`), while this process writes the tables."""
-    pictures = []
-    if scene.output.pictures:
-        classes = [int(c) for c in np.flatnonzero(writer.classes)]
-        pictures = [(write_top_figure, "_top.png", writer.top, writer.side.outline(), classes),
-                    (write_tile_figure, "_side.png", writer.side),
-                    (write_profile_figure, "_profile.png", writer.counts),
-                    (write_returns_figure, "_returns.png", writer.returns, writer.counts)]
-    pool = writer.pool if pictures else None
-    drawn = [pool.submit(draw_picture, draw, staging.file(suffix), *inputs)
-             for draw, suffix, *inputs in pictures] if pool else []
-    try:
-        write_tables(staging.file, scene=scene, plan=plan, models=models)
-        if not pool:
-            for draw, suffix, *inputs in pictures:
-                draw(staging.file(suffix), *inputs)
-    finally:
-        wait(drawn)                   # none draws into the staging folder after this
+    them (:attr:`PointWriter.pool`), while this process writes the tables; the side view's points go
+    to its worker through a file in shared memory (:meth:`~.quicklook.SideTile.stored`)."""
+    pool = writer.pool if scene.output.pictures else None
+    with _side_tile_to_send(writer.side, pool) as side:
+        pictures = []
+        if scene.output.pictures:
+            classes = [int(c) for c in np.flatnonzero(writer.classes)]
+            pictures = [(write_top_figure, "_top.png", writer.top, writer.side.outline(), classes),
+                        (write_tile_figure, "_side.png", side),
+                        (write_profile_figure, "_profile.png", writer.counts),
+                        (write_returns_figure, "_returns.png", writer.returns, writer.counts)]
+        drawn = [pool.submit(draw_picture, draw, staging.file(suffix), *inputs)
+                 for draw, suffix, *inputs in pictures] if pool else []
+        try:
+            write_tables(staging.file, scene=scene, plan=plan, models=models)
+            if not pool:
+                for draw, suffix, *inputs in pictures:
+                    draw(staging.file(suffix), *inputs)
+        finally:
+            wait(drawn)                   # none draws into the staging folder, or reads the tile, after this
     for picture in drawn:
         picture.result()
+
+
+@contextmanager
+def _side_tile_to_send(tile, pool):
+    """``tile`` itself without a ``pool`` of workers, else the tile stored in a file in shared memory for
+    the block (:meth:`~.quicklook.SideTile.stored`)."""
+    if pool is None:
+        yield tile
+        return
+    size = sum(part.nbytes for part in tile.parts)
+    with tempfile.TemporaryDirectory(prefix="mitsuforest-side-", dir=shared_folder(size)) as folder:
+        yield tile.stored(Path(folder) / "side.npy")
 
 
 def write_manifest(staging: Staging, manifest: dict) -> None:

@@ -108,6 +108,7 @@ class SideTile:
         self.tile = min(tile, w, h)
         self.x0, self.y0 = (w - self.tile) / 2, (h - self.tile) / 2
         self.parts = []
+        self.stored_at = None       # the file of :meth:`stored`
 
     @property
     def x_range(self) -> tuple[float, float]:
@@ -116,7 +117,16 @@ class SideTile:
     def outline(self) -> SideTile:
         """The tile's place without its points: what the top view outlines, cheap to send to a worker."""
         out = copy.copy(self)
-        out.parts = []
+        out.parts, out.stored_at = [], None
+        return out
+
+    def stored(self, path) -> SideTile:
+        """The tile with its points saved to the ``.npy`` file ``path`` (in shared memory, say) and read
+        back from there by :meth:`points`: cheap to send to a worker, where a pickle of the points would
+        cost the sender a copy under Python's lock and a pipe (93 MB for the open scene's thin beam)."""
+        np.save(path, self.points())
+        out = self.outline()
+        out.stored_at = str(path)
         return out
 
     def add(self, points) -> None:
@@ -129,6 +139,8 @@ class SideTile:
         return points[sel][[f for f in TILE_FIELDS if f in points.dtype.names]]
 
     def points(self) -> np.ndarray:
+        if self.stored_at:
+            return np.load(self.stored_at)
         if self.parts:
             return np.concatenate(self.parts)
         return np.zeros(0, [("x", "f4"), ("y", "f4"), ("z", "f4"), ("classification", "u1"), ("instance", "u4"),
