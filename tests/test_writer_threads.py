@@ -119,6 +119,26 @@ def test_worker_processes_write_the_bytes_and_statistics_of_one_thread(tmp_path,
         assert np.allclose(las.x, np.concatenate(_batches())["x"] + offset[0], atol=1e-4)
 
 
+def test_parts_of_a_large_plot_come_back_through_shared_memory_with_the_bytes_of_one_thread(tmp_path,
+                                                                                           monkeypatch):
+    """Over a 200 m plot the side tile keeps a few points, and every part's results fit in its rows of
+    the batch: batches of up to eight parts, each part read from its own place in the slot."""
+    from mitsuforest.write import processes
+    routes, taken_back = [], processes.taken_back
+    monkeypatch.setattr(processes, "taken_back",
+                        lambda result, batch: routes.append(type(result)) or taken_back(result, batch))
+    batches = [np.concatenate(_batches()[:2] * 3), *_batches(seed=4)]
+    for batch in batches:
+        batch["x"] *= 10
+        batch["y"] *= 10
+    scene = _scene(OFFSET, ("pcd", "laz")).with_({"area.size": [200, 200]})
+    serial, one = _write_apart(tmp_path, "one", scene, processes=0, batches=batches)
+    apart, many = _write_apart(tmp_path, "apart", scene, processes=2, batches=batches)
+    assert serial == apart and one.statistics() == many.statistics()
+    assert np.array_equal(one.top.top, many.top.top) and np.array_equal(one.side.points(), many.side.points())
+    assert routes.count(tuple) == len(routes) == 7    # the first batch two parts of 100,000 rows in one slot
+
+
 def test_a_parts_results_come_back_in_its_rows_of_shared_memory_or_else_through_the_pipe(tmp_path):
     """A worker pickles a part's results over its own rows of the batch file, which the writing process
     reads there; results larger than those rows are returned as they are, and the file is left alone."""
@@ -157,19 +177,25 @@ def test_top_view_merged_from_parts_is_the_view_of_all_points():
 
 
 def test_a_part_that_fails_in_a_worker_fails_the_writer_and_leaves_no_shared_memory(tmp_path):
-    """A coordinate that LAS cannot hold raises the threads' error from the worker; abort removes the
-    batches' shared files, and the pool serves the next writer."""
+    """A coordinate that LAS cannot hold raises the threads' error from the worker, once no other part
+    of its batch is still being written (six parts: the first fails, the others compress); abort removes
+    the batches' shared files, and the pool serves the next writer."""
     import glob
     scene = _scene(OFFSET, ("pcd", "laz"))
-    far = _batches()[0].copy()
-    far["x"] = 1e9
+    far = np.concatenate(_batches()[:1] * 9)[:600_000]
+    far["x"][:10] = 1e9
+    others = set(glob.glob("/dev/shm/mitsuforest-writer-*"))     # other renders' (or a failed test's)
     writer = PointWriter(Staging(tmp_path / "far", scene.name), scene, threads=1, processes=2)
+    writer.add(far[:0])
+    submitted, submit = [], writer._parts.pool.submit
+    writer._parts.pool.submit = lambda *args: submitted.append(submit(*args)) or submitted[-1]
     with pytest.raises(OverflowError, match="do not fit"):
         writer.add(far)
         writer.close()
+    assert len(submitted) == 6 and all(task.done() for task in submitted)
     writer.abort()
     assert not writer._parts._folder.exists()
-    assert glob.glob("/dev/shm/mitsuforest-writer-*") == []
+    assert set(glob.glob("/dev/shm/mitsuforest-writer-*")) <= others
     again, _ = _write_apart(tmp_path, "again", scene, processes=2)
     assert again == _write_apart(tmp_path, "one", scene, processes=0)[0]
 

@@ -41,6 +41,7 @@ import numpy as np
 from scipy.special import erf
 
 from .echoes import FWHM_PER_SIGMA
+from .kernel import evaluate_and_wait
 
 REACH_SIGMAS = 5.0          # a return's shape is summed over ± this many σ; windows start this far before the first
 CHUNK_RETURNS = 1 << 17     # sub-rays sampled at once (bounds the (returns, bins) temporaries to ~20 MB)
@@ -127,7 +128,7 @@ def device_waveforms(t: mi.Float, power: mi.Float, samples_per_pulse: int, sigma
         tk = dr.gather(Float, t, base + k)
         nearest = dr.minimum(nearest, tk)
         farthest = dr.maximum(farthest, dr.select(dr.isfinite(tk), tk, -dr.inf))
-    dr.eval(nearest, farthest)
+    evaluate_and_wait(nearest, farthest)
     rows = dr.compress(dr.isfinite(nearest))
     m = dr.width(rows)
     if m == 0:
@@ -137,7 +138,7 @@ def device_waveforms(t: mi.Float, power: mi.Float, samples_per_pulse: int, sigma
     first_bin = UInt32(first)
     waveform = dr.zeros(Float, m * B)
     _add_returns(waveform, t, power, rows, first, S, B, sigma, bin_range)
-    dr.eval(rows, first_bin, waveform, complete)
+    evaluate_and_wait(rows, first_bin, waveform, complete)
     return {"rows": rows, "first_bin": first_bin, "waveform": waveform, "complete": complete}
 
 

@@ -345,6 +345,7 @@ class ProcessParts:
         finally:
             for task in tasks:
                 task.cancel()
+            wait(tasks)          # after a failed part, none of the others still writes into the slot or a file
             self._free[slot] = self._busy.pop(slot)
 
     def _merge(self, part: PartResult) -> None:
