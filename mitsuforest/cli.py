@@ -31,8 +31,8 @@ def _parser() -> argparse.ArgumentParser:
                        description="Render a scene file: plan, trees, Mitsuba scene, scan, labelled outputs. "
                                    "A HELIOS++ survey (.xml) is flown over its scene parts, each part's id "
                                    "becoming its points' object_id.")
-    r.add_argument("scene", type=Path, help="scene file (scenes/*.yaml) or HELIOS++ survey (.xml)")
-    r.add_argument("--assets", type=Path, action="append", default=[],
+    r.add_argument("scene", type=_named("SCENE", "a file"), help="scene file (scenes/*.yaml) or HELIOS++ survey (.xml)")
+    r.add_argument("--assets", type=_named("--assets", "a folder"), action="append", default=[],
                    help="HELIOS++ survey: a folder searched for relative paths, as helios++ --assets (repeatable)")
     r.add_argument("-o", "--output", type=_folder, help="output folder (default: the scene's output.dir)")
     r.add_argument("--variant", help="Mitsuba variant, e.g. llvm_ad_mono or cuda_ad_mono (default: scene's, auto)")
@@ -44,7 +44,7 @@ def _parser() -> argparse.ArgumentParser:
                         description="Place trees and understory, measure canopy cover, write <name>_plan.json. "
                                     "A folder holding a finished render of the scene is refused: "
                                     "its plan is the render's.")
-    pl.add_argument("scene", type=Path, help="scene file")
+    pl.add_argument("scene", type=_named("SCENE", "a file"), help="scene file")
     pl.add_argument("-o", "--output", type=_folder, help="output folder (default: the scene's output.dir)")
     pl.add_argument("--seed", type=int, help="override the scene's seed")
 
@@ -52,14 +52,14 @@ def _parser() -> argparse.ArgumentParser:
                        description="Write each archetype's and imported model's wood and leaf meshes (PLY), "
                                   "volumes.csv, trees.png and (for imported meshes) repairs.csv.")
     t.add_argument("-o", "--output", type=_folder, default=Path("out/trees"), help="output folder (default: out/trees)")
-    t.add_argument("--scene", type=Path, help="take the archetypes and forest.models from this scene file (default: the built-in ten)")
+    t.add_argument("--scene", type=_named("--scene", "a file"), help="take the archetypes and forest.models from this scene file (default: the built-in ten)")
 
     e = sub.add_parser("export", help="write the planned scene as meshes and a HELIOS++ survey that runs as it is",
                        description="Write each model's components (OBJ, with materials), the ground, "
                                    "<name>_transforms.csv, <name>_helios_parts.csv and the HELIOS++ scene, survey, "
                                    "platform and scanner (one part per component, id = object_id): "
                                    "helios++ OUTPUT/<name>_helios_survey.xml flies our survey.")
-    e.add_argument("scene", type=Path, help="scene file")
+    e.add_argument("scene", type=_named("SCENE", "a file"), help="scene file")
     e.add_argument("-o", "--output", type=_folder, required=True, help="output folder")
     e.add_argument("--seed", type=int, help="override the scene's seed")
 
@@ -67,7 +67,7 @@ def _parser() -> argparse.ArgumentParser:
                        description="Render every plot of a dataset file on Dask (an embedded LocalCluster, or "
                                    "--scheduler), with tiles, index.csv, splits.json and dataset_manifest.json. "
                                    "Finished plots are kept; run again to finish an interrupted dataset.")
-    d.add_argument("dataset", type=Path, help="dataset file (examples/dataset.yaml)")
+    d.add_argument("dataset", type=_named("DATASET", "a file"), help="dataset file (examples/dataset.yaml)")
     d.add_argument("-o", "--output", type=_folder, help="output folder (default: out/<dataset name>)")
     d.add_argument("--workers", type=int, help="worker processes of the embedded LocalCluster (default: one per core)")
     d.add_argument("--scheduler", help="address of a running Dask scheduler, e.g. tcp://HOST:8786")
@@ -79,11 +79,11 @@ def _parser() -> argparse.ArgumentParser:
                         description="Write DIR/<name>.yaml (renderable as it is), its DEM GeoTIFF, trees.csv and "
                                     "twin.json from a real LAS/LAZ scan: ground, trees on a canopy height model, "
                                     "understory and the survey estimated from the points.")
-    tw.add_argument("file", type=Path, help="a .las or .laz scan (or our .pcd)")
-    tw.add_argument("-o", "--output", type=Path, required=True, help="output folder")
+    tw.add_argument("file", type=_named("REAL", "a file"), help="a .las or .laz scan (or our .pcd)")
+    tw.add_argument("-o", "--output", type=_folder, required=True, help="output folder")
     tw.add_argument("--species", nargs="+", default=[], metavar="NAME",
                     help="procedural species of the trees, drawn in turn (default: pinus_radiata)")
-    tw.add_argument("--sensor", type=Path, help="a sensor file to use instead of the estimated sensor")
+    tw.add_argument("--sensor", type=_named("--sensor", "a file"), help="a sensor file to use instead of the estimated sensor")
     tw.add_argument("--name", help="the scene's name (default: the file's stem)")
     tw.add_argument("--calibrate", type=int, default=0, metavar="N",
                     help="render the twin up to N times, rescaling its crowns' leaf area, width and depth towards the "
@@ -92,7 +92,7 @@ def _parser() -> argparse.ArgumentParser:
     tw.add_argument("--variant", help="Mitsuba variant of the calibration renders (default: auto)")
 
     i = sub.add_parser("info", help="summarise a point file", description="Summarise a PCD, LAS or LAZ file.")
-    i.add_argument("file", type=Path, help="a .pcd, .las or .laz file")
+    i.add_argument("file", type=_named("FILE", "a file"), help="a .pcd, .las or .laz file")
 
     c = sub.add_parser("compare", help="compare two point files: a table, compare.json and compare.png",
                        description="Two point files (PCD, LAS or LAZ; ours or another tool's) side by side: "
@@ -100,11 +100,21 @@ def _parser() -> argparse.ArgumentParser:
                                    "intensity and scan angles, and the distances between them (see README, "
                                    "\"Comparing scans\"). The table goes to stdout, compare.json and "
                                    "compare.png to the output folder.")
-    c.add_argument("a", type=Path, help="the first point file (A; a real scan, say)")
-    c.add_argument("b", type=Path, help="the second point file (B; distances are B against A)")
-    c.add_argument("-o", "--output", type=Path, default=Path("out/compare"),
+    c.add_argument("a", type=_named("A", "a file"), help="the first point file (A; a real scan, say)")
+    c.add_argument("b", type=_named("B", "a file"), help="the second point file (B; distances are B against A)")
+    c.add_argument("-o", "--output", type=_folder, default=Path("out/compare"),
                    help="output folder (default: out/compare)")
     return p
+
+
+def _named(argument: str, what: str):
+    """An input path argument's type: an empty one is refused, naming ``argument`` (``Path("")`` would be
+    the working folder, and the message about it would name ".")."""
+    def parse(text: str) -> Path:
+        if not text:
+            raise UserError(f"{argument}: must name {what}, got an empty path")
+        return Path(text)
+    return parse
 
 
 def _folder(text: str) -> Path:

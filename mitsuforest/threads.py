@@ -29,7 +29,7 @@ def whole_number_variable(name: str, least: int) -> int | None:
     text = os.environ.get(name, "").strip()
     if not text:
         return None
-    if not text.isdigit() or int(text) < least:
+    if not (text.isascii() and text.isdigit()) or int(text) < least:      # '²' is a digit to str.isdigit
         raise UserError(f"{name}: must be a whole number >= {least}, got {text!r}")
     return int(text)
 

@@ -241,6 +241,19 @@ def test_a_bare_xyz_pcd_compares_with_what_stands_in(tmp_path, capsys):
     assert saved["b"]["canopy_height_m"]["p95"] == pytest.approx(10.0)   # the filter's ground is the plane z = 0
 
 
+def test_return_numbers_left_at_zero_are_said_and_stand_in_as_single_returns(tmp_path, capsys):
+    """A LAS whose writer left every return number 0: each point a single-return pulse, said on stderr."""
+    points = _forest()
+    points["return_number"] = points["number_of_returns"] = 0
+    path = _foreign_las(tmp_path / "zero.las", points, point_format=1)
+    assert main(["compare", str(path), str(path), "-o", str(tmp_path / "o")]) == 0
+    err = capsys.readouterr().err
+    assert err.count("mitsuforest: zero.las: return numbers are 0 everywhere: every point taken as a "
+                     "single-return pulse") == 2, err
+    saved = json.loads((tmp_path / "o" / "compare.json").read_text())
+    assert saved["a"]["pulses_by_returns"] == {"1": 1.0} and saved["a"]["pulses"] == len(points)
+
+
 def test_an_output_folder_that_is_a_file_is_refused_first(tmp_path, capsys):
     a = _our_pcd(tmp_path / "a.pcd", _forest())
     blocker = tmp_path / "file"

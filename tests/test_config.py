@@ -50,6 +50,8 @@ CASES = {
     "model empty path": (GOOD.replace("trees: 1", "trees: 1, models: [{qsm: ''}]"),
                          "forest.models[0].qsm: must name a file, got an empty path"),
     "syntax": (GOOD + "forest: [1,\n", "YAML syntax error: line"),
+    "format twice": (GOOD + "output: {formats: [pcd, laz, pcd]}\n",
+                     "output.formats[2]: 'pcd' is given twice (also output.formats[0])"),
     "cover band": (GOOD.replace("trees: 1", "type: closed, canopy_cover: 0.5"),
                    "forest.canopy_cover: 0.5 is outside the closed band 0.8-1"),
     "both tree targets": (GOOD.replace("trees: 1", "trees: 1, canopy_cover: 0.6"),

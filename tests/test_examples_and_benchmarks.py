@@ -300,3 +300,19 @@ def test_gpu_check_script_parses_and_refuses_an_unknown_step():
     assert subprocess.run(["bash", "-n", str(script)], capture_output=True).returncode == 0
     wrong = subprocess.run(["bash", str(script), "fly"], capture_output=True, text=True)
     assert wrong.returncode == 2 and "usage:" in wrong.stderr
+
+
+def test_agreement_benchmark_gives_each_counts_relative_difference(tmp_path):
+    """Two manifests 1 % apart in points, 2.5 % in leaves, a class and a returns count one of them lacks."""
+    a = {"variant": "llvm_ad_mono", "points": 1000, "classes": {"1": 600, "3": 400},
+         "returns_histogram": {"1": 700, "2": 100}}
+    b = {"variant": "cuda_ad_mono", "points": 1010, "classes": {"1": 600, "3": 410},
+         "returns_histogram": {"1": 700, "2": 105, "3": 1}}
+    for name, manifest in (("a", a), ("b", b)):
+        (tmp_path / f"{name}.json").write_text(json.dumps(manifest))
+    stdout = _run([str(ROOT / "benchmarks" / "agreement.py"), str(tmp_path / "a.json"), str(tmp_path / "b.json")], ROOT)
+    assert stdout.splitlines() == [
+        "| | llvm_ad_mono | cuda_ad_mono | difference |", "| --- | --- | --- | --- |",
+        "| points | 1,000 | 1,010 | +1.0000% |", "| ground | 600 | 600 | +0.0000% |",
+        "| tree_leaves | 400 | 410 | +2.5000% |", "| pulses with 1 returns | 700 | 700 | +0.0000% |",
+        "| pulses with 2 returns | 100 | 105 | +5.0000% |", "| pulses with 3 returns | 0 | 1 | – |"]

@@ -51,7 +51,8 @@ def test_hostile_value_is_refused_at_once(case, tmp_path, monkeypatch, capsys):
 # Faults while writing, and two renders into one folder ------------------------------------------------
 
 def test_write_failure_reports_the_cause_and_leaves_nothing(tmp_path, monkeypatch, capsys):
-    """A disk that fills up in the write stage: the cause in one line, exit 1, no staging folder."""
+    """A disk that fills up in the write stage: the cause in one line, exit 1, no staging folder, and
+    no output folder where the render made it (one that was there stays)."""
     import errno
     import importlib
 
@@ -67,6 +68,9 @@ def test_write_failure_reports_the_cause_and_leaves_nothing(tmp_path, monkeypatc
     err = capsys.readouterr().err.strip()
     assert code == 1 and err.count("\n") == 0, err
     assert err.startswith("mitsuforest: ") and "_volumes.csv: No space left on device" in err
+    assert not out.exists() and tmp_path.exists()
+    out.mkdir()
+    assert main(["render", str(path), "-o", str(out), "--quiet"]) == 1
     assert list(out.iterdir()) == []
 
 
@@ -93,7 +97,7 @@ def test_real_write_failure_names_the_file_and_leaves_nothing(fmt, tmp_path):
     assert proc.returncode == 1 and "Traceback" not in proc.stderr, proc.stderr
     assert last.startswith(f"mitsuforest: {out / ('test.' + fmt)}: "), proc.stderr
     assert last.endswith("nothing was finished (partial files removed)"), proc.stderr
-    assert list(out.iterdir()) == []
+    assert not out.exists()
 
 
 @pytest.mark.parametrize("command", ["render", "plan", "trees", "export"])
@@ -111,12 +115,28 @@ def test_output_folder_that_cannot_be_made_is_refused_before_work(tmp_path, monk
     assert (tmp_path / "taken").read_text() == "x"
 
 
-@pytest.mark.parametrize("command", ["render", "plan", "trees", "export", "dataset"])
+@pytest.mark.parametrize("args, named", [(["render", ""], "SCENE: must name a file"),
+                                         (["dataset", ""], "DATASET: must name a file"),
+                                         (["info", ""], "FILE: must name a file"),
+                                         (["compare", "scene.yaml", ""], "B: must name a file"),
+                                         (["trees", "--scene", ""], "--scene: must name a file"),
+                                         (["render", "s.xml", "--assets", ""], "--assets: must name a folder")])
+def test_an_empty_input_path_is_refused_by_its_name(tmp_path, monkeypatch, capsys, args, named):
+    """``Path("")`` is the working folder, about which the message would name "."."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "scene.yaml").write_text(GOOD)
+    assert main(args) == 2
+    assert capsys.readouterr().err.strip() == f"mitsuforest: {named}, got an empty path"
+    assert [p.name for p in tmp_path.iterdir()] == ["scene.yaml"]
+
+
+@pytest.mark.parametrize("command", ["render", "plan", "trees", "export", "dataset", "twin", "compare"])
 def test_an_empty_output_folder_is_refused(tmp_path, monkeypatch, capsys, command):
     """``-o ""`` would be the working folder (Path("") is "."): refused in one line, nothing written."""
     monkeypatch.chdir(tmp_path)
     (tmp_path / "scene.yaml").write_text(GOOD)
-    assert main([command, *([] if command == "trees" else ["scene.yaml"]), "-o", ""]) == 2
+    inputs = {"trees": [], "compare": ["scene.yaml", "scene.yaml"]}.get(command, ["scene.yaml"])
+    assert main([command, *inputs, "-o", ""]) == 2
     err = capsys.readouterr().err.strip()
     assert err == "mitsuforest: -o: must name a folder, got an empty path (give . for the working folder)"
     assert [p.name for p in tmp_path.iterdir()] == ["scene.yaml"]
@@ -182,7 +202,7 @@ def test_second_render_into_a_busy_folder_is_refused(tmp_path, capsys):
     finally:
         first.send_signal(signal.SIGINT)
         first.communicate(timeout=120)
-    assert first.returncode == 130 and list(out.iterdir()) == []
+    assert first.returncode == 130 and not out.exists()          # the folder A made goes with it
 
 
 def test_info_into_a_closed_pipe_is_quiet(tmp_path):
@@ -299,7 +319,11 @@ DAMAGED = {
     "pcd of a killed render": (lambda t: _pcd(t, count=0, digits=20), "the header counts 0 points but 1,000 follow"),
     "las cut inside its header": (lambda t: _cut(_las(t), 100), "cannot read"),
     "las of random bytes": (lambda t: _random(t, "r.las"), "cannot read"),
-    "las cut after its VLRs": (lambda t: _cut(_las(t), 1200), "truncated: the header promises 1,000 points"),
+    "las cut after its first 227 bytes": (lambda t: _cut(_las(t), 227), "truncated: the file ends at byte 227, "
+                                          "before its points, which the header puts at byte "),
+    "las cut inside its VLRs": (lambda t: _cut(_las(t), 1200), "truncated: the file ends at byte 1,200, before"),
+    "las cut in its points": (lambda t: _cut(_las(t), 10_000), "truncated: the header promises 1,000 points, "
+                              "the file holds 142"),     # (10,000 - 2,294) // 54
     "las of an unknown point format": (lambda t: _patched(_las(t), 104, bytes([42])), "cannot read"),
     "las of a killed render": (lambda t: _counted(_las(t), 0), "the header counts 0 points but 1,000 follow: an "
                                "unfinished file (its writer stopped before closing it, as a killed render's does)"),

@@ -143,3 +143,17 @@ def test_a_picture_is_drawn_once_into_the_pixels_savefig_writes(tmp_path, monkey
             assert ours.mode == "RGB" and ours.size == theirs.size and ours.info["dpi"] == theirs.info["dpi"]
             assert np.array_equal(np.asarray(ours), np.asarray(theirs.convert("RGB")))
         draws.clear()
+
+
+def test_the_charts_of_a_scan_without_points_draw_without_a_warning(tmp_path):
+    """A render of no points (a twin of a one-point file) draws empty charts without matplotlib's "No
+    artists with labels found to put in legend"."""
+    import warnings
+
+    from mitsuforest.write import figures
+    counts = ReturnCounts(None, (20, 20))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        figures.write_profile_figure(tmp_path / "profile.png", counts)
+        figures.write_returns_figure(tmp_path / "returns.png", np.zeros(3, np.int64), counts)
+    assert (tmp_path / "profile.png").stat().st_size > 1000 and (tmp_path / "returns.png").stat().st_size > 1000

@@ -466,25 +466,55 @@ def test_same_bytes_for_any_batch_size(tmp_path, variant, pattern):
         assert len(a) > 100_000 and all(a == b for b in others), suffix
 
 
-def test_a_batch_traced_in_launches_makes_the_same_points_and_waveforms(demo_setup):
+@pytest.mark.parametrize("waveforms, pulse_records", [(True, False), (False, True)])
+def test_a_batch_traced_in_launches_makes_the_same_points_and_waveforms(demo_setup, waveforms, pulse_records):
     """A batch's cast pulses traced in launches of at most 1000 (``launch_pulses``, as a render bounds a
-    large automatic batch) give the same points, hits, echo records and waveforms as one launch."""
+    large automatic batch) give the same points, hits, echo records and waveforms (or pulse records
+    without waveforms) as one launch."""
     scene, plan, _, scan_scene = demo_setup
     leg = plan.legs[0]
     first = leg.pulse_count(scene.pulse_frequency) // 2
     made = []
     for launch in (None, 1000):
-        tracer = PulseTracer(scan_scene, scene.sensor, 7, seed=3, pattern="stratified", waveforms=True,
-                             launch_pulses=launch)
+        tracer = PulseTracer(scan_scene, scene.sensor, 7, seed=3, pattern="stratified", waveforms=waveforms,
+                             pulse_records=pulse_records, launch_pulses=launch)
         made.append(tracer.trace_slots(leg, scene.pulse_frequency, scene.scan_frequency, first, 60_000))
     (points, hits, fired, cast, batch), (points2, hits2, fired2, cast2, batch2) = made
     assert cast == cast2 > 3000 and fired == fired2
     assert points.tobytes() == points2.tobytes() and hits.tobytes() == hits2.tobytes() and len(points) > 3000
-    assert batch.cast.keys() == batch2.cast.keys() and len(batch.cast["samples"]) > 1000
-    for key in batch.cast:
+    if pulse_records:
+        assert batch.cast is None is batch2.cast and len(batch.fired["pulse_id"]) > 3000
+        for key in batch.fired:
+            np.testing.assert_array_equal(batch.fired[key], batch2.fired[key], err_msg=key)
+    else:
+        assert batch.cast.keys() == batch2.cast.keys() and len(batch.cast["samples"]) > 1000
+    for key in batch.cast or {}:
         np.testing.assert_array_equal(batch.cast[key], batch2.cast[key], err_msg=key)
     for key in batch.echoes:
         np.testing.assert_array_equal(batch.echoes[key], batch2.echoes[key], err_msg=key)
+
+
+def test_every_read_back_of_a_batch_waits_for_the_device_first(demo_setup, monkeypatch):
+    """Dr.Jit's read-backs (``dr.compress``, ``dr.count(...)[0]``) wait for the device holding Python's
+    lock (``tests/test_device_waits.py``): the scan's waits on them come first, from each place it reads."""
+    import sys
+
+    import drjit as dr
+
+    from mitsuforest.scan import echo_kernel, pulses, waveform
+    scene, plan, _, scan_scene = demo_setup
+    callers = set()
+
+    def recorded(*values):
+        callers.add(sys._getframe(1).f_code.co_name)
+        dr.eval(*values)
+    for module in (echo_kernel, pulses, waveform):
+        monkeypatch.setattr(module, "evaluate_and_wait", recorded)
+    tracer = PulseTracer(scan_scene, scene.sensor, 7, seed=3, pattern="stratified", waveforms=True)
+    leg = plan.legs[0]
+    tracer.trace_slots(leg, scene.pulse_frequency, scene.scan_frequency, leg.pulse_count(scene.pulse_frequency) // 2,
+                       20_000)
+    assert callers == {"reaching_pulses", "aimed_at", "_sub_ray_returns", "_ranked_echoes", "device_waveforms"}
 
 
 def test_the_next_batch_casts_about_a_million_sub_rays_within_its_bounds():

@@ -370,14 +370,15 @@ def test_read_ahead_makes_its_depth_ahead_stops_when_closed_and_its_thread_serve
     assert len(threads) == 1 and threading.get_ident() not in threads     # one thread, kept, not the caller's
 
 
-@pytest.mark.parametrize("variable, least", [(THREADS_VARIABLE, 1), (PROCESSES_VARIABLE, 0),
-                                             (READ_AHEAD_VARIABLE, 0)])
-def test_a_bad_variable_is_refused_before_any_work(tmp_path, monkeypatch, capsys, variable, least):
+@pytest.mark.parametrize("variable, least, value", [(THREADS_VARIABLE, 1, "many"), (PROCESSES_VARIABLE, 0, "-1"),
+                                                    (READ_AHEAD_VARIABLE, 0, "²"), (THREADS_VARIABLE, 1, "0")])
+def test_a_bad_variable_is_refused_before_any_work(tmp_path, monkeypatch, capsys, variable, least, value):
+    """A value that is not a whole number of at least ``least`` ('²' is a digit to ``str.isdigit``)."""
     from mitsuforest.cli import main
-    monkeypatch.setenv(variable, "many")
+    monkeypatch.setenv(variable, value)
     code = main(["render", str(ROOT / "scenes" / "demo.yaml"), "-o", str(tmp_path / "out")])
     err = capsys.readouterr().err.strip()
-    assert code == 2 and err == f"mitsuforest: {variable}: must be a whole number >= {least}, got 'many'"
+    assert code == 2 and err == f"mitsuforest: {variable}: must be a whole number >= {least}, got {value!r}"
     assert not (tmp_path / "out").exists()
 
 

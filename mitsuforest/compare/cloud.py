@@ -88,11 +88,16 @@ def cloud_from_columns(columns: dict, name: str, scheme: str) -> Cloud:
     n = len(columns["x"])
     if n == 0:
         raise UserError(f"{name}: no points other than noise or withheld ones")
+    rn = nr = None
     if "return_number" in columns and "number_of_returns" in columns:
         rn, nr = (np.asarray(columns[k], np.int16) for k in ("return_number", "number_of_returns"))
+        if not (rn.any() and nr.any()):     # LAS writers that do not know them leave 0
+            rn = nr = None
+            notes.append("return numbers are 0 everywhere: every point taken as a single-return pulse")
     else:
-        rn, nr = np.ones(n, np.int16), np.ones(n, np.int16)
         notes.append("no return numbers: every point taken as a single-return pulse")
+    if rn is None:
+        rn, nr = np.ones(n, np.int16), np.ones(n, np.int16)
     intensity = _optional(columns, "intensity", np.float64, notes, "no intensity")
     if intensity is not None and not np.any(intensity):
         intensity = None

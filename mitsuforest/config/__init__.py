@@ -314,7 +314,7 @@ SCENE_SPEC = {
     },
     "output": {
         "dir": FilePath(None, nullable=True, must_exist=False),
-        "formats": ListOf(Text(choices=("pcd", "las", "laz", "copc")), ["pcd", "laz"], min_length=1),
+        "formats": ListOf(Text(choices=("pcd", "las", "laz", "copc")), ["pcd", "laz"], min_length=1, unique=True),
         "profile": Text("ours", choices=OUTPUT_PROFILES),
         "waveforms": Flag(False),
         "pulses": Flag(False),

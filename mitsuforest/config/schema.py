@@ -143,6 +143,7 @@ class ListOf:
     default: Any = REQUIRED
     min_length: int = 0
     nullable: bool = False
+    unique: bool = False
 
     def parse(self, value, ctx: Context, key: str):
         if value is None and self.nullable:
@@ -151,7 +152,12 @@ class ListOf:
             ctx.fail(key, f"must be a list, got {_type_name(value)}")
         if len(value) < self.min_length:
             ctx.fail(key, f"must have at least {self.min_length} entries")
-        return [parse(self.item, v, ctx, f"{key}[{i}]") for i, v in enumerate(value)]
+        items = [parse(self.item, v, ctx, f"{key}[{i}]") for i, v in enumerate(value)]
+        if self.unique:
+            for i, item in enumerate(items):
+                if item in items[:i]:
+                    ctx.fail(f"{key}[{i}]", f"{item!r} is given twice (also {key}[{items.index(item)}])")
+        return items
 
 
 @dataclass

@@ -168,7 +168,8 @@ class PulseTracer:
         parts = [self._echoes(pulses.take(dr.arange(mi.UInt32, start, min(start + limit, pulses.count))), records)
                  for start in range(0, pulses.count, limit)]
         echoes = {k: np.concatenate([p[0][k] for p in parts]) for k in parts[0][0]}
-        return echoes, ({k: np.concatenate([p[1][k] for p in parts]) for k in parts[0][1]} if records else None)
+        waveforms = parts[0][1]          # None also with records when the caster samples no waveform
+        return echoes, (None if waveforms is None else {k: np.concatenate([p[1][k] for p in parts]) for k in waveforms})
 
     def _device_table(self, pose):
         """``pose`` on the device, uploaded once per leg."""

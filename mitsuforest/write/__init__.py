@@ -94,8 +94,10 @@ def check_output_folder(folder) -> None:
 @contextmanager
 def output_lock(folder, name: str):
     """Hold ``.NAME.lock`` in ``folder`` while a render writes there (an advisory ``flock``); a second
-    render of ``name`` into the same folder is refused with a :class:`UserError`."""
+    render of ``name`` into the same folder is refused with a :class:`UserError`. The folders it makes
+    are removed again if the render leaves nothing in them (it failed)."""
     folder = Path(folder)
+    made = [f for f in (folder, *folder.parents) if not f.exists()]      # deepest first
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / f".{name}.lock"
     handle = open(path, "a+")  # noqa: SIM115 (held for the whole block)
@@ -113,6 +115,15 @@ def output_lock(folder, name: str):
         path.unlink(missing_ok=True)
         fcntl.flock(handle, fcntl.LOCK_UN)
         handle.close()
+        _remove_if_empty(made)
+
+
+def _remove_if_empty(folders: list[Path]) -> None:
+    for folder in folders:
+        try:
+            folder.rmdir()
+        except OSError:         # not empty (another render's files, say): it and those above it stay
+            return
 
 
 def _still_named(handle, path: Path) -> bool:

@@ -262,7 +262,8 @@ def profile_figure(counts):
     ax.set(xlabel=f"returns per {edges[1] - edges[0]:g} m of height (log)", ylabel="height above the ground (m)")
     _title(ax, "Vertical profile: returns by height and class")
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8, loc="upper right")
+    if len(rows):
+        ax.legend(fontsize=8, loc="upper right")
     return fig
 
 
@@ -299,5 +300,6 @@ def returns_figure(pulses_by_returns: np.ndarray, counts):
     right.set_xticks(numbers)
     right.set(xlabel="return number", ylabel="share of the points (%)", ylim=(0, 100))
     _title(right, "Classes by return number")
-    right.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
+    if len(numbers):
+        right.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
     return fig

@@ -61,6 +61,10 @@ def _load_las(path: Path) -> tuple[dict, list[str], dict]:
     import laspy
     with laspy.open(str(path)) as reader:
         header = reader.header
+        size = path.stat().st_size
+        if size < header.offset_to_point_data:
+            raise PointFileError(f"truncated: the file ends at byte {size:,}, before its points, which the header "
+                                 f"puts at byte {header.offset_to_point_data:,}")
         need = header.offset_to_point_data + header.point_count * header.point_format.size
         if not header.are_points_compressed and path.stat().st_size < need:
             held = max(path.stat().st_size - header.offset_to_point_data, 0) // header.point_format.size
