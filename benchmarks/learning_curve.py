@@ -177,16 +177,24 @@ def figure(curves: dict, path: Path) -> None:
     plt.close(fig)
 
 
+def _at_least_one(text: str) -> int:
+    if not (text.isascii() and text.isdigit()) or int(text) < 1:
+        raise argparse.ArgumentTypeError(f"must be a whole number >= 1, got {text!r}")
+    return int(text)
+
+
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--plots", type=int, default=16, help="training plots (the curve doubles up to it; default 16)")
-    parser.add_argument("--test-plots", type=int, default=4, help="held-out plots per condition (default 4)")
-    parser.add_argument("--tree-points", type=int, default=20_000, help="tree points sampled per plot (default 20,000)")
+    parser.add_argument("--plots", type=_at_least_one, default=16, help="training plots (the curve doubles up to it; default 16)")
+    parser.add_argument("--test-plots", type=_at_least_one, default=4, help="held-out plots per condition (default 4)")
+    parser.add_argument("--tree-points", type=_at_least_one, default=20_000, help="tree points sampled per plot (default 20,000)")
     parser.add_argument("--quick", action="store_true", help="4 training and 2 test plots, 5,000 tree points each")
     parser.add_argument("--figure", type=Path, default=ROOT / "docs" / "learning_curve.png", help="where the figure goes")
     parser.add_argument("--no-figure", action="store_true")
     parser.add_argument("--no-real", action="store_true", help="skip the real scan")
     args = parser.parse_args(argv)
+    if not args.no_figure and not args.figure.parent.is_dir():
+        parser.error(f"--figure: no folder {args.figure.parent} to write it into")
     if args.quick:
         args.plots, args.test_plots, args.tree_points = 4, 2, 5_000
     counts = [2 ** i for i in range(int(np.log2(max(args.plots, 1))) + 1)]

@@ -19,8 +19,13 @@ from pathlib import Path
 from typing import Callable, Sequence
 
 import numpy as np
-import torch
 import yaml
+
+try:
+    import torch
+except ModuleNotFoundError as missing:       # the optional extra
+    raise ModuleNotFoundError("mitsuforest.torch needs PyTorch, the optional extra: "
+                              "pip install 'mitsuforest[torch]' (or torch itself)", name="torch") from missing
 
 from . import seeds
 from .write.las import read_las_points
@@ -47,12 +52,15 @@ class TileDataset(torch.utils.data.Dataset):
     :param transform: called with each item (the dict, tensors already made), returns the item.
     :param seed: makes item ``i``'s sample the same on every call (``seeds.rng(seed, "sample", i)``); ``None``
         draws a new sample on every call (new on every epoch, different in each DataLoader worker).
-    :raises ValueError: an unknown split, or a field the tiles do not have (on first read).
+    :raises ValueError: an unknown split, a sample size that is not a whole number of at least 1, or a
+        field the tiles do not have (on first read).
     """
 
     def __init__(self, root, split: str = "train", fields: Sequence[str] = ("x", "y", "z"),
                  label: str = "classification", points: int | None = 4096,
                  transform: Callable[[dict], dict] | None = None, seed: int | None = None):
+        if points is not None and (isinstance(points, bool) or not isinstance(points, (int, np.integer)) or points < 1):
+            raise ValueError(f"points: the sample size must be a whole number >= 1 or None, got {points!r}")
         self.root = Path(root)
         splits = json.loads((self.root / "splits.json").read_text())
         if split not in splits:

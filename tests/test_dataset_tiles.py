@@ -62,6 +62,13 @@ def test_tile_members_are_the_extent_test_of_every_tile(area, size, buffer):
         assert np.array_equal(np.sort(row), np.arange(len(x)))     # and in no other
 
 
+def test_a_batch_without_points_is_in_no_tile():
+    """A leg's batch that met nothing (a heading that starts it outside the plot, say) sorts into no tile."""
+    from mitsuforest.dataset.tiles import tile_members
+    tile, row = tile_members(np.zeros(0), np.zeros(0), (20, 20), 10.0, 1.0)
+    assert tile.shape == row.shape == (0,) and tile.dtype == row.dtype == np.int64
+
+
 def test_boxes_combine_to_those_of_all_the_points():
     from mitsuforest.dataset.tiles import combine_boxes, instance_boxes
     rng = np.random.default_rng(2)

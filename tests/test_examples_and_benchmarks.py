@@ -316,3 +316,14 @@ def test_agreement_benchmark_gives_each_counts_relative_difference(tmp_path):
         "| points | 1,000 | 1,010 | +1.0000% |", "| ground | 600 | 600 | +0.0000% |",
         "| tree_leaves | 400 | 410 | +2.5000% |", "| pulses with 1 returns | 700 | 700 | +0.0000% |",
         "| pulses with 2 returns | 100 | 105 | +5.0000% |", "| pulses with 3 returns | 0 | 1 | – |"]
+
+
+@pytest.mark.parametrize("args, said", [(["--plots", "0"], "argument --plots: must be a whole number >= 1, got '0'"),
+                                        (["--tree-points", "-5"], "argument --tree-points: must be a whole number >= 1"),
+                                        (["--figure", "/no/such/folder/c.png"], "--figure: no folder /no/such/folder")])
+def test_learning_curve_benchmark_refuses_bad_arguments_before_any_render(args, said):
+    """Before, ``--plots 0`` trained on one plot and wrote over docs/learning_curve.png, and a bad
+    ``--tree-points`` or ``--figure`` failed only after every render."""
+    proc = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "learning_curve.py"), *args],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2 and said in proc.stderr.strip().splitlines()[-1], proc.stderr

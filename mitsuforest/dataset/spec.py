@@ -107,6 +107,7 @@ def load_dataset(path) -> Dataset:
     base = load_scene(parsed["base"])
     if tiles:
         _check_tile_count(tiles, base, count, ranges, choices, ctx)
+
     _check_splits(parsed["splits"], ctx)
     combos = list(itertools.product(*choices.values())) or [()]
     width = max(4, len(str(count - 1)))
@@ -117,7 +118,13 @@ def load_dataset(path) -> Dataset:
         values.update({key: variation.draw(rng) for key, variation in ranges.items()})
         values.setdefault("seed", int(rng.integers(0, 2**31 - 1)))
         name_i = f"plot_{i:0{width}d}"
-        plots.append(PlotSpec(name_i, values, _plot_scene(base, {**values, "name": name_i}, ctx, i)))
+        drawn = {k: v for k, v in values.items() if k in choices or k in ranges}
+        plots.append(PlotSpec(name_i, values, _plot_scene(base, {**values, "name": name_i}, drawn, ctx, i)))
+    if tiles and len({"pcd" in p.scene.output.formats for p in plots}) > 1:    # tiles are cut from the PCD if any
+        ctx.fail("vary.output.formats" if "output.formats" in vary else "grid.output.formats",
+                 "would give the plots' tiles different fields and types (a tile has those of its plot's point "
+                 "files as read back: float64 coordinates from LAS, float32 from PCD); with tiles, give each "
+                 "plot the same output.formats")
     if tiles and not tiles.plot_files and not parsed["legs_per_task"]:
         ctx.fail("tiles.plot_files", "false needs legs_per_task: a plot rendered in one task is cut into tiles "
                  "from its own files")
@@ -263,10 +270,11 @@ def _check_splits(splits: dict, ctx: Context) -> None:
                  + f" = {total:g}")
 
 
-def _plot_scene(base: Scene, values: dict, ctx: Context, i: int) -> Scene:
-    """The base scene with plot ``i``'s values, validated; a problem names the dataset file and the plot."""
+def _plot_scene(base: Scene, values: dict, drawn: dict, ctx: Context, i: int) -> Scene:
+    """The base scene with plot ``i``'s values, validated; a problem names the dataset file, the plot and
+    the values ``drawn`` for it from ``vary`` or ``grid``."""
     try:
         return base.with_(dict(values))
     except ConfigError as e:
-        drawn = ", ".join(f"{k}={v!r}" for k, v in values.items() if k not in ("seed", "name"))
-        raise ConfigError(ctx.file, f"plot {i}", f"{drawn}: {e}") from None
+        said = ", ".join(f"{k}={v!r}" for k, v in drawn.items())
+        raise ConfigError(ctx.file, f"plot {i}", f"{said}: {e}" if said else str(e)) from None

@@ -71,6 +71,8 @@ def tile_members(x: np.ndarray, y: np.ndarray, area_size, size: float, buffer: f
     :returns: ``(tile, row)``, (m,) int64 each: the tile's flat number ``i * ny + j`` and the point's
         row; m ≥ n less the points in no extent (none unless rounding puts one on a core's edge).
     """
+    if len(x) == 0:              # a leg's batch that met nothing
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
     nx, ny = tile_grid(area_size, size)
     ci, cj = core_tile(x, y, area_size, size)
     reach = int(np.ceil(buffer / size)) + 1       # tiles a point's extent test can pass, and one for rounding
