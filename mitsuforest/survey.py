@@ -17,7 +17,7 @@ import importlib.metadata
 import platform
 import time
 from collections.abc import Callable, Generator, Iterator
-from contextlib import ExitStack, closing
+from contextlib import ExitStack, closing, nullcontext
 from dataclasses import dataclass
 
 import numpy as np
@@ -194,36 +194,26 @@ def write(prepared: PreparedSurvey, batches: Batches, staging: Staging | None, *
     """
     scene, plan, models = prepared.scene, prepared.plan, prepared.models
     timings = Timings(prepared.timings)
-    writer = records = None
-    try:
-        writer = PointWriter(staging, scene, keep=keep_points, terrain=plan.terrain, stems=stem_ids(plan, models),
-                             warm_pictures=bool(staging) and scene.output.pictures and scans_off_host(prepared))
+    with_records = bool(staging) and (scene.output.waveforms or scene.output.pulses)
+    with (PointWriter(staging, scene, keep=keep_points, terrain=plan.terrain, stems=stem_ids(plan, models),
+                      warm_pictures=bool(staging) and scene.output.pictures and scans_off_host(prepared)) as writer,
+          PulseRecordWriter(staging, scene) if with_records else nullcontext() as records):
         sinks = [Background(writer.add)]
-        if staging and (scene.output.waveforms or scene.output.pulses):
-            records = PulseRecordWriter(staging, scene)
+        if records:
             sinks.append(Background(records.add))
             batches.on_pulses = sinks[1]
         _drain(batches, sinks)
-        writer.close()
-        if records:
-            records.close()
-        timings.lap("scan")
-        manifest = _manifest(prepared, batches.result, writer.statistics(), timings)
-        if records:
-            manifest.update(records.statistics())
-        manifest["imported_trees"] = import_report(plan, models)
-        manifest["realism"] = realism_table(plan, models, writer.classes, writer.counts)
-        if staging:
-            write_render_outputs(staging, scene=scene, plan=plan, models=models, writer=writer)
-            timings.lap("write")
-            manifest["timings_s"] = dict(timings)
-            write_manifest(staging, manifest)
-    except BaseException:
-        if writer:
-            writer.abort()
-        if records:
-            records.abort()
-        raise
+    timings.lap("scan")
+    manifest = _manifest(prepared, batches.result, writer.statistics(), timings)
+    if records:
+        manifest.update(records.statistics())
+    manifest["imported_trees"] = import_report(plan, models)
+    manifest["realism"] = realism_table(plan, models, writer.classes, writer.counts)
+    if staging:
+        write_render_outputs(staging, scene=scene, plan=plan, models=models, writer=writer)
+        timings.lap("write")
+        manifest["timings_s"] = dict(timings)
+        write_manifest(staging, manifest)
     return Written(manifest, writer.points)
 
 

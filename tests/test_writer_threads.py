@@ -315,6 +315,53 @@ def test_las_stream_closes_on_error_and_refuses_writes_once_closed(tmp_path):
         broken.write(points)
 
 
+def _stream(kind, path):
+    """(a stream of ``kind`` writing ``path``, its write method, a batch for it)."""
+    from mitsuforest.write.copc import CopcStream
+    from mitsuforest.write.output_profiles import ForestFormer3DStream, TreeLearnStream
+    from mitsuforest.write.waveforms import NpzStream
+    scanned = _batches()[0][:1000]
+    points = np.lib.recfunctions.append_fields(scanned, "height_above_ground", scanned["z"], "<f4", usemask=False)
+    if kind == "point writer":
+        scene = _scene(OFFSET, ("pcd", "laz"))
+        writer = PointWriter(Staging(path, scene.name), scene, threads=2, processes=0)
+        return writer, writer.add, _batches()[0][:1000]
+    if kind == "npz":
+        stream = NpzStream(path / "t.npz", {"z": ("<f4", ())})
+        return stream, lambda z: stream.append(z=z), points["z"]
+    if kind == "copc":
+        pytest.importorskip("copclib", reason="copclib (the test extra) writes COPC")
+    made = {"copc": CopcStream, "ff3d": ForestFormer3DStream, "treelearn": TreeLearnStream}[kind]
+    stream = made(path / f"t.{kind}", (0.0, 0.0, 0.0), None, *(() if kind == "copc" else (np.zeros(0),)))
+    return stream, stream.write, points
+
+
+@pytest.mark.parametrize("kind", ["point writer", "copc", "npz", "ff3d", "treelearn"])
+def test_every_stream_closes_on_error_and_refuses_writes_once_closed(tmp_path, kind, monkeypatch):
+    """As laspy's writer (and our LAS stream, above): closed at the end of its block, aborted after an
+    error in it (no spool left), writes refused once closed either way, a second close a no-op."""
+    for folder in ("ok", "broken"):
+        (tmp_path / folder).mkdir()
+    ok, write, batch = _stream(kind, tmp_path / "ok")
+    with ok:
+        write(batch)
+    files = sorted(p.name for p in (tmp_path / "ok").rglob("*") if p.is_file())
+    assert files and not [f for f in files if f.endswith(".spool")]
+    with pytest.raises(ValueError, match=f"write to a closed {type(ok).__name__}"):
+        write(batch)
+    ok.close()
+    assert sorted(p.name for p in (tmp_path / "ok").rglob("*") if p.is_file()) == files
+    broken, write, batch = _stream(kind, tmp_path / "broken")
+    monkeypatch.setattr(type(broken), "_finish", lambda self: pytest.fail("a failed block finished its file"))
+    with pytest.raises(RuntimeError, match="stop"):
+        with broken:
+            write(batch)
+            raise RuntimeError("stop")
+    assert broken.closed and not list((tmp_path / "broken").rglob("*.spool"))
+    with pytest.raises(ValueError, match=f"write to a closed {type(broken).__name__}"):
+        write(batch)
+
+
 def test_thread_count_follows_the_cores_or_the_variable(monkeypatch):
     import os
     monkeypatch.delenv(THREADS_VARIABLE, raising=False)

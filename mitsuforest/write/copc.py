@@ -25,6 +25,7 @@ import numpy as np
 
 from ..errors import UserError
 from .atomic import naming_errors
+from .closing import Closing
 from .las import crs_wkt, las_header, las_records
 
 GRID = 128                  # sample cells per node side (COPC spacing at the root = cube side / GRID)
@@ -35,8 +36,9 @@ EXTRA_BYTES = ("LASF_Spec", 4)
 POINTS_BY_RETURN = 255      # byte offset of the LAS 1.4 header's 15 points-by-return counts
 
 
-class CopcStream:
-    """A ``.copc.laz`` written batch by batch (:meth:`write` spools, :meth:`close` builds the octree).
+class CopcStream(Closing):
+    """A ``.copc.laz`` written batch by batch (:meth:`write` spools, :meth:`close` builds the octree);
+    closing, aborting and refusing writes once closed as :class:`~.closing.Closing`.
 
     :param path: the output file; its spool is ``path`` + ``.spool`` until close.
     """
@@ -60,6 +62,7 @@ class CopcStream:
             self._spool = open(self._spool_path, "wb")   # noqa: SIM115 (closed in close/abort)
 
     def write(self, points: np.ndarray) -> None:
+        self._refuse_if_closed()
         if not len(points):
             return
         records = las_records(self.header, points, intensity=self.intensity)
@@ -70,7 +73,7 @@ class CopcStream:
             self._spool.write(records.tobytes())
         self.count += len(records)
 
-    def close(self) -> None:
+    def _finish(self) -> None:
         with naming_errors(self._spool_path):
             self._spool.close()
         try:
@@ -79,7 +82,7 @@ class CopcStream:
         finally:
             self._spool_path.unlink(missing_ok=True)
 
-    def abort(self) -> None:
+    def _discard(self) -> None:
         if not self._spool.closed:
             self._spool.close()
         self._spool_path.unlink(missing_ok=True)

@@ -43,6 +43,7 @@ from ..fields import (COORDINATE_SCALE, LAS_DIMENSION, LAS_EXTRA_DIMENSIONS, LAS
                       LasDimension)
 from ..scan.radiometry import intensity_counts, reflectance_db
 from .atomic import atomic_path, naming_errors
+from .closing import Closing
 
 ASPRS_CODE = {GROUND: 2, TREE_WOOD: 5, TREE_LEAVES: 5, BUSH: 4, GROUND_VEGETATION: 3, DEADWOOD: 64, ROCK: 65, STUMP: 66}
 LAS_MAX_RETURNS = (1 << LAS_DIMENSION["return_number"].width) - 1   # 15: 4 bits; the PCD keeps larger counts
@@ -292,7 +293,7 @@ class _ChunkBackend:
         return _ChunkWriter(dest, header.point_format)
 
 
-class LasStream:
+class LasStream(Closing):
     """A ``.las`` or ``.laz`` file written batch by batch (laspy updates the header on close).
 
     As a context manager it is closed at the end of the block, or, after an error, closed without
@@ -326,16 +327,6 @@ class LasStream:
         self._block = min(threads, MAX_CHUNKS_PER_CALL) * LAZ_CHUNK if compress and threads > 1 else 0
         self._buffer = np.empty(0, self.header.point_format.dtype())    # records not yet written, then room
         self._held = 0
-        self.closed = False
-
-    def __enter__(self) -> LasStream:
-        return self
-
-    def __exit__(self, kind, error, traceback) -> None:
-        if kind is None:
-            self.close()
-        else:
-            self.abort()
 
     def write(self, points: np.ndarray) -> None:
         """Write georeferenced points (x, y, z include the offset)."""
@@ -385,21 +376,18 @@ class LasStream:
         self._buffer[:rest] = self._buffer[ready:self._held]
         self._held = rest
 
-    def close(self) -> None:
-        """Write what is held back and finish the file (a second call does nothing)."""
-        if self.closed:
-            return
-        self.closed = True
+    def _finish(self) -> None:
+        """Write what is held back and finish the file."""
         if self._held:
             self._write_held()
         self._buffer = self._buffer[:0].copy()     # lets the buffer go
         with self._io_errors():
             self._writer.close()
 
-    def abort(self) -> None:
+    def _discard(self) -> None:
         """Close, unless closed already (laspy cannot close twice); any error of a broken file is moot
         (closing flushes, and on a full disk the LAZ compressor fails again)."""
-        self._buffer, self._held, self.closed = self._buffer[:0].copy(), 0, True
+        self._buffer, self._held = self._buffer[:0].copy(), 0
         if self._writer.done:
             return
         for finish in (self._writer.close, self._writer.dest.close):   # the file stays open if closing failed
@@ -407,10 +395,6 @@ class LasStream:
                 finish()
             except Exception:   # noqa: BLE001
                 pass
-
-    def _refuse_if_closed(self) -> None:
-        if self.closed:
-            raise ValueError(f"{self.path}: write to a closed LAS stream")
 
     @contextlib.contextmanager
     def _io_errors(self):

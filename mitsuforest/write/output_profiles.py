@@ -34,6 +34,7 @@ from ..config.types import IntensityMapping
 from ..fields import LAS_DIMENSION, SCAN_ANGLE_UNIT
 from ..scan.radiometry import intensity_counts
 from .atomic import atomic_path, naming_errors
+from .closing import Closing
 from .las import LAS_MAX_RETURNS, LasStream, extra_bytes, format6_header
 
 TREE_CLASSES = (TREE_WOOD, TREE_LEAVES)
@@ -135,8 +136,9 @@ def ply_header(count: int) -> bytes:
     return ("\n".join(lines) + "\n").encode("ascii")
 
 
-class _CountedFile:
-    """A binary file whose header holds the record count, rewritten in place on close."""
+class _CountedFile(Closing):
+    """A binary file whose header holds the record count, rewritten in place on close; closing, aborting
+    and refusing writes once closed as :class:`~.closing.Closing`."""
 
     def __init__(self, path, header):
         self.path, self._header, self.count = Path(path), header, 0
@@ -145,27 +147,30 @@ class _CountedFile:
             self._file.write(header(0))
 
     def append(self, records: np.ndarray) -> None:
+        self._refuse_if_closed()
         with naming_errors(self.path):
             self._file.write(np.ascontiguousarray(records).data)
         self.count += len(records)
 
-    def close(self) -> None:
+    def _finish(self) -> None:
         with naming_errors(self.path):
             self._file.seek(0)
             self._file.write(self._header(self.count))
             self._file.close()
 
-    def abort(self) -> None:
+    def _discard(self) -> None:
         self._file.close()
 
 
-class ForestFormer3DStream:
+class ForestFormer3DStream(Closing):
     """A ForestFormer3D PLY (:data:`FF3D_FIELDS`), written batch by batch; x, y, z georeferenced."""
 
     def __init__(self, path, offset, crs: str | None, stems: np.ndarray):
         self._file = _CountedFile(path, ply_header)
+        self.path = self._file.path
 
     def write(self, points: np.ndarray) -> None:
+        self._refuse_if_closed()
         out = np.zeros(len(points), FF3D_DTYPE)
         for axis in "xyz":
             out[axis] = points[axis]
@@ -177,10 +182,10 @@ class ForestFormer3DStream:
         out["height_above_ground"] = points["height_above_ground"]
         self._file.append(out)
 
-    def close(self) -> None:
+    def _finish(self) -> None:
         self._file.close()
 
-    def abort(self) -> None:
+    def _discard(self) -> None:
         self._file.abort()
 
 
@@ -196,23 +201,25 @@ def npy_header(rows: int) -> bytes:
     return b"\x93NUMPY\x01\x00" + struct.pack("<H", room) + (text.ljust(room - 1) + "\n").encode("latin1")
 
 
-class TreeLearnStream:
+class TreeLearnStream(Closing):
     """A TreeLearn ``.npy``: float64 rows ``x, y, z, label`` (local frame; label 0 for non-tree points,
     the tree's id from 1 on), written batch by batch."""
 
     def __init__(self, path, offset, crs: str | None, stems: np.ndarray):
         self.offset = np.asarray(offset, np.float64)
         self._file = _CountedFile(path, npy_header)
+        self.path = self._file.path
 
     def write(self, points: np.ndarray) -> None:
+        self._refuse_if_closed()
         rows = np.column_stack([points["x"] - self.offset[0], points["y"] - self.offset[1],
                                 points["z"] - self.offset[2], tree_ids(points)]).astype(np.float64)
         self._file.append(rows)
 
-    def close(self) -> None:
+    def _finish(self) -> None:
         self._file.close()
 
-    def abort(self) -> None:
+    def _discard(self) -> None:
         self._file.abort()
 
 
@@ -221,7 +228,7 @@ class TreeLearnStream:
 @dataclass(frozen=True)
 class Profile:
     suffix: str        # after the render's or tile's name
-    stream: type       # (path, offset, crs, stems) -> a stream with write, close and abort
+    stream: type       # (path, offset, crs, stems) -> a stream with write (a :class:`~.closing.Closing`)
 
 
 PROFILES = {
@@ -234,14 +241,8 @@ PROFILE_SUFFIXES = tuple(p.suffix for p in PROFILES.values())
 
 def write_profile(path, name: str, points: np.ndarray, offset, crs: str | None, stems) -> None:
     """Write ``points`` (georeferenced) at once as profile ``name``'s file, atomically."""
-    with atomic_path(path) as tmp:
-        stream = PROFILES[name].stream(tmp, offset, crs, stems)
-        try:
-            stream.write(points)
-        except BaseException:
-            stream.abort()
-            raise
-        stream.close()
+    with atomic_path(path) as tmp, PROFILES[name].stream(tmp, offset, crs, stems) as stream:
+        stream.write(points)
 
 
 def stem_ids(plan, models: dict) -> np.ndarray:

@@ -18,6 +18,7 @@ from .. import seeds
 from ..fields import POINT_DTYPE, pcd_dtype
 from ..threads import Workers, row_ranges, writer_threads
 from .atomic import naming_errors
+from .closing import Closing
 from .copc import CopcStream
 from .ground import fill_height, ground_surface, with_room_for_height
 from .las import LasStream, las_records
@@ -31,8 +32,9 @@ from .quicklook import SideTile, TopView
 SPACING_QUERIES = 10_000  # points of a tile drawn to ask for their nearest neighbour (the tree holds them all)
 
 
-class PointWriter:
-    """Receives local-frame points batch by batch (:meth:`add`) and writes georeferenced files.
+class PointWriter(Closing):
+    """Receives local-frame points batch by batch (:meth:`add`) and writes georeferenced files; closing,
+    aborting and refusing batches once closed as :class:`~.closing.Closing`.
 
     :param terrain: the plan's :class:`~mitsuforest.plan.terrain.Terrain`, for heights above the ground.
     :param threads: the writer's threads (default: :func:`~mitsuforest.threads.writer_threads`, the
@@ -97,6 +99,10 @@ class PointWriter:
     def add(self, points: np.ndarray) -> None:
         """Add a batch of local-frame points (POINT_DTYPE); each file gets ``height_above_ground`` too.
         Returns once it is written (LAZ: once it is compressed or waits for whole chunks)."""
+        self._refuse_if_closed()
+        self._add(points)
+
+    def _add(self, points: np.ndarray) -> None:
         batch = with_room_for_height(points)     # the scan's fields and height_above_ground, filled by _part
         if self.dtype is None and self._pcd_file:
             self._pcd_record = pcd_dtype(batch.dtype, local=not np.any(self.offset))
@@ -166,22 +172,22 @@ class PointWriter:
             las_records(las.header, geo, rows[start:stop])
         return tallies(points, self.counts, self.side, self._tiles)
 
-    def close(self) -> None:
+    def _finish(self) -> None:
         """Finish the files: the PCD header is written once the point count is known."""
+        if self._pcd_file and self.dtype is None:
+            self._add(np.zeros(0, POINT_DTYPE))          # no batch came: the header of no points
         if self._parts:
             self._parts.close()
         self._workers.close()
         for las in (*self._las, *self._others):
             las.close()
         if self._pcd_file:
-            if self.dtype is None:
-                self.add(np.zeros(0, POINT_DTYPE))
             with naming_errors(self._pcd_file.name):
                 self._pcd_file.seek(0)                 # the counts, now known, in the header's padded fields
                 self._pcd_file.write(pcd_header(self._pcd_record, self.count, COUNT_DIGITS).encode("ascii"))
                 self._pcd_file.close()
 
-    def abort(self) -> None:
+    def _discard(self) -> None:
         """Close whatever is still open (after a failure, possibly inside :meth:`close`)."""
         if self._parts:
             self._parts.abort()

@@ -18,13 +18,15 @@ import numpy as np
 from ..config.types import SPEED_OF_LIGHT
 from ..scan.waveform import echo_energy, pulse_sigma
 from .atomic import naming_errors
+from .closing import Closing
 
 COPY_BLOCK = 1 << 24        # bytes copied from a spool at a time
 COMPRESS_LEVEL = 1
 
 
-class NpzStream:
-    """An NPZ whose arrays grow by rows (:meth:`append`) and are assembled on :meth:`close`.
+class NpzStream(Closing):
+    """An NPZ whose arrays grow by rows (:meth:`append`) and are assembled on :meth:`close`; closing,
+    aborting and refusing writes once closed as :class:`~.closing.Closing`.
 
     :param path: the output file; its spools are ``path`` + ``.KEY.spool`` until close.
     :param arrays: ``{key: (dtype, row shape)}``, in file order.
@@ -47,6 +49,7 @@ class NpzStream:
 
     def append(self, **columns) -> None:
         """Append rows to some arrays (each ``(n, *row shape)``, cast to the array's dtype)."""
+        self._refuse_if_closed()
         for key, value in columns.items():
             dtype, shape = self.arrays[key]
             value = np.ascontiguousarray(value, dtype)
@@ -56,7 +59,7 @@ class NpzStream:
                 self._spools[key].write(value.tobytes())
             self.rows[key] += len(value)
 
-    def close(self) -> None:
+    def _finish(self) -> None:
         try:
             for handle in self._spools.values():
                 handle.close()
@@ -75,7 +78,7 @@ class NpzStream:
         finally:
             self._remove_spools()
 
-    def abort(self) -> None:
+    def _discard(self) -> None:
         for handle in self._spools.values():
             handle.close()
         self._remove_spools()
@@ -85,13 +88,15 @@ class NpzStream:
             self._spool_path(key).unlink(missing_ok=True)
 
 
-class PulseRecordWriter:
+class PulseRecordWriter(Closing):
     """Receives each scan batch's :class:`~mitsuforest.scan.waveform.PulseBatch` (:meth:`add`) and writes
     ``NAME_waveforms.npz`` (``output.waveforms``) and ``NAME_pulses.npz`` (``output.pulses``).
 
     Coordinates are georeferenced (local frame plus ``origin.offset``, float64); directions are the
     same in both frames. They are the true beam's: with ``survey.navigation_errors`` the points are
     placed with the believed trajectory instead.
+
+    Closing, aborting and refusing batches once closed as :class:`~.closing.Closing`.
 
     :param staging: the render's :class:`~mitsuforest.write.Staging`.
     :param scene: the :class:`~mitsuforest.config.types.Scene`.
@@ -120,6 +125,7 @@ class PulseRecordWriter:
         self.with_echoes = 0   # fired pulses with an echo
 
     def add(self, batch) -> None:
+        self._refuse_if_closed()
         if self.waveforms is not None:
             self._add_waveforms(batch)
         if self.pulses is not None:
@@ -148,12 +154,12 @@ class PulseRecordWriter:
                               echo_amplitude=echoes["amplitude"], echo_energy=echo_energy(echoes["energy"], self.sigma))
         self.incomplete += int(np.count_nonzero(~complete))
 
-    def close(self) -> None:
+    def _finish(self) -> None:
         for stream in (self.waveforms, self.pulses):
             if stream is not None:
                 stream.close()
 
-    def abort(self) -> None:
+    def _discard(self) -> None:
         for stream in (self.waveforms, self.pulses):
             if stream is not None:
                 stream.abort()
