@@ -200,6 +200,19 @@ def test_a_part_that_fails_in_a_worker_fails_the_writer_and_leaves_no_shared_mem
     assert again == _write_apart(tmp_path, "one", scene, processes=0)[0]
 
 
+def test_worker_processes_given_no_points_write_empty_files_and_leave_no_shared_memory(tmp_path):
+    """A render of no points: the PCD's header made on close no longer starts the batches' shared folder
+    after the parts were closed (it stayed in /dev/shm)."""
+    import glob
+    others = set(glob.glob("/dev/shm/mitsuforest-writer-*"))
+    scene = _scene(OFFSET, ("pcd", "laz"))
+    staging = Staging(tmp_path / "none", scene.name)
+    writer = PointWriter(staging, scene, threads=1, processes=2)
+    writer.close()
+    assert set(glob.glob("/dev/shm/mitsuforest-writer-*")) <= others
+    assert read_pcd(staging.file(".pcd")).shape == (0,) and laspy.read(staging.file(".laz")).header.point_count == 0
+
+
 def test_a_script_without_a_main_guard_runs_once_beside_the_writer_processes(tmp_path):
     """Spawned workers would run the parent's main module first; they start while it is hidden."""
     script = tmp_path / "plain.py"
