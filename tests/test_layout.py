@@ -53,10 +53,21 @@ def imports(path: Path) -> list[tuple[str, int]]:
 
 
 def _module_or_package(package: str, name: str) -> str:
-    """``from PACKAGE import NAME``: the module NAME when there is one, else PACKAGE (a name in it)."""
+    """``from PACKAGE import NAME``: the module NAME when there is one, the module the package root imports
+    NAME from on first use (``mitsuforest._API``: ``render`` is ``pipeline``'s), else PACKAGE (a name in it)."""
+    if package == "mitsuforest" and name in _lazy_names():
+        return f"mitsuforest.{_lazy_names()[name]}"
     folder = PACKAGE.parent.joinpath(*package.split("."))
     is_module = (folder / f"{name}.py").exists() or (folder / name / "__init__.py").exists()
     return f"{package}.{name}" if is_module else package
+
+
+def _lazy_names() -> dict[str, str]:
+    """``mitsuforest._API``, read from the package root's source (no import)."""
+    tree = ast.parse((PACKAGE / "__init__.py").read_text())
+    found = [node.value for node in tree.body if isinstance(node, ast.Assign)
+             and any(isinstance(t, ast.Name) and t.id == "_API" for t in node.targets)]
+    return ast.literal_eval(found[0])
 
 
 def import_graph() -> dict[tuple[str, str], list[str]]:
@@ -143,6 +154,10 @@ def test_the_checks_catch_what_they_look_for():
     read = [name for name, _ in imports(PACKAGE / "scene" / "__init__.py")]   # relative imports resolved
     assert "mitsuforest.plan.transforms" in read and "mitsuforest.scene.variant" in read
     assert [name for name, _ in imports(PACKAGE / "survey.py")].count("mitsuforest") == 1   # from . import __version__
+    # the package root's names imported on first use count as the modules they come from
+    assert _module_or_package("mitsuforest", "render") == "mitsuforest.pipeline"
+    assert _module_or_package("mitsuforest", "make_plan") == "mitsuforest.survey"
+    assert _module_or_package("mitsuforest", "__version__") == "mitsuforest"
 
 
 if __name__ == "__main__":
