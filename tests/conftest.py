@@ -31,6 +31,21 @@ def variant(request):
     return request.param
 
 
+@pytest.fixture
+def llvm_mono():
+    """A test on ``llvm_ad_mono`` (the variant set for it, the one found put back after), as Mitsuba's own
+    fixtures set theirs; Dr.Jit's kernel cache is flushed after it, so that its kernels do not stay in
+    memory for the rest of the run."""
+    import drjit as dr
+
+    from mitsuforest.scene.variant import variant_scope
+    if "llvm_ad_mono" not in VARIANTS:
+        pytest.skip("needs llvm_ad_mono")
+    with variant_scope("llvm_ad_mono"):
+        yield "llvm_ad_mono"
+    dr.flush_kernel_cache()
+
+
 def _demo_scene(tmp_path_factory, variant, **understory):
     from mitsuforest.config import load_scene
     scene = load_scene(ROOT / "scenes" / "demo.yaml", variant=variant, output_dir=tmp_path_factory.mktemp("demo"))

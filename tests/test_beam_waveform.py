@@ -147,10 +147,9 @@ def test_chain_amplitude_leaves_out_a_neighbour_chain():
     assert waveform_at_first == pytest.approx(1.0158, abs=1e-4)
 
 
-def test_device_kernel_follows_the_same_rule():
+def test_device_kernel_follows_the_same_rule(llvm_mono):
     """echoes.py on the documented cases: 1 : 0.3 at 1.03 ΔR gives two echoes, equal at 0.9 ΔR one."""
     import mitsuba as mi
-    mi.set_variant("llvm_ad_mono")
 
     from mitsuforest.scan.echoes import pulse_echoes
     ranges = np.array([[20.0, 20.0 + 1.03 * DR], [20.0, 20.0 + 0.9 * DR]], np.float32)
