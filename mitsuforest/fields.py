@@ -27,6 +27,11 @@ import numpy as np
 
 SCAN, WRITER = "scan", "writer"   # who fills a field: the tracer, or the point writer (from the terrain)
 
+# The point file formats, ``output.formats``'s names, each with its file's suffix after the render's (or
+# tile's) name: the one list that the scene's check, the output files and the readers
+# (:data:`mitsuforest.write.formats.READERS`) take them from.
+POINT_FORMATS = {"pcd": ".pcd", "las": ".las", "laz": ".laz", "copc": ".copc.laz"}
+
 LAS_FORMAT = 6                     # LAS 1.4 point format of our files
 COORDINATE_SCALE = 1e-4            # m per LAS coordinate count (the offset is ``origin.offset``)
 SCAN_ANGLE_UNIT = 0.006            # degrees per LAS 1.4 scan_angle count (point formats 6-10)

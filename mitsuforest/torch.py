@@ -28,10 +28,7 @@ except ModuleNotFoundError as missing:       # the optional extra
                               "pip install 'mitsuforest[torch]' (or torch itself)", name="torch") from missing
 
 from . import seeds
-from .write.las import read_las_points
-from .write.pcd import read_pcd
-
-POINT_SUFFIXES = (".pcd", ".las", ".laz")
+from .write.formats import format_of, read_points
 
 
 class TileDataset(torch.utils.data.Dataset):
@@ -78,14 +75,14 @@ class TileDataset(torch.utils.data.Dataset):
     def tile_file(self, i: int) -> Path:
         """The point file of tile ``i``."""
         listed = self.tiles[i]["files"].split(";")
-        return self.root / next(f for f in listed if f.endswith(POINT_SUFFIXES) and Path(f).stem == self.tiles[i]["id"])
+        return self.root / next(f for f in listed if format_of(f) and Path(f).name.startswith(self.tiles[i]["id"] + "."))
 
     def read_tile(self, i: int) -> np.ndarray:
         """Every point of tile ``i`` (structured array), x, y, z in the local frame."""
         path = self.tile_file(i)
-        points = np.array(read_pcd(path)) if path.suffix == ".pcd" else read_las_points(path)
+        points = read_points(path)
         offset = self._offset(self.tiles[i]["plot"])
-        if path.suffix != ".pcd" or np.any(offset):   # LAS always, a PCD with an offset: georeferenced
+        if format_of(path) != "pcd" or np.any(offset):   # LAS always, a PCD with an offset: georeferenced
             for axis, o in zip("xyz", offset):
                 points[axis] -= o
         return points

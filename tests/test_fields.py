@@ -110,12 +110,13 @@ def test_written_headers_list_exactly_the_schema_fields(tmp_path, offset):
 @pytest.mark.parametrize("suffix", [".las", ".pcd"])
 def test_tiles_cut_from_a_plot_keep_the_schema_fields(tmp_path, suffix):
     """A tile's file (dataset/files.py) holds the fields of the plot's file it was cut from."""
-    from mitsuforest.dataset.files import _write_points, read_plot_points
+    from mitsuforest.dataset.files import read_plot_points
+    from mitsuforest.write.formats import write_points
     files = _write(tmp_path / "plot", OFFSET, ("pcd", "las"))
     fmt = suffix.lstrip(".")
     points = read_plot_points(files[suffix].parent, files[suffix].stem, [fmt])
     tile = tmp_path / f"tile{suffix}"
-    _write_points(tile, points[::3], OFFSET, None, None)
+    write_points(tile, points[::3], OFFSET, None, None)
     if suffix == ".pcd":
         assert read_pcd(tile).dtype.names == RECORD_DTYPE.names
     else:

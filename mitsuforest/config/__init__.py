@@ -18,6 +18,7 @@ from pathlib import Path
 import yaml
 
 from ..errors import ConfigError, UserError
+from ..fields import POINT_FORMATS
 from ..specs.archetypes import (DEFAULT_ARCHETYPES, FAMILY_ARCHETYPES, FIELDS as ARCHETYPE_FIELDS, MAX_UNIQUE, Archetype,
                                  UniqueTrees)
 from ..specs.sources import DEFAULT_LEAF_PATTERNS, REPAIR_MODES, UNITS, UP_AXES, MeshTree, QsmTree
@@ -314,7 +315,7 @@ SCENE_SPEC = {
     },
     "output": {
         "dir": FilePath(None, nullable=True, must_exist=False),
-        "formats": ListOf(Text(choices=("pcd", "las", "laz", "copc")), ["pcd", "laz"], min_length=1, unique=True),
+        "formats": ListOf(Text(choices=tuple(POINT_FORMATS)), ["pcd", "laz"], min_length=1, unique=True),
         "profile": Text("ours", choices=OUTPUT_PROFILES),
         "waveforms": Flag(False),
         "pulses": Flag(False),

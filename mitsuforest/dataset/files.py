@@ -28,12 +28,12 @@ import yaml
 from .. import seeds
 from ..classes import CLASS_NAMES, DEADWOOD, TREE_LEAVES, TREE_WOOD
 from ..config.types import to_mapping
-from ..fields import pcd_dtype
-from ..write.atomic import atomic_path, write_json, write_text
+from ..fields import POINT_FORMATS, pcd_dtype
+from ..write.atomic import write_json, write_text
+from ..write.formats import read_points, write_points
 from ..write.ground import fill_height, with_room_for_height
-from ..write.las import las_data_points, las_header, las_points, read_las_points, write_las
+from ..write.las import las_data_points, las_header, las_points
 from ..write.output_profiles import PROFILES, stem_ids_from_table, write_profile
-from ..write.pcd import pcd_header, read_pcd
 from ..write.stream import georeference
 from ..write.tables import csv_text
 from . import tiles as tiling
@@ -126,11 +126,8 @@ def read_plot_points(folder, name: str, formats) -> np.ndarray:
     """A plot's points as written: the PCD when there is one (all fields; x, y, z georeferenced when
     ``origin.offset`` is set, local otherwise), else the LAS/LAZ (our fields; no pulse_id or range).
     Both carry ``height_above_ground``, which the tiles keep."""
-    folder = Path(folder)
-    if "pcd" in formats:
-        return np.array(read_pcd(folder / f"{name}.pcd"))
-    fmt = next(f for f in ("las", "laz", "copc") if f in formats).replace("copc", "copc.laz")   # COPC is LAZ
-    return read_las_points(folder / f"{name}.{fmt}")
+    fmt = "pcd" if "pcd" in formats else next(f for f in ("las", "laz", "copc") if f in formats)
+    return read_points(Path(folder) / (name + POINT_FORMATS[fmt]))
 
 
 def read_volumes(path) -> dict:
@@ -247,8 +244,8 @@ def write_tile(root, scene, tiles, labels: TileLabels, i: int, j: int, points: n
     x, y = _local_xy(points, offset)
     ci, cj = tiling.core_tile(x, y, area, tiles.size)
     out_dir = tiles_folder(root, name)
-    point_file = out_dir / f"{tile_id}.{tiles.format}"
-    _write_points(point_file, points, offset, scene.origin.crs, scene.sensor.intensity)
+    point_file = out_dir / (tile_id + POINT_FORMATS[tiles.format])
+    write_points(point_file, points, offset, scene.origin.crs, scene.sensor.intensity)
     written = [point_file]
     if labels.stems is not None:
         written.append(out_dir / f"{tile_id}{PROFILES[scene.output.profile].suffix}")
@@ -277,15 +274,6 @@ def _tree_rows(points, labels: TileLabels, extent) -> list[list]:
         box = labels.boxes[np.searchsorted(labels.instances, inst)]
         rows.append([inst, kind, treeid, f"{volume:.9g}", count, int(tiling.box_inside(box, extent))])
     return rows
-
-
-def _write_points(path, points: np.ndarray, offset, crs, intensity) -> None:
-    if path.suffix == ".pcd":
-        with atomic_path(path) as tmp, open(tmp, "wb") as f:
-            f.write(pcd_header(points.dtype, len(points)).encode("ascii"))
-            f.write(np.ascontiguousarray(points).data)
-    else:
-        write_las(path, points, offset, crs, intensity)
 
 
 # --- the dataset's own files ------------------------------------------------------------------------

@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import UserError
+from ..fields import POINT_FORMATS
 from ..interrupts import InterruptedAfterCommit, Terminated, deferred_signals
 
 from .atomic import TMP_MARK, fsync_file, fsync_folder, owner_is_gone, owner_tag, write_json, write_text
@@ -36,7 +37,7 @@ __all__ = ["Staging", "check_output_folder", "output_lock", "PointWriter", "geor
            "write_tables", "TABLES", "write_manifest"]
 
 PLAN, MANIFEST = "_plan.json", "_manifest.json"
-SUFFIXES = (".pcd", ".las", ".laz", ".copc.laz", "_volumes.csv", "_ids.csv", PLAN, "_trajectory.csv",
+SUFFIXES = (*POINT_FORMATS.values(), "_volumes.csv", "_ids.csv", PLAN, "_trajectory.csv",
             MANIFEST, "_top.png", "_side.png", "_profile.png", "_returns.png", *PROFILE_SUFFIXES, "_waveforms.npz",
             "_pulses.npz")
 

@@ -9,9 +9,8 @@ import numpy as np
 from ..classes import CLASS_NAMES
 from ..errors import UserError
 from ..fields import FIELD
+from .formats import format_of
 from .pcd import PointFileError, read_pcd
-
-POINT_SUFFIXES = (".pcd", ".las", ".laz")
 
 # ASPRS LAS 1.4 classes, for files of other tools (ours carry our own classes in ``label``).
 ASPRS_NAMES = {0: "never classified", 1: "unclassified", 2: "ground", 3: "low vegetation", 4: "medium vegetation",
@@ -26,20 +25,17 @@ def load_points(path) -> tuple[dict, list[str], dict]:
     path = Path(path)
     if not path.is_file():
         raise UserError(_not_a_file(path))
-    suffix = path.suffix.lower()
+    load = _LOADERS.get(format_of(path))
     try:
-        if suffix == ".pcd":
-            pts = read_pcd(path)
-            return {n: pts[n] for n in pts.dtype.names}, list(pts.dtype.names), CLASS_NAMES
-        if suffix in (".las", ".laz"):
-            return _load_las(path)
+        if load:
+            return load(path)
     except PointFileError as e:
         raise UserError(f"{path}: {e}") from None
     except (ValueError, KeyError, OSError, MemoryError, EOFError) as e:
         raise UserError(f"{path}: cannot read: {e or type(e).__name__}") from None
     except Exception as e:  # laspy and lazrs raise their own kinds for damaged files
         raise UserError(f"{path}: cannot read: {type(e).__name__}: {e}") from None
-    raise UserError(f"{path}: unknown point file type {suffix!r} (expected .pcd, .las or .laz)")
+    raise UserError(f"{path}: unknown point file type {path.suffix.lower()!r} (expected .pcd, .las or .laz)")
 
 
 def _not_a_file(path: Path) -> str:
@@ -49,12 +45,17 @@ def _not_a_file(path: Path) -> str:
     if not path.is_dir():
         return f"{path}: not a regular file"
     try:
-        found = sorted(p for p in path.iterdir() if p.suffix.lower() in POINT_SUFFIXES and p.is_file())
+        found = sorted(p for p in path.iterdir() if format_of(p) and p.is_file())
     except OSError:
         found = []
     if found:
         return f"{path}: is a folder; give one of its point files, such as {found[0]}"
     return f"{path}: is a folder, with no point file in it; give a .pcd, .las or .laz file"
+
+
+def _load_pcd(path: Path) -> tuple[dict, list[str], dict]:
+    pts = read_pcd(path)
+    return {n: pts[n] for n in pts.dtype.names}, list(pts.dtype.names), CLASS_NAMES
 
 
 def _load_las(path: Path) -> tuple[dict, list[str], dict]:
@@ -144,3 +145,6 @@ def summary(path) -> str:
         counts = np.bincount(np.asarray(pts["number_of_returns"])[first].astype(int))
         lines.append("pulses by number of returns: " + ", ".join(f"{k}: {v:,}" for k, v in enumerate(counts) if v))
     return "\n".join(lines)
+
+
+_LOADERS = {"pcd": _load_pcd, "las": _load_las, "laz": _load_las, "copc": _load_las}   # by point format

@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import seeds
-from ..fields import POINT_DTYPE, pcd_dtype
+from ..fields import POINT_DTYPE, POINT_FORMATS, pcd_dtype
 from ..threads import Workers, row_ranges, writer_threads
 from .atomic import naming_errors
 from .closing import Closing
@@ -57,15 +57,15 @@ class PointWriter(Closing):
         profile = PROFILES.get(scene.output.profile) if staging else None     # None: ours only
         processes = writer_processes() if processes is None else processes
         self._processes = processes if staging and fits_processes(scene, keep) else 0
-        self._pcd_file = open(staging.file(".pcd"), "wb") if staging and "pcd" in formats else None  # noqa: SIM115
+        self._pcd_file = open(staging.file(POINT_FORMATS["pcd"]), "wb") if staging and "pcd" in formats else None  # noqa: SIM115
         self._pcd_end = 0          # where the next batch's records go in the PCD file
-        self._las = [LasStream(staging.file("." + f), self.offset, scene.origin.crs, threads=self.threads,
+        self._las = [LasStream(staging.file(POINT_FORMATS[f]), self.offset, scene.origin.crs, threads=self.threads,
                                intensity=scene.sensor.intensity, chunks=self._processes > 0)
                      for f in ("las", "laz") if f in formats]
         self._workers = Workers(self.threads)
         self._others = []      # written whole batch by batch, after the threaded LAS and PCD records
         if "copc" in formats:                        # spooled, then built into an octree on close
-            self._others.append(CopcStream(staging.file(".copc.laz"), self.offset, scene.origin.crs,
+            self._others.append(CopcStream(staging.file(POINT_FORMATS["copc"]), self.offset, scene.origin.crs,
                                            scene.sensor.intensity))
         if profile:
             self._others.append(profile.stream(staging.file(profile.suffix), self.offset, scene.origin.crs, stems))
