@@ -23,20 +23,28 @@ does not depend on batches, legs scanned apart or the backend.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from .. import seeds
-from ..plan.trajectory import ENU_FROM_NED, euler_matrix, matrix_euler
+from ..plan.trajectory import ENU_FROM_NED, PoseTable, euler_matrix, matrix_euler
+from ..plan.types import Leg
+
+if TYPE_CHECKING:
+    from ..config.types import NavigationErrors
+    from .platform import Platform
 
 
 class NavigationModel:
     """The error series of a survey (see module docstring).
 
-    :param errors: a :class:`~mitsuforest.config.types.NavigationErrors`.
+    :param errors: the scene's ``survey.navigation_errors``.
     :param span: (first, last) time of the survey's legs (s).
+    :param platform: the true motion and mount, whose beams the points are moved from.
     """
 
-    def __init__(self, errors, seed: int, span: tuple[float, float], platform):
+    def __init__(self, errors: NavigationErrors, seed: int, span: tuple[float, float], platform: Platform):
         self.platform = platform
         self.step = 1.0 / errors.rate_hz
         self.t0 = float(span[0])
@@ -50,8 +58,8 @@ class NavigationModel:
         error = euler_matrix(*errors.boresight_error_deg)[0]     # about the mounted sensor's body-frame axes
         self.boresight_error = platform.boresight @ error @ platform.boresight.T   # body frame: M·Q·Mᵀ
 
-    def at(self, t) -> tuple[np.ndarray, np.ndarray]:
-        """GNSS error (n, 3) m and IMU error (n, 3) roll, pitch, yaw deg at times ``t``."""
+    def at(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """GNSS error (n, 3) m and IMU error (n, 3) roll, pitch, yaw deg at times ``t`` (n,)."""
         u = (np.asarray(t, np.float64) - self.t0) / self.step
         i = np.clip(np.floor(u), 0, len(self.gnss) - 2).astype(np.int64)
         f = (u - i)[:, None]
@@ -61,13 +69,13 @@ class NavigationModel:
             out.append(a + f * (np.take(series, i + 1, axis=0) - a))
         return out[0], out[1]
 
-    def believed_pose(self, leg, table, t) -> tuple[np.ndarray, np.ndarray]:
+    def believed_pose(self, leg: Leg, table: PoseTable | None, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The navigation solution: platform position (n, 3) and body-to-local rotation (n, 3, 3)."""
         position, body = self.platform.body_pose(leg, table, t)
         gnss, imu = self.at(t)
         return position + gnss, body @ euler_matrix(*imu.T)
 
-    def place(self, points: np.ndarray, leg, table) -> None:
+    def place(self, points: np.ndarray, leg: Leg, table: PoseTable | None) -> None:
         """Move ``points`` (POINT_DTYPE, one leg's, in pulse order) in place from their true beams to the
         believed ones."""
         if len(points) == 0:
@@ -82,7 +90,7 @@ class NavigationModel:
             row = [np.take(turn[3 * r + c], pulse) for c in range(3)]
             points[axis] = row[0] * xyz[0] + row[1] * xyz[1] + row[2] * xyz[2] + np.take(shift[r], pulse)
 
-    def transform(self, leg, table, t) -> tuple[np.ndarray, np.ndarray]:
+    def transform(self, leg: Leg, table: PoseTable | None, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The affine map from true to believed points at times ``t``: ``A`` (n, 3, 3) and ``b`` (n, 3), with
         ``believed = A·P + b`` (module docstring: ``A = B·E·M·Q·Mᵀ·Bᵀ``, ``b = p + g + B·E·lever − A·O``)."""
         lever = self.platform.lever_arm
@@ -94,7 +102,7 @@ class NavigationModel:
         shift = position + gnss + believed_body @ lever - np.einsum("nij,nj->ni", turn, origin)
         return turn, shift
 
-    def trajectory(self, leg, table, t) -> np.ndarray:
+    def trajectory(self, leg: Leg, table: PoseTable | None, t: np.ndarray) -> np.ndarray:
         """(n, 6) believed x, y, z, roll, pitch, yaw (deg) of the platform at times ``t``."""
         position, body = self.believed_pose(leg, table, t)
         return np.column_stack([position, matrix_euler(ENU_FROM_NED.T @ body)])

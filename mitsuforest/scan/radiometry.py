@@ -19,9 +19,15 @@ Kaasalainen et al. 2018, Remote Sens. 10:1114; Hakala et al. 2012, Opt. Express 
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ..classes import BUSH, CLASS_NAMES, DEADWOOD, GROUND, GROUND_VEGETATION, ROCK, STUMP, TREE_LEAVES, TREE_WOOD
+
+if TYPE_CHECKING:
+    from ..config.types import IntensityMapping
 
 REFLECTANCE = {
     #                 905-1064 nm   1550 nm
@@ -45,13 +51,14 @@ def reflectance_table(wavelength: float) -> np.ndarray:
     return table
 
 
-def received_power(weight, reflectance, cos_incidence, range_m):
-    """Lambertian echo power ``w ρ |cos θ| / R²`` (unit: white full-beam target at 1 m)."""
+def received_power(weight: ArrayLike, reflectance: ArrayLike, cos_incidence: ArrayLike,
+                   range_m: ArrayLike) -> np.ndarray:
+    """Lambertian echo power ``w ρ |cos θ| / R²`` (unit: white full-beam target at 1 m), broadcast."""
     r = np.maximum(np.asarray(range_m, np.float64), 1e-6)
     return np.asarray(weight) * np.asarray(reflectance) * np.abs(cos_incidence) / (r * r)
 
 
-def reflectance_db(amplitude, range_m):
+def reflectance_db(amplitude: ArrayLike, range_m: ArrayLike) -> np.ndarray:
     """RIEGL-style reflectance (dB): ``10·log10(A·R²)``, the amplitude over a white Lambertian target's
     at the same range (see the module docstring); -inf for a zero amplitude."""
     a = np.asarray(amplitude, np.float64)
@@ -60,7 +67,7 @@ def reflectance_db(amplitude, range_m):
         return 10.0 * np.log10(a * r * r)
 
 
-def intensity_counts(amplitude, reflectance, mapping) -> np.ndarray:
+def intensity_counts(amplitude: np.ndarray, reflectance: np.ndarray, mapping: IntensityMapping) -> np.ndarray:
     """16-bit intensity of echoes (uint16): ``clip(round(gain·q + offset), 0, saturation)``, with ``q``
     the amplitude or, for ``mapping.source == "reflectance"``, the linear reflectance
     ``10^(reflectance/10) = A·R²``.
