@@ -107,27 +107,23 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
-def _named(argument: str, what: str):
-    """An input path argument's type: an empty one is refused, naming ``argument`` (``Path("")`` would be
-    the working folder, and the message about it would name ".")."""
+def _named(argument: str, what: str, hint: str = ""):
+    """A path argument's type: an empty one is refused, naming ``argument`` (``Path("")`` would be the
+    working folder, and a message about it would name ".")."""
     def parse(text: str) -> Path:
         if not text:
-            raise UserError(f"{argument}: must name {what}, got an empty path")
+            raise UserError(f"{argument}: must name {what}, got an empty path{hint}")
         return Path(text)
     return parse
 
 
-def _folder(text: str) -> Path:
-    """An output folder argument: an empty one is refused (``Path("")`` would be the working folder)."""
-    if not text:
-        raise UserError("-o: must name a folder, got an empty path (give . for the working folder)")
-    return Path(text)
+_folder = _named("-o", "a folder", " (give . for the working folder)")     # every command's output folder
 
 
 def main(argv=None) -> int:
     try:
         args = _parser().parse_args(argv)
-    except UserError as e:    # raised by an argument's type (_folder): one line, like the file's errors
+    except UserError as e:    # raised by an argument's type (_named): one line, like the file's errors
         print(f"mitsuforest: {e}", file=sys.stderr)
         return e.exit_code
     previous = signal.signal(signal.SIGTERM, raise_terminated) if in_main_thread() else None

@@ -107,7 +107,6 @@ def load_dataset(path) -> Dataset:
     base = load_scene(parsed["base"])
     if tiles:
         _check_tile_count(tiles, base, count, ranges, choices, ctx)
-
     _check_splits(parsed["splits"], ctx)
     combos = list(itertools.product(*choices.values())) or [()]
     width = max(4, len(str(count - 1)))

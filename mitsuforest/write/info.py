@@ -67,8 +67,8 @@ def _load_las(path: Path) -> tuple[dict, list[str], dict]:
             raise PointFileError(f"truncated: the file ends at byte {size:,}, before its points, which the header "
                                  f"puts at byte {header.offset_to_point_data:,}")
         need = header.offset_to_point_data + header.point_count * header.point_format.size
-        if not header.are_points_compressed and path.stat().st_size < need:
-            held = max(path.stat().st_size - header.offset_to_point_data, 0) // header.point_format.size
+        if not header.are_points_compressed and size < need:
+            held = (size - header.offset_to_point_data) // header.point_format.size
             raise PointFileError(f"truncated: the header promises {header.point_count:,} points, the file "
                                  f"holds {held:,}")
         problem = _uncounted_points(path, header) if not header.are_points_compressed else _laz_problem(path, header)

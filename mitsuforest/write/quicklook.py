@@ -134,8 +134,8 @@ class SideTile:
 
     def select(self, points) -> np.ndarray:
         """The part of ``points`` that :meth:`add` keeps: those in the tile, with the fields it draws, packed
-        (19 bytes a point: a selection of fields alone keeps the whole record's 72, which a writer worker
-        then pickled back with its part)."""
+        (31 bytes a point of the scan's: a selection of fields alone keeps the whole record's 72, which a
+        writer worker then pickled back with its part)."""
         sel = ((points["x"] >= self.x0) & (points["x"] < self.x0 + self.tile)
                & (points["y"] >= self.y0) & (points["y"] < self.y0 + self.tile))
         fields = [f for f in TILE_FIELDS if f in points.dtype.names]
