@@ -26,85 +26,106 @@ def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="mitsuforest", description="Labelled UAV LiDAR scans of synthetic forests.")
     p.add_argument("--version", action="version", version=f"mitsuforest {__version__}")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for add_subparser in _SUBPARSERS:
+        add_subparser(sub)
+    return p
 
-    r = sub.add_parser("render", help="plan, build, scan and write a scene",
+
+def _add_render(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("render", help="plan, build, scan and write a scene",
                        description="Render a scene file: plan, trees, Mitsuba scene, scan, labelled outputs. "
                                    "A HELIOS++ survey (.xml) is flown over its scene parts, each part's id "
                                    "becoming its points' object_id.")
-    r.add_argument("scene", type=_named("SCENE", "a file"), help="scene file (scenes/*.yaml) or HELIOS++ survey (.xml)")
-    r.add_argument("--assets", type=_named("--assets", "a folder"), action="append", default=[],
+    p.add_argument("scene", type=_named("SCENE", "a file"), help="scene file (scenes/*.yaml) or HELIOS++ survey (.xml)")
+    p.add_argument("--assets", type=_named("--assets", "a folder"), action="append", default=[],
                    help="HELIOS++ survey: a folder searched for relative paths, as helios++ --assets (repeatable)")
-    r.add_argument("-o", "--output", type=_folder, help="output folder (default: the scene's output.dir)")
-    r.add_argument("--variant", help="Mitsuba variant, e.g. llvm_ad_mono or cuda_ad_mono (default: scene's, auto)")
-    r.add_argument("--seed", type=int, help="override the scene's seed")
-    r.add_argument("--overwrite", action="store_true", help="replace earlier results in the output folder")
-    r.add_argument("--quiet", action="store_true", help="no progress bars or summaries")
+    p.add_argument("-o", "--output", type=_folder, help="output folder (default: the scene's output.dir)")
+    p.add_argument("--variant", help="Mitsuba variant, e.g. llvm_ad_mono or cuda_ad_mono (default: scene's, auto)")
+    p.add_argument("--seed", type=int, help="override the scene's seed")
+    p.add_argument("--overwrite", action="store_true", help="replace earlier results in the output folder")
+    p.add_argument("--quiet", action="store_true", help="no progress bars or summaries")
 
-    pl = sub.add_parser("plan", help="write the placement plan only",
-                        description="Place trees and understory, measure canopy cover, write <name>_plan.json. "
-                                    "A folder holding a finished render of the scene is refused: "
-                                    "its plan is the render's.")
-    pl.add_argument("scene", type=_named("SCENE", "a file"), help="scene file")
-    pl.add_argument("-o", "--output", type=_folder, help="output folder (default: the scene's output.dir)")
-    pl.add_argument("--seed", type=int, help="override the scene's seed")
 
-    t = sub.add_parser("trees", help="write the tree archetypes' meshes, volumes and a picture",
+def _add_plan(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("plan", help="write the placement plan only",
+                       description="Place trees and understory, measure canopy cover, write <name>_plan.json. "
+                                   "A folder holding a finished render of the scene is refused: "
+                                   "its plan is the render's.")
+    p.add_argument("scene", type=_named("SCENE", "a file"), help="scene file")
+    p.add_argument("-o", "--output", type=_folder, help="output folder (default: the scene's output.dir)")
+    p.add_argument("--seed", type=int, help="override the scene's seed")
+
+
+def _add_trees(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("trees", help="write the tree archetypes' meshes, volumes and a picture",
                        description="Write each archetype's and imported model's wood and leaf meshes (PLY), "
-                                  "volumes.csv, trees.png and (for imported meshes) repairs.csv.")
-    t.add_argument("-o", "--output", type=_folder, default=Path("out/trees"), help="output folder (default: out/trees)")
-    t.add_argument("--scene", type=_named("--scene", "a file"), help="take the archetypes and forest.models from this scene file (default: the built-in ten)")
+                                   "volumes.csv, trees.png and (for imported meshes) repairs.csv.")
+    p.add_argument("-o", "--output", type=_folder, default=Path("out/trees"), help="output folder (default: out/trees)")
+    p.add_argument("--scene", type=_named("--scene", "a file"), help="take the archetypes and forest.models from this scene file (default: the built-in ten)")
 
-    e = sub.add_parser("export", help="write the planned scene as meshes and a HELIOS++ survey that runs as it is",
+
+def _add_export(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("export", help="write the planned scene as meshes and a HELIOS++ survey that runs as it is",
                        description="Write each model's components (OBJ, with materials), the ground, "
                                    "<name>_transforms.csv, <name>_helios_parts.csv and the HELIOS++ scene, survey, "
                                    "platform and scanner (one part per component, id = object_id): "
                                    "helios++ OUTPUT/<name>_helios_survey.xml flies our survey.")
-    e.add_argument("scene", type=_named("SCENE", "a file"), help="scene file")
-    e.add_argument("-o", "--output", type=_folder, required=True, help="output folder")
-    e.add_argument("--seed", type=int, help="override the scene's seed")
+    p.add_argument("scene", type=_named("SCENE", "a file"), help="scene file")
+    p.add_argument("-o", "--output", type=_folder, required=True, help="output folder")
+    p.add_argument("--seed", type=int, help="override the scene's seed")
 
-    d = sub.add_parser("dataset", help="render many plots (or large ones split by leg) on Dask",
+
+def _add_dataset(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("dataset", help="render many plots (or large ones split by leg) on Dask",
                        description="Render every plot of a dataset file on Dask (an embedded LocalCluster, or "
                                    "--scheduler), with tiles, index.csv, splits.json and dataset_manifest.json. "
                                    "Finished plots are kept; run again to finish an interrupted dataset.")
-    d.add_argument("dataset", type=_named("DATASET", "a file"), help="dataset file (examples/dataset.yaml)")
-    d.add_argument("-o", "--output", type=_folder, help="output folder (default: out/<dataset name>)")
-    d.add_argument("--workers", type=int, help="worker processes of the embedded LocalCluster (default: one per core)")
-    d.add_argument("--scheduler", help="address of a running Dask scheduler, e.g. tcp://HOST:8786")
-    d.add_argument("--threads", type=int, help="Dr.Jit threads per worker (default: cores / workers locally, "
+    p.add_argument("dataset", type=_named("DATASET", "a file"), help="dataset file (examples/dataset.yaml)")
+    p.add_argument("-o", "--output", type=_folder, help="output folder (default: out/<dataset name>)")
+    p.add_argument("--workers", type=int, help="worker processes of the embedded LocalCluster (default: one per core)")
+    p.add_argument("--scheduler", help="address of a running Dask scheduler, e.g. tcp://HOST:8786")
+    p.add_argument("--threads", type=int, help="Dr.Jit threads per worker (default: cores / workers locally, "
                                                "all cores of each machine with --scheduler)")
-    d.add_argument("--quiet", action="store_true", help="no progress bars or summary")
+    p.add_argument("--quiet", action="store_true", help="no progress bars or summary")
 
-    tw = sub.add_parser("twin", help="write a scene that reproduces a real scan",
-                        description="Write DIR/<name>.yaml (renderable as it is), its DEM GeoTIFF, trees.csv and "
-                                    "twin.json from a real LAS/LAZ scan: ground, trees on a canopy height model, "
-                                    "understory and the survey estimated from the points.")
-    tw.add_argument("file", type=_named("REAL", "a file"), help="a .las or .laz scan (or our .pcd)")
-    tw.add_argument("-o", "--output", type=_folder, required=True, help="output folder")
-    tw.add_argument("--species", nargs="+", default=[], metavar="NAME",
-                    help="procedural species of the trees, drawn in turn (default: pinus_radiata)")
-    tw.add_argument("--sensor", type=_named("--sensor", "a file"), help="a sensor file to use instead of the estimated sensor")
-    tw.add_argument("--name", help="the scene's name (default: the file's stem)")
-    tw.add_argument("--calibrate", type=int, default=0, metavar="N",
-                    help="render the twin up to N times, rescaling its crowns' leaf area, width and depth towards the "
-                         "real scan's echoes per pulse (or gap fraction), canopy cover and canopy spread after each "
-                         "(default 0: no renders)")
-    tw.add_argument("--variant", help="Mitsuba variant of the calibration renders (default: auto)")
 
-    i = sub.add_parser("info", help="summarise a point file", description="Summarise a PCD, LAS or LAZ file.")
-    i.add_argument("file", type=_named("FILE", "a file"), help="a .pcd, .las or .laz file")
+def _add_twin(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("twin", help="write a scene that reproduces a real scan",
+                       description="Write DIR/<name>.yaml (renderable as it is), its DEM GeoTIFF, trees.csv and "
+                                   "twin.json from a real LAS/LAZ scan: ground, trees on a canopy height model, "
+                                   "understory and the survey estimated from the points.")
+    p.add_argument("file", type=_named("REAL", "a file"), help="a .las or .laz scan (or our .pcd)")
+    p.add_argument("-o", "--output", type=_folder, required=True, help="output folder")
+    p.add_argument("--species", nargs="+", default=[], metavar="NAME",
+                   help="procedural species of the trees, drawn in turn (default: pinus_radiata)")
+    p.add_argument("--sensor", type=_named("--sensor", "a file"), help="a sensor file to use instead of the estimated sensor")
+    p.add_argument("--name", help="the scene's name (default: the file's stem)")
+    p.add_argument("--calibrate", type=int, default=0, metavar="N",
+                   help="render the twin up to N times, rescaling its crowns' leaf area, width and depth towards the "
+                        "real scan's echoes per pulse (or gap fraction), canopy cover and canopy spread after each "
+                        "(default 0: no renders)")
+    p.add_argument("--variant", help="Mitsuba variant of the calibration renders (default: auto)")
 
-    c = sub.add_parser("compare", help="compare two point files: a table, compare.json and compare.png",
+
+def _add_info(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("info", help="summarise a point file", description="Summarise a PCD, LAS or LAZ file.")
+    p.add_argument("file", type=_named("FILE", "a file"), help="a .pcd, .las or .laz file")
+
+
+def _add_compare(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("compare", help="compare two point files: a table, compare.json and compare.png",
                        description="Two point files (PCD, LAS or LAZ; ours or another tool's) side by side: "
                                    "density, spacing, returns, heights above the ground, canopy, ground share, "
                                    "intensity and scan angles, and the distances between them (see README, "
                                    "\"Comparing scans\"). The table goes to stdout, compare.json and "
                                    "compare.png to the output folder.")
-    c.add_argument("a", type=_named("A", "a file"), help="the first point file (A; a real scan, say)")
-    c.add_argument("b", type=_named("B", "a file"), help="the second point file (B; distances are B against A)")
-    c.add_argument("-o", "--output", type=_folder, default=Path("out/compare"),
+    p.add_argument("a", type=_named("A", "a file"), help="the first point file (A; a real scan, say)")
+    p.add_argument("b", type=_named("B", "a file"), help="the second point file (B; distances are B against A)")
+    p.add_argument("-o", "--output", type=_folder, default=Path("out/compare"),
                    help="output folder (default: out/compare)")
-    return p
+
+
+_SUBPARSERS = (_add_render, _add_plan, _add_trees, _add_export, _add_dataset, _add_twin, _add_info, _add_compare)
 
 
 def _named(argument: str, what: str, hint: str = ""):

@@ -50,7 +50,6 @@ DENSE_SHOOTS = {"pinus_radiata": {"branches": 2.0, "children": 8, "twigs": 4, "l
 def survey_plan(analysis: dict, sensor=None) -> tuple[dict, dict | str, dict]:
     """The scene's ``survey`` and ``sensor`` values, and per quantity its value and where it came from."""
     est: survey_estimation.SurveyEstimate = analysis["survey"]
-    frame = analysis["frame"]
     report = {}
 
     def pick(key, value):
@@ -73,6 +72,20 @@ def survey_plan(analysis: dict, sensor=None) -> tuple[dict, dict | str, dict]:
     scan_frequency = round(pick("scan_frequency", est.scan_frequency), 3)
     fov = pick("field_of_view", fov_seen)
     out = {"altitude": round(altitude, 2), "speed": round(speed, 3), "margin": MARGIN}
+    spacing = _flight_lines(est, analysis["frame"], out, report)
+    prf = _pulse_rate(est, analysis["pulse_density"], speed, spacing or DEFAULTS["line_spacing"], fov, report)
+    if sensor is not None:
+        return out | _rates_of(sensor, prf, scan_frequency, report), str(Path(sensor).resolve()), report
+    sensor_map = {**DEFAULT_SENSOR, "field_of_view": fov, "pulse_frequencies": [prf],
+                  "scan_frequency_range": [min(10.0, scan_frequency), max(200.0, scan_frequency)]}
+    out["pulse_frequency"], out["scan_frequency"] = prf, scan_frequency
+    report["sensor"] = {"value": sensor_map["name"], "source": "estimated rates and field of view, the VUX-1UAV22's optics"}
+    return out, sensor_map, report
+
+
+def _flight_lines(est: survey_estimation.SurveyEstimate, frame, out: dict, report: dict) -> float | None:
+    """The scan's own lines into ``out["lines"]`` where they were placed, else a lawnmower's spacing and
+    heading; returns that spacing (m), or ``None`` for the scan's lines."""
     if est.line_positions and est.heading is not None:
         local = [survey_estimation.leg_ends(p, est.heading, frame.bounds, MARGIN) for p in est.line_positions]
         out["lines"] = [[[round(a - frame.offset[0], 2), round(b - frame.offset[1], 2)] for a, b in leg] for leg in local]
@@ -80,34 +93,37 @@ def survey_plan(analysis: dict, sensor=None) -> tuple[dict, dict | str, dict]:
         report["lines"] = {"value": len(local), "source": f"estimated: of the file's {est.lines} lines, "
                            f"{placed['track']} on their tracks, {placed['scan angle']} by scan angle and beam side, "
                            f"{placed['not placed']} not placed (too few pulses with two returns)"}
-        spacing = None
-    else:
-        spacing = DEFAULTS["line_spacing"]
-        out.update(line_spacing=spacing, heading=DEFAULTS["heading"])
-        report["lines"] = {"value": "lawnmower", "source": f"default ({est.missing.get('lines', 'not estimated')}): "
-                                                           f"{spacing:g} m apart, heading {DEFAULTS['heading']:g}"}
+        return None
+    spacing = DEFAULTS["line_spacing"]
+    out.update(line_spacing=spacing, heading=DEFAULTS["heading"])
+    report["lines"] = {"value": "lawnmower", "source": f"default ({est.missing.get('lines', 'not estimated')}): "
+                                                       f"{spacing:g} m apart, heading {DEFAULTS['heading']:g}"}
+    return spacing
+
+
+def _pulse_rate(est: survey_estimation.SurveyEstimate, pulse_density: float, speed: float, spacing: float,
+                fov: float, report: dict) -> float:
+    """The estimated pulse rate (Hz), or the one that gives the file's pulses per m² over parallel lines
+    ``spacing`` m apart, rounded to 100 Hz from 1 kHz up."""
     if est.pulse_frequency is not None:
         prf = est.pulse_frequency
         report["pulse_frequency"] = {"value": prf, "source": "estimated"}
     else:   # pulses per m² of parallel lines: PRF · (FOV / 360) / (speed · spacing)
-        prf = analysis["pulse_density"] * speed * (spacing or DEFAULTS["line_spacing"]) * 360.0 / fov
-        report["pulse_frequency"] = {"value": prf, "source": f"matched to the file's {analysis['pulse_density']:.2f} "
+        prf = pulse_density * speed * spacing * 360.0 / fov
+        report["pulse_frequency"] = {"value": prf, "source": f"matched to the file's {pulse_density:.2f} "
                                      f"pulses/m² ({est.missing.get('pulse_frequency', 'not estimated')})"}
-    prf = float(round(prf, -2)) if prf >= 1000 else float(round(prf))
-    if sensor is not None:
-        from ..config import load_sensor
-        loaded = load_sensor(sensor)
-        prf_listed = min(loaded.pulse_frequencies, key=lambda f: abs(f - prf))
-        lo, hi = loaded.scan_frequency_range
-        out["pulse_frequency"], out["scan_frequency"] = prf_listed, min(max(scan_frequency, lo), hi)
-        report["sensor"] = {"value": str(Path(sensor).resolve()), "source": "--sensor (its nearest pulse rate "
-                            f"{prf_listed:g} Hz and scan rate within {lo:g}-{hi:g} Hz)"}
-        return out, str(Path(sensor).resolve()), report
-    sensor_map = {**DEFAULT_SENSOR, "field_of_view": fov, "pulse_frequencies": [prf],
-                  "scan_frequency_range": [min(10.0, scan_frequency), max(200.0, scan_frequency)]}
-    out["pulse_frequency"], out["scan_frequency"] = prf, scan_frequency
-    report["sensor"] = {"value": sensor_map["name"], "source": "estimated rates and field of view, the VUX-1UAV22's optics"}
-    return out, sensor_map, report
+    return float(round(prf, -2)) if prf >= 1000 else float(round(prf))
+
+
+def _rates_of(sensor, prf: float, scan_frequency: float, report: dict) -> dict:
+    """``--sensor``'s listed pulse rate nearest ``prf`` and ``scan_frequency`` within its range."""
+    from ..config import load_sensor
+    loaded = load_sensor(sensor)
+    prf_listed = min(loaded.pulse_frequencies, key=lambda f: abs(f - prf))
+    lo, hi = loaded.scan_frequency_range
+    report["sensor"] = {"value": str(Path(sensor).resolve()), "source": "--sensor (its nearest pulse rate "
+                        f"{prf_listed:g} Hz and scan rate within {lo:g}-{hi:g} Hz)"}
+    return {"pulse_frequency": prf_listed, "scan_frequency": min(max(scan_frequency, lo), hi)}
 
 
 def _dense_archetypes(species: tuple[str, ...], crown_ratio: float | None) -> dict:
