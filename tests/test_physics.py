@@ -2,6 +2,7 @@
 Dr.Jit twins against their numpy references on every variant the machine has."""
 
 import dataclasses
+from fractions import Fraction
 
 import numpy as np
 import pytest
@@ -57,6 +58,12 @@ def test_oscillating_and_risley_patterns():
     t = np.arange(0, 1, 1e-4)
     _, theta, fired = oscillating(t, 10.0, np.deg2rad(30.0))
     assert fired.all() and theta.max() == pytest.approx(np.deg2rad(30), rel=1e-3)
+    # 10 Hz: ten sweeps there and back a second (as HELIOS++'s scanFreq_hz), so twenty scan lines,
+    # each across the full field of view at a constant rate, and the same angle 0.1 s later.
+    turns = np.flatnonzero(np.diff(np.sign(np.diff(theta))) != 0)
+    assert len(turns) == 2 * 10 - 1
+    assert np.allclose(np.abs(np.diff(theta))[np.abs(np.diff(theta)) < 1e-2], 4 * np.deg2rad(30) * 10 * 1e-4)
+    assert np.allclose(theta[:9000], theta[1000:], atol=1e-9)
     d, off, fired = risley(t, [121.57, -77.73], [17.6, 17.6], np.deg2rad(35.2))
     assert fired.all() and off.max() <= np.deg2rad(35.2) + 1e-9
     assert np.allclose(np.linalg.norm(d, axis=1), 1)
@@ -232,3 +239,39 @@ def test_device_pulses_match_the_numpy_reference(deflector, variant):
         for key in ("origin", "direction", "across"):
             xyz = np.column_stack([np.array(getattr(getattr(got, key), a)) for a in "xyz"])
             assert np.abs(xyz - getattr(ref, key)).max() < 1e-5, key
+
+
+def exact_scan_angle(sensor, t0: float, since: np.ndarray, scan_frequency: float) -> np.ndarray:
+    """Scan angles at ``t0 + since`` with the turns taken in exact rational arithmetic."""
+    def turns(frequency):
+        return np.array([float((Fraction(t0) + Fraction(s)) * Fraction(frequency) % 1) for s in since])
+    if sensor.deflector == "rotating":
+        return (2 * np.pi * turns(scan_frequency) + np.pi) % (2 * np.pi) - np.pi
+    if sensor.deflector == "oscillating":
+        return (4 * np.abs(turns(scan_frequency) - 0.5) - 1) * sensor.half_fov
+    (d1, d2), angles = np.deg2rad(sensor.risley.prism_deflection), [2 * np.pi * turns(r) for r in sensor.risley.prism_rates]
+    return np.hypot(d1 * np.cos(angles[0]) + d2 * np.cos(angles[1]), d1 * np.sin(angles[0]) + d2 * np.sin(angles[1]))
+
+
+@pytest.mark.parametrize("deflector", ["rotating", "oscillating", "risley"])
+def test_scan_angles_keep_their_precision_at_gps_seconds(deflector, variant):
+    """A flown trajectory's legs start at its own clock, GPS seconds of about 1.4e9 s: there 2π·f·t in
+    float64 keeps only some 4e-4 rad (steps between pulses off by 17 %). Both twins take the phase at the
+    leg's start exactly, so every angle is the exact one within 1e-9 rad."""
+    from mitsuforest.scan import pulses as device
+    sensor = dataclasses.replace(
+        IDEAL, deflector=deflector, field_of_view={"rotating": 360, "oscillating": 100, "risley": 40}[deflector],
+        range_max=200.0, risley=dataclasses.replace(IDEAL.risley, prism_rates=(121.6, -77.7),
+                                                    prism_deflection=(8.0, 7.0)))
+    t0 = 1_400_000_000.123
+    leg = Leg((0.0, 0.0, 30.0), (0.0, 10.0, 30.0), t0, t0 + 5.0)
+    box = np.array([[-1e3, -1e3, -1e3], [1e3, 1e3, 1e3]])
+    ref, _ = reaching_pulses(leg, sensor, 550_000, 200, 1000, 20_000, box)
+    since = (ref.index / 550_000)
+    truth = exact_scan_angle(sensor, t0, since[::97], 200)
+    assert len(ref.index) > 10_000
+    assert np.abs(ref.scan_angle[::97] - truth).max() < 1e-9
+    with variant_scope(variant):
+        got, _ = device.reaching_pulses(leg, sensor, 550_000, 200, 1000, 20_000, box)
+        assert np.abs(np.array(got.scan_angle)[::97] - truth).max() < 1e-6      # float32 on the device
+        assert np.array_equal(np.array(got.pulse_id), ref.index)

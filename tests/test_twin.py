@@ -334,3 +334,18 @@ def test_tree_list_crown_ratio_column_sets_each_trees_crown(tmp_path):
     (tmp_path / "trees.csv").write_text("x,y,height,crown_radius,crown_ratio\n5,5,22,2.5,0.99\n")
     with pytest.raises(UserError, match=r"trees.csv: line 2: crown_ratio must be within 0.1-0.95, got 0.99"):
         make_plan(load_scene(tmp_path / "s.yaml"))
+
+
+def test_an_oscillating_sensor_gets_half_the_scans_lines_per_second(tmp_path):
+    """The scan's bursts come one a scan line. A turning mirror draws one line a turn, an oscillating one
+    two a sweep there and back (its scan_frequency, as HELIOS++'s): 80 lines/s are 80 Hz and 40 Hz."""
+    from mitsuforest.twin.scene import _rates_of
+    text = (ROOT / "sensors" / "ideal.yaml").read_text()
+    oscillating = tmp_path / "oscillating.yaml"
+    oscillating.write_text(text.replace("deflector: rotating", "deflector: oscillating")
+                           .replace("field_of_view: 360", "field_of_view: 60"))
+    for sensor, hz in ((ROOT / "sensors" / "ideal.yaml", 80.0), (oscillating, 40.0)):
+        report = {}
+        rates = _rates_of(sensor, 123_000.0, 80.0, report)
+        assert rates == {"pulse_frequency": 100_000, "scan_frequency": hz}
+        assert ("oscillating" in report["sensor"]["source"]) == (hz == 40.0)

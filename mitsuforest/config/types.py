@@ -96,7 +96,7 @@ class Sensor:
     field_of_view: float                      # full angle (deg)
     pulse_frequencies: tuple[float, ...]      # Hz
     scan_frequency_range: tuple[float, float]  # Hz
-    beam_divergence: tuple[float, float]      # full angle at 1/e² (rad), across and along the scan plane
+    beam_divergence: tuple[float, float]      # full angle at 1/e² (rad), across track (in the scan plane), along track
     pulse_length: float                       # FWHM (s)
     wavelength: float                         # m
     range_min: float

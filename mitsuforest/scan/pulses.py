@@ -77,8 +77,9 @@ def reaching_pulses(leg, sensor, pulse_frequency: float, scan_frequency: float, 
 
     t0, t1 = leg_value(leg.t0), leg_value(leg.t1)
     slot = leg_value(first, mi.UInt32) + dr.arange(mi.UInt32, count)
-    t = t0 + Float64(slot) / float(pulse_frequency)
-    d_sensor, angle, fired = deflect(sensor, t, float(scan_frequency or 0.0))
+    since = Float64(slot) / float(pulse_frequency)
+    t = t0 + since
+    d_sensor, angle, fired = deflect(sensor, float(leg.t0), since, float(scan_frequency or 0.0))
     if table is None:
         frame_np = leg.frame()
         frame = [[leg_value(x) for x in row] for row in frame_np]

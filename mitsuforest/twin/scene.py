@@ -115,15 +115,18 @@ def _pulse_rate(est: survey_estimation.SurveyEstimate, pulse_density: float, spe
     return float(round(prf, -2)) if prf >= 1000 else float(round(prf))
 
 
-def _rates_of(sensor, prf: float, scan_frequency: float, report: dict) -> dict:
-    """``--sensor``'s listed pulse rate nearest ``prf`` and ``scan_frequency`` within its range."""
+def _rates_of(sensor, prf: float, lines_per_second: float, report: dict) -> dict:
+    """``--sensor``'s listed pulse rate nearest ``prf``, and its scan rate for the scan's lines per second
+    within its range: an oscillating mirror's sweep there and back draws two lines, a turn one."""
     from ..config import load_sensor
     loaded = load_sensor(sensor)
     prf_listed = min(loaded.pulse_frequencies, key=lambda f: abs(f - prf))
     lo, hi = loaded.scan_frequency_range
+    lines_per_cycle = 2 if loaded.deflector == "oscillating" else 1
     report["sensor"] = {"value": str(Path(sensor).resolve()), "source": "--sensor (its nearest pulse rate "
-                        f"{prf_listed:g} Hz and scan rate within {lo:g}-{hi:g} Hz)"}
-    return {"pulse_frequency": prf_listed, "scan_frequency": min(max(scan_frequency, lo), hi)}
+                        f"{prf_listed:g} Hz and scan rate within {lo:g}-{hi:g} Hz"
+                        + (", half the lines per second: an oscillating mirror" if lines_per_cycle == 2 else "") + ")"}
+    return {"pulse_frequency": prf_listed, "scan_frequency": min(max(lines_per_second / lines_per_cycle, lo), hi)}
 
 
 def _dense_archetypes(species: tuple[str, ...], crown_ratio: float | None) -> dict:

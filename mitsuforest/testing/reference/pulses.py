@@ -31,8 +31,9 @@ def reaching_pulses(leg, sensor, pulse_frequency: float, scan_frequency: float, 
     :param platform, table: a :class:`~mitsuforest.scan.platform.Platform` and the leg's pose table
         (``Platform.table``); without a table, level flight along the leg's straight line."""
     k = np.arange(first, first + count, dtype=np.int64)
-    t = leg.t0 + k / pulse_frequency
-    d_sensor, angle, fired = deflect(sensor, t, scan_frequency)
+    since = k / pulse_frequency
+    t = leg.t0 + since
+    d_sensor, angle, fired = deflect(sensor, leg.t0, since, scan_frequency)
     k, t, d_sensor, angle = k[fired], t[fired], d_sensor[fired], angle[fired]
     if table is None:
         frame = np.broadcast_to(leg.frame(), (len(t), 3, 3))    # rows: the sensor axes in the local frame
