@@ -321,3 +321,68 @@ def test_the_helios_export_names_the_platform_settings_it_leaves_out(tmp_path):
     assert _unexported_platform(scene.with_({"survey.navigation_errors.gnss_sigma_m": 0.1,
                                              "sensor.mount.lever_arm": [0, 0, 1]})) == \
         "sensor.mount, survey.navigation_errors are"
+
+
+def _navigation(tmp_path, mount=None, **errors):
+    """A NavigationModel over 0..400 s for a northbound leg along x = 20 m at 30 m, and that leg."""
+    from mitsuforest.config.types import NavigationErrors
+    from mitsuforest.scan.navigation import NavigationModel
+    from mitsuforest.scan.platform import Platform
+    sensor = {**NARROW, **({"mount": mount} if mount else {})}
+    scene = load_scene(scene_file(tmp_path, sensor=sensor, survey={"altitude": 30, "lines": [[[X, 5.0], [X, 35.0]]]}))
+    platform = Platform(scene)
+    leg = make_plan(scene).legs[0]
+    return NavigationModel(NavigationErrors(**errors), 11, (0.0, 400.0), platform), leg
+
+
+def test_the_error_series_have_the_sigmas_they_are_given(tmp_path):
+    """20,000 epochs at 50 Hz: white GNSS and IMU noise with the σ given per axis, and a random walk whose
+    increments over one epoch have σ q·√Δt, each within 3 % (the σ of a sample σ here is 0.5 %)."""
+    white, _ = _navigation(tmp_path / "w", gnss_sigma_m=(0.1, 0.2, 0.05), imu_sigma_deg=(0.01, 0.02, 0.03), rate_hz=50)
+    t = white.t0 + white.step * np.arange(20_000)
+    gnss, imu = white.at(t)
+    assert np.std(gnss, axis=0) == pytest.approx([0.1, 0.2, 0.05], rel=0.03)
+    assert np.std(imu, axis=0) == pytest.approx([0.01, 0.02, 0.03], rel=0.03)
+    assert np.abs(np.mean(gnss, axis=0)).max() < 0.01
+    walk, _ = _navigation(tmp_path / "r", gnss_random_walk_m_per_sqrt_s=(0.02, 0.02, 0.05), rate_hz=50)
+    gnss, imu = walk.at(t)
+    assert np.std(np.diff(gnss, axis=0), axis=0) == pytest.approx(np.array([0.02, 0.02, 0.05]) * np.sqrt(0.02), rel=0.03)
+    assert np.array_equal(gnss[0], [0.0, 0.0, 0.0]) and not imu.any()
+    half = walk.at(t[:-1] + walk.step / 2)[0]                                    # linear between epochs
+    assert np.allclose(half, (gnss[:-1] + gnss[1:]) / 2)
+
+
+@pytest.mark.parametrize("yaw, moved", [(0.0, "x"), (90.0, "y")])
+def test_a_boresight_roll_error_turns_about_the_mounted_sensors_forward_axis(tmp_path, yaw, moved):
+    """The calibration's roll error δ is about the mounted sensor's own axis (M·Q·Mᵀ in the body frame).
+    Mounted straight, that axis is the body's forward one and a nadir beam's point moves H·sin δ across
+    the track (x on a northbound leg); mounted turned 90° in yaw, it is the body's right axis and the
+    point moves H·sin δ along the track (y), the other axis untouched."""
+    delta, H = 0.5, 30.0
+    model, leg = _navigation(tmp_path, mount={"boresight": [0.0, 0.0, yaw]}, boresight_error_deg=(delta, 0.0, 0.0))
+    t = np.array([1.0, 2.0])
+    table = model.platform.table(leg)
+    position, _ = model.platform.body_pose(leg, table, t)
+    below = position - [0.0, 0.0, H]                                            # a nadir beam's echo at range H
+    turn, shift = model.transform(leg, table, t)
+    moved_by = np.einsum("nij,nj->ni", turn, below) + shift - below
+    k = "xyz".index(moved)
+    assert np.abs(moved_by[:, k]) == pytest.approx(H * np.sin(np.radians(delta)), rel=1e-6)     # 0.262 m
+    assert np.abs(moved_by[:, 1 - k]).max() < 1e-9
+    assert moved_by[:, 2] == pytest.approx(H * (1 - np.cos(np.radians(delta))), rel=1e-6)
+
+
+def test_the_believed_origin_carries_the_lever_arm_turned_by_the_imu_error(tmp_path):
+    """With a lever arm ℓ, the beam's believed origin is p + g + B·E·ℓ: an IMU yaw error ε turns a 2 m
+    forward arm by ε, so the true origin is placed 2·sin ε across the track (0.35 m at 10°)."""
+    model, leg = _navigation(tmp_path, mount={"lever_arm": [2.0, 0.0, 0.0]}, imu_sigma_deg=(0.0, 0.0, 10.0))
+    t = np.linspace(1.0, 3.0, 5)
+    table = model.platform.table(leg)
+    position, body = model.platform.body_pose(leg, table, t)
+    origin = position + body @ model.platform.lever_arm
+    turn, shift = model.transform(leg, table, t)
+    placed = np.einsum("nij,nj->ni", turn, origin) + shift
+    yaw = np.radians(model.at(t)[1][:, 2])
+    assert np.abs(yaw).max() > np.radians(3)
+    assert np.allclose(placed - position, np.column_stack([2 * np.sin(yaw), 2 * np.cos(yaw), np.zeros_like(yaw)]),
+                       atol=1e-9)

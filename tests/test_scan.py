@@ -123,6 +123,15 @@ def test_hits_closer_than_range_min_give_no_points(flat):
     assert len(_trace(flat, pulses([[20.0, 20, 3.5]], [0, 0, -1]), range_min=3.0)) == 1
 
 
+def test_the_range_gates_cut_within_one_percent_of_their_limits(flat):
+    """A plane 1 % inside range_min or range_max gives its echo, 1 % outside none: each gate is where
+    the sensor says, not merely on the right side of a far target."""
+    for limit, key in ((3.0, "range_min"), (30.0, "range_max")):
+        for height, kept in ((limit * 0.99, key == "range_max"), (limit * 1.01, key == "range_min")):
+            pts = _trace(flat, pulses([[20.0, 20.0, height]], [0, 0, -1]), **{key: limit})
+            assert len(pts) == int(kept), (key, height)
+
+
 def test_edge_and_vertex_hits_are_neither_lost_nor_doubled(tmp_path, variant):
     # A noise terrain of zero amplitude is a flat 1 m grid mesh: shoot through its vertices and edges.
     setup = analytic_scene(scene_file(tmp_path, variant=variant, terrain={"type": "noise", "amplitude": 0.0}))
@@ -412,23 +421,29 @@ def test_ranging_noise_is_gaussian_with_the_sensor_sigma(flat):
     assert np.array_equal(again["range"], pts["range"])         # keyed on the pulse, not drawn
 
 
-@pytest.mark.parametrize(("range_m", "theta_deg"), [(20.0, 0.0), (20.0, 60.0), (50.0, 0.0), (50.0, 60.0)])
+@pytest.mark.parametrize(("range_m", "theta_deg"), [(20.0, 0.0), (20.0, 60.0), (50.0, 0.0), (50.0, 60.0),
+                                                    (20.0, 80.0), (20.0, 87.0)])
 def test_ranging_noise_grows_with_range_and_incidence_as_documented(flat, range_m, theta_deg):
     """σ(R, θ)² = σ₀² + (k_R·R)² + (f·(R·γ/4)·tan θ)² (scan/noise.py) on flat ground, an elliptical
     beam (γ = 1 mrad across, 4 mrad along the beam frame's second axis, the one the tilt lies in):
-    the std of n thin-beam ranges matches σ within 4 % (its sampling error is 1/sqrt(2n) = 1.1 %)."""
+    the std of n thin-beam ranges matches σ within 4 % (its sampling error is 1/sqrt(2n) = 1.1 %).
+    tan θ is capped where |cos θ| falls below 0.1 (sin θ / 0.1, 9.95 to 10, from θ = 84.3°): 80° keeps its
+    5.67, 87° (19.1) is cut to 9.99."""
     sigma0, k, f, gamma, n = 0.005, 2e-4, 1.0, (1e-3, 4e-3), 4000
     theta = np.deg2rad(theta_deg)
-    d = np.array([np.sin(theta), 0.0, -np.cos(theta)])        # pulses(): across = -y, along = d x across
+    d = np.array([np.sin(theta), 0.0, -np.cos(theta)])
     hit = np.column_stack([RNG.uniform(10, 30, n), RNG.uniform(10, 30, n), np.zeros(n)])
-    pts = _trace(flat, pulses(hit - range_m * d, d), range_precision=sigma0, range_precision_per_metre=k,
+    p = pulses(hit - range_m * d, d)
+    p.across[:] = [0.0, -1.0, 0.0]                              # so along = d x across lies in the tilt's plane
+    pts = _trace(flat, p, range_precision=sigma0, range_precision_per_metre=k,
                  footprint_range_noise=f, beam_divergence=gamma)
     assert len(pts) == n
-    expected = np.sqrt(sigma0 ** 2 + (k * range_m) ** 2 + (f * range_m * gamma[1] / 4 * np.tan(theta)) ** 2)
+    tan = np.sin(theta) / max(np.cos(theta), 0.1)
+    expected = np.sqrt(sigma0 ** 2 + (k * range_m) ** 2 + (f * range_m * gamma[1] / 4 * tan) ** 2)
     residual = pts["range"].astype(float) - range_m
     assert residual.std() == pytest.approx(expected, rel=0.04)
     assert abs(residual.mean()) < 4 * expected / np.sqrt(n)
-    assert np.array_equal(_trace(flat, pulses(hit - range_m * d, d), range_precision=sigma0, range_precision_per_metre=k,
+    assert np.array_equal(_trace(flat, p, range_precision=sigma0, range_precision_per_metre=k,
                                  footprint_range_noise=f, beam_divergence=gamma)["range"], pts["range"])
 
 

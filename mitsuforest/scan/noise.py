@@ -13,8 +13,8 @@ the footprint's irradiance ``exp(-2 u²/w²)``, ``w = R·γ/2``, has ``std(u) = 
 For a round beam it is ``(R·γ/4)·tan θ`` (θ the incidence angle): the stretch of the echo along the
 beam that an inclined surface causes, the range error term of Schaer et al. (2007, "Accuracy
 estimation for laser point cloud including scanning geometry", 5th Int. Symposium on Mobile Mapping
-Technology). ``c_min`` = :data:`MIN_COS` caps tan θ at about 10 (θ ≈ 84°). n is the normal of the
-triangle the echo's strongest sub-ray hit.
+Technology). ``c_min`` = :data:`MIN_COS` caps tan θ at sin θ / 0.1, at most 10 (from θ = 84.3°). n is
+the normal of the triangle the echo's strongest sub-ray hit.
 
 Speckle (:func:`speckle_gain`): the echo's amplitude is multiplied by ``G ~ Gamma(L, 1/L)`` (mean 1,
 variance 1/L), the intensity of fully developed speckle averaged over L independent looks (Goodman,
@@ -29,7 +29,7 @@ import mitsuba as mi
 from .. import seeds
 from .sampling import TWO_PI, uniform_pair
 
-MIN_COS = 0.1          # |cos θ| floor in the footprint term: tan θ <= 9.95
+MIN_COS = 0.1          # |cos θ| floor in the footprint term: tan θ becomes sin θ / 0.1 <= 10 past 84.3°
 
 
 def noise_key(seed: int) -> int:
