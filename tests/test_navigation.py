@@ -161,7 +161,7 @@ def test_gnss_white_noise_and_the_trajectory_file_hold_the_believed_trajectory(t
 
 
 def _trajectory_csv(path, rows, header="time,x,y,z,roll,pitch,yaw"):
-    path.write_text(header + "\n" + "".join(",".join(f"{v:.10g}" for v in r) + "\n" for r in rows))
+    path.write_text(header + "\n" + "".join(",".join(f"{v:.17g}" for v in r) + "\n" for r in rows))
     return path
 
 
@@ -177,6 +177,25 @@ def test_a_straight_trajectory_file_reproduces_the_planned_leg(tmp_path):
     for key in ("x", "y", "z"):
         assert np.abs(flown[key] - planned[key]).max() < 1e-3, key
     assert (flown["point_source_id"] == 1).all()
+
+
+def test_a_trajectory_file_in_gps_seconds_gives_the_points_of_one_timed_from_zero(tmp_path):
+    """The same straight trajectory stamped from 0 s and from 1.4e9 s (GPS seconds; a whole number of the
+    mirror's 100 Hz turns later): the same pulses at the same places, their times 1.4e9 s later. In
+    float64, 2π·f·t at 1.4e9 s keeps only some 4e-4 rad, 12 mm at this range, so the deflector takes the
+    mirror's phase at the leg's start exactly."""
+    shift = 1_400_000_000.0
+    z = 30.0 + float(make_plan(load_scene(scene_file(tmp_path / "p", survey={"altitude": 30}))).terrain.z.mean())
+    rows = [[s, X, 5.0 + 10 * s, z, 0, 0, 0] for s in np.linspace(0.0, 3.0, 7)]
+    zero, _, _ = flat_scan(tmp_path / "zero", lines=None, trajectory=str(_trajectory_csv(tmp_path / "a.csv", rows)))
+    gps, _, plan = flat_scan(tmp_path / "gps", lines=None, trajectory=str(
+        _trajectory_csv(tmp_path / "b.csv", [[r[0] + shift, *r[1:]] for r in rows])))
+    assert plan.legs[0].t0 == shift and len(zero) > 3000
+    assert np.array_equal(gps["pulse_id"], zero["pulse_id"])
+    for key in ("x", "y", "z"):
+        assert np.abs(gps[key] - zero[key]).max() < 1e-4, key
+    assert np.abs(gps["scan_angle"] - zero["scan_angle"]).max() < 1e-4      # degrees
+    assert np.abs(gps["gps_time"] - shift - zero["gps_time"]).max() < 1e-6
 
 
 def test_a_curved_trajectory_file_is_flown_smoothly_with_lines_and_slerped_attitude(tmp_path):
@@ -233,6 +252,8 @@ def test_a_lever_arm_and_boresight_move_the_beam(tmp_path):
 @pytest.mark.parametrize("text, where, reason", [
     ("time,x,y,roll,pitch,yaw\n0,1,2,0,0,0\n", "line 1", "the header lacks z"),
     ("time,x,y,z,roll,pitch,yaw\n0,1,2,30,0,0,0\n1,1,2,30,0,0,0\n1,1,3,30,0,0,0\n", "line 4", "time must increase"),
+    ("time,x,y,z,roll,pitch,yaw\n1400000000.25,1,2,30,0,0,0\n1400000000.125,1,3,30,0,0,0\n", "line 3",
+     "time must increase: 1400000000.125 s follows 1400000000.25 s"),
     ("time,x,y,z,roll,pitch,yaw\n0,1,2,30,0,0,0\n1,1,nan,30,0,0,0\n", "line 3", "a value is not finite"),
     ("time,x,y,z,roll,pitch,yaw\n0,1,2,30,0,0,0\n1,1,x,30,0,0,0\n", "line 3", "not a number"),
     ("time,x,y,z,roll,pitch,yaw\n0,1,2,30,0,0,0\n", "line 1", "a flight line needs at least two rows"),

@@ -114,8 +114,8 @@ def read_trajectory(path) -> list[Track]:
         back = np.flatnonzero(np.diff(chunk[:, 0]) <= 0)
         if len(back):
             n = numbers[a + back[0] + 1]
-            raise ConfigError(shown, f"line {n}", f"time must increase: {chunk[back[0] + 1, 0]:g} s follows "
-                              f"{chunk[back[0], 0]:g} s")
+            raise ConfigError(shown, f"line {n}", f"time must increase: {float(chunk[back[0] + 1, 0])} s follows "
+                              f"{float(chunk[back[0], 0])} s")   # every digit: GPS seconds differ in the 10th
         if tracks and chunk[0, 0] <= tracks[-1].time[-1]:
             raise ConfigError(shown, f"line {numbers[a]}", "time must increase: this flight line starts before "
                               "the previous one ends")
