@@ -407,3 +407,15 @@ def test_the_believed_origin_carries_the_lever_arm_turned_by_the_imu_error(tmp_p
     assert np.abs(yaw).max() > np.radians(3)
     assert np.allclose(placed - position, np.column_stack([2 * np.sin(yaw), 2 * np.cos(yaw), np.zeros_like(yaw)]),
                        atol=1e-9)
+
+
+def test_a_trajectory_and_a_tree_list_saved_with_a_byte_order_mark_and_crlf_are_read(tmp_path):
+    """Spreadsheets on Windows write CSV with a UTF-8 byte order mark and CRLF line ends: read as without."""
+    (tmp_path / "t.csv").write_bytes(b"\xef\xbb\xbftime,x,y,z,roll,pitch,yaw\r\n0,20,5,30,0,0,0\r\n3,20,35,30,0,0,0\r\n")
+    (tmp_path / "trees.csv").write_bytes(b"\xef\xbb\xbfx,y,height,crown_radius\r\n10,12,12,2.5\r\n")
+    import yaml
+    path = scene_file(tmp_path, survey={"trajectory": "t.csv"})
+    path.write_text(yaml.safe_dump({**yaml.safe_load(path.read_text()), "forest": {"trees_file": "trees.csv"}}))
+    plan = make_plan(load_scene(path))
+    assert (plan.legs[0].t0, plan.legs[0].t1) == (0.0, 3.0) and plan.legs[0].start[:2] == (20.0, 5.0)
+    assert len(plan.trees) == 1 and plan.trees[0].position[:2] == (10.0, 12.0)

@@ -77,7 +77,7 @@ def read_trajectory(path) -> list[Track]:
     """
     shown = display_path(path)
     try:
-        text = open(path, encoding="utf-8").read()
+        text = open(path, encoding="utf-8-sig").read()
     except UnicodeDecodeError:
         raise ConfigError(shown, "", "not a text file") from None
     rows = [(n, line) for n, line in enumerate(text.splitlines(), start=1) if line.strip()]

@@ -38,7 +38,7 @@ class ListedTree:
 def read_tree_list(path, offset=(0.0, 0.0, 0.0)) -> list[ListedTree]:
     """The trees of a tree-list CSV, moved into the local frame (``origin.offset`` subtracted)."""
     try:
-        with open(path, newline="") as f:
+        with open(path, newline="", encoding="utf-8-sig") as f:
             rows = list(csv.reader(f))
     except (OSError, UnicodeDecodeError) as e:
         raise UserError(f"cannot read the tree list {path}: {e}") from None
