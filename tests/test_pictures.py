@@ -51,6 +51,19 @@ def test_tile_figure_spans_the_whole_height(tmp_path):
             assert im.format == "PNG" and min(im.size) > 300
 
 
+def test_a_narrow_plots_top_view_keeps_room_for_its_axes_and_title(tmp_path):
+    """A 1 x 27 m strip (a twin of a narrow clip) once failed in matplotlib ("left cannot be >= right"):
+    its figure is now as wide as its margins, an axes box of MIN_AXES_IN and no less; a square plot's
+    is as before."""
+    from mitsuforest.write.figures import DPI, MIN_AXES_IN
+    for area, width_in in (((1, 27), 0.7 + 1.75 + MIN_AXES_IN), ((40, 40), 7.0 + 1.8)):
+        top = TopView(area)
+        top.add(points([(0.5, 13.0, 0.0, GROUND, 0, 1)]))
+        write_top_figure(tmp_path / "top.png", top, None, [GROUND])
+        with Image.open(tmp_path / "top.png") as im:
+            assert im.size == (round(width_in * DPI), round(7.0 * DPI)), (area, im.size)
+
+
 def test_the_top_view_outlines_the_tile_from_its_outline_alone(tmp_path):
     """The top view is sent the tile's outline, not its points: the same picture, the tile untouched."""
     tile = SideTile((40, 30))

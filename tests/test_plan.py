@@ -173,6 +173,18 @@ def test_understory_lies_wholly_inside_the_plot():
     assert kinds == {"bush": 4, "rock": 12, "deadwood": 6, "stump": 12}
 
 
+def test_understory_capacity_is_the_jamming_share_of_the_plot_over_a_clear_disc():
+    from mitsuforest.plan import understory_capacity
+    assert understory_capacity((10, 10), "bush") == int(0.547 * 100 / (np.pi * 1.7 ** 2)) == 6
+    assert understory_capacity((3.4, 100), "bush") == 0 and understory_capacity((3.5, 100), "bush") > 0
+    assert understory_capacity((2, 2), "rock") == 0 and understory_capacity((3, 3), "rock") == 1
+    narrow = load_scene(ROOT / "scenes" / "demo.yaml").with_({"area.size": [3.0, 20.0], "forest.trees": 1},
+                                                                      understory={"bushes": 1})
+    with pytest.raises(Exception, match=r"understory.bushes: a 3 x 20 m plot is too small for bushes \(each needs "
+                                        r"3.4 m across inside the plot\); set it to 0"):
+        make_plan(narrow)
+
+
 def test_placed_footprints_are_looked_up_by_cell_with_the_answers_of_comparing_all():
     """The understory's clearance test files placed footprints by 4 m cells and compares a candidate
     with the near ones only: on 400 random footprints (points and logs up to 7 m, clearances 0.6-1.7 m)

@@ -221,6 +221,41 @@ def test_twin_without_ground_points_or_gps_time_says_so_and_uses_named_fallbacks
     assert np.abs(inner - expected[None, :]).max() < 0.1      # the sloping ground, vegetation filtered out
 
 
+def _shrubby_clip(path, width: float, length: float = 30.0) -> None:
+    """A flat clip ``width`` x ``length`` m whose returns are half ground, half shrubs 1-2 m tall."""
+    rng = np.random.default_rng(2)
+    n = int(200 * width * length)
+    x, y = rng.uniform(0, width, n), rng.uniform(0, length, n)
+    z = 100.0 + np.where(np.arange(n) % 2 == 0, 0.0, rng.uniform(1.0, 2.0, n))
+    las = laspy.create(point_format=1, file_version="1.2")
+    las.header.offsets, las.header.scales = [500_000, 6_000_000, 0], [0.001] * 3
+    las.x, las.y, las.z = x + 500_000, y + 6_000_000, z
+    las.classification = np.where(z == 100.0, 2, 1)
+    las.write(str(path))
+
+
+def test_a_twin_asks_for_no_more_bushes_than_its_plot_can_place(tmp_path, capsys):
+    """A clip thick with shrubs calls for more bushes than its plot can place (each keeps a 3.4 m clear
+    disc): a 2 m wide one gets none and a 40 m wide one half the plan's capacity, said on stderr, and
+    their scenes plan."""
+    from mitsuforest.config import load_scene
+    from mitsuforest.plan import understory_capacity
+    from mitsuforest.survey import make_plan
+    for width in (2.0, 40.0):
+        _shrubby_clip(tmp_path / f"clip{width:g}.las", width)
+        r = _run(capsys, "twin", tmp_path / f"clip{width:g}.las", "-o", tmp_path / f"out{width:g}")
+        assert r.returncode == 0, r.stderr
+        report = json.loads((tmp_path / f"out{width:g}" / "twin.json").read_text())["understory"]
+        scene = load_scene(tmp_path / f"out{width:g}" / f"clip{width:g}.yaml")
+        assert report["bushes_called_for"] > 0 and scene.understory.bushes == report["bushes"]
+        make_plan(scene)
+        if width == 2.0:
+            assert report["bushes"] == 0
+            assert f"understory.bushes: {report['bushes_called_for']} called for, 0 fit in a 2 x 30 m plot" in r.stderr
+        else:
+            assert 0 < report["bushes"] == int(0.5 * understory_capacity((40, 30), "bush")) < report["bushes_called_for"]
+
+
 def test_tree_list_refuses_a_tree_outside_the_plot_and_a_count_beside_it(tmp_path):
     from mitsuforest.config import load_scene
     from mitsuforest.errors import ConfigError

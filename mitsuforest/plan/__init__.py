@@ -360,13 +360,23 @@ def _place_understory(scene: dict, size, trees, terrain, rng, deadwood_treeid: i
     return objects, models
 
 
+def understory_capacity(size, kind: str) -> int:
+    """How many understory objects of ``kind`` random placement can fit, alone, in a plot of ``size``
+    (w, h) m: their clearance discs fill at most a share RSA_JAMMING of it, and none fits in a plot no
+    wider than one disc."""
+    (w, h), clearance = size, CLEARANCE[kind]
+    if min(w, h) <= 2 * clearance:
+        return 0
+    return int(RSA_JAMMING * w * h / (np.pi * clearance ** 2))
+
+
 def _check_understory_fits(scene) -> None:
     """Refuse at once understory counts whose clearance discs cannot fit in the plot (random placement
     fills at most a share RSA_JAMMING of the plane); the placement loop stays the exact test."""
     counts = scene.understory
     (w, h), used = scene.area.size, 0.0
     for kind, key in UNDERSTORY_KEYS.items():
-        if getattr(counts, key) and min(w, h) <= 2 * CLEARANCE[kind]:
+        if getattr(counts, key) and not understory_capacity((w, h), kind):
             raise _Refusal(f"understory.{key}", f"a {w:g} x {h:g} m plot is too small for {key} (each needs "
                            f"{2 * CLEARANCE[kind]:g} m across inside the plot); set it to 0")
         used += getattr(counts, key) * np.pi * CLEARANCE[kind] ** 2

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from ..plan import understory_capacity
 from . import DEM_CELL, survey as survey_estimation
 
 DEFAULT_SPECIES = "pinus_radiata"   # both real plots we twin are conifers
@@ -32,6 +33,9 @@ DEFAULT_SENSOR = {"name": "twin sensor (RIEGL VUX-1UAV22 optics)", "deflector": 
 DEFAULTS = {"altitude": 30.0, "speed": 2.0, "scan_frequency": 50.0, "field_of_view": 360.0, "line_spacing": 12.0,
             "heading": 0.0}
 MARGIN = 10.0   # m: legs run this far beyond the plot
+# The share of the plan's understory capacity a twin fills with bushes at most: random placement reached
+# 0.79-0.90 of it on bare 8 x 30 to 100 x 100 m plots, and the twin's stems take room too.
+BUSH_SHARE = 0.5
 # The stand around the plot (forest.surround): out to where a pulse at the survey's widest scan angle (at
 # most this) that reaches the plot's ground passes the height of its tallest tree, at most SURROUND_MAX m.
 SURROUND_ANGLE, SURROUND_MAX = 70.0, 100.0
@@ -190,6 +194,16 @@ def _write_trees(path: Path, trees, species: tuple[str, ...], lai: float | None,
                           f"{trees.crown_radius[i]:.3f}", species[i % len(species)]] + leaf + ratio)
 
 
+def _bushes_that_fit(called_for: int, size, log) -> int:
+    """The scan's bush count, or as many as the plot places for sure (a narrow clip none), said on ``log``.
+    Each bush keeps a clear disc 3.4 m across, so a plot thick with shrubs calls for more than fit."""
+    fit = min(called_for, int(BUSH_SHARE * understory_capacity(size, "bush")))
+    if fit < called_for:
+        log(f"twin: understory.bushes: {called_for} called for, {fit} fit in a {size[0]:g} x {size[1]:g} m plot; "
+            f"using {fit}")
+    return fit
+
+
 def write_twin(analysis: dict, scan, out: Path, name: str, species: tuple[str, ...], sensor, log) -> dict:
     """Write the scene folder (see the module docstring) and return the report."""
     from ..config import load_scene
@@ -199,6 +213,7 @@ def write_twin(analysis: dict, scan, out: Path, name: str, species: tuple[str, .
     check_output_folder(out)
     frame, trees = analysis["frame"], analysis["trees"]
     survey, sensor_value, survey_report = survey_plan(analysis, sensor)
+    bushes = _bushes_that_fit(analysis["bushes"], frame.size, log)
     crs = _crs_text(scan.crs)
     scene = {
         "name": name, "seed": 0, "area": {"size": list(frame.size)},
@@ -207,7 +222,7 @@ def write_twin(analysis: dict, scan, out: Path, name: str, species: tuple[str, .
         "forest": {"trees_file": "trees.csv", "tilt": 3.0,
                    "surround": surround_width(trees.height, analysis["survey"].field_of_view),
                    **_dense_archetypes(species, analysis.get("crown_ratio"))},
-        "understory": {"bushes": analysis["bushes"], "rocks": 0, "deadwood": 0, "stumps": 0},
+        "understory": {"bushes": bushes, "rocks": 0, "deadwood": 0, "stumps": 0},
         "sensor": sensor_value, "survey": survey,
         "output": {"formats": ["laz"]},
     }
@@ -223,7 +238,8 @@ def write_twin(analysis: dict, scan, out: Path, name: str, species: tuple[str, .
                   "own_crown_ratios": _own_ratios(analysis.get("tree_crown_ratios"), analysis.get("crown_ratio")),
                   "leaf_area": "crown LAI (Beer-Lambert, G = 0.5) x crown area" if analysis["crown_lai"] is not None
                   else "the species template's, in proportion to crown volume"},
-        "understory": {"bushes": analysis["bushes"], "shrub_area_m2": analysis["shrub_area_m2"],
+        "understory": {"bushes": bushes, "bushes_called_for": analysis["bushes"],
+                       "shrub_area_m2": analysis["shrub_area_m2"],
                        "note": "bush count from the area of 1 m cells rich in returns 0.5-3 m above ground; "
                                "placed at random (the scene format has no bush positions)"},
         "survey": survey_report, "notes": analysis["notes"],

@@ -20,6 +20,7 @@ PNG_LEVEL = 3      # zlib level of the pictures
 _WOODY = np.isin(np.arange(256), WOODY_CLASSES)          # by class code
 _TREE = np.isin(np.arange(256), (TREE_WOOD, TREE_LEAVES))
 NON_TREE_GREY = 200
+MIN_AXES_IN = 3.9     # inches: the narrowest axes box of a top view, half of it the half-width of its title
 LEGEND_DROP_IN = 0.5   # inches from an axes' bottom edge down to a legend under it: clear of tick labels and x label
 
 
@@ -129,7 +130,9 @@ def top_figure(top, tile=None, classes_present=()):
     from matplotlib.patches import Rectangle
     w, h = top.area
     side = 7.0
-    fig = _figure(side * min(w / h, 1.6) + 1.8, side, left=0.7, right=1.75, bottom=0.6, top=0.5)
+    left, right = 0.7, 1.75
+    width = max(side * min(w / h, 1.6) + 1.8, left + right + MIN_AXES_IN)    # a narrow plot keeps room for its title
+    fig = _figure(width, side, left=left, right=right, bottom=0.6, top=0.5)
     ax = fig.add_subplot()
     ax.imshow(top.image(), extent=(0, w, 0, h), interpolation="nearest")
     if tile is not None:
