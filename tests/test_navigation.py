@@ -409,13 +409,30 @@ def test_the_believed_origin_carries_the_lever_arm_turned_by_the_imu_error(tmp_p
                        atol=1e-9)
 
 
-def test_a_trajectory_and_a_tree_list_saved_with_a_byte_order_mark_and_crlf_are_read(tmp_path):
-    """Spreadsheets on Windows write CSV with a UTF-8 byte order mark and CRLF line ends: read as without."""
-    (tmp_path / "t.csv").write_bytes(b"\xef\xbb\xbftime,x,y,z,roll,pitch,yaw\r\n0,20,5,30,0,0,0\r\n3,20,35,30,0,0,0\r\n")
-    (tmp_path / "trees.csv").write_bytes(b"\xef\xbb\xbfx,y,height,crown_radius\r\n10,12,12,2.5\r\n")
+@pytest.mark.parametrize("encoding", ["utf-8-sig", "utf-16", "cp1252"])
+def test_a_trajectory_and_a_tree_list_as_spreadsheets_on_windows_save_them_are_read(tmp_path, encoding):
+    """Spreadsheets on Windows write CSV with a UTF-8 byte order mark, as UTF-16 ("Unicode text") or as
+    Windows-1252 (here with an accented free-text column), with CRLF line ends: read as UTF-8 would be."""
+    def save(name, text):
+        (tmp_path / name).write_bytes(text.replace("\n", "\r\n").encode(encoding))
+    save("t.csv", "time,x,y,z,roll,pitch,yaw,note\n0,20,5,30,0,0,0,départ\n3,20,35,30,0,0,0,fin\n")
+    save("trees.csv", "x,y,height,crown_radius,Bemerkung\n10,12,12,2.5,Kiefer ä\n")
     import yaml
     path = scene_file(tmp_path, survey={"trajectory": "t.csv"})
     path.write_text(yaml.safe_dump({**yaml.safe_load(path.read_text()), "forest": {"trees_file": "trees.csv"}}))
     plan = make_plan(load_scene(path))
     assert (plan.legs[0].t0, plan.legs[0].t1) == (0.0, 3.0) and plan.legs[0].start[:2] == (20.0, 5.0)
     assert len(plan.trees) == 1 and plan.trees[0].position[:2] == (10.0, 12.0)
+
+
+def test_a_binary_trajectory_or_tree_list_is_refused_in_one_line(tmp_path):
+    from mitsuforest.errors import UserError
+    (tmp_path / "t.csv").write_bytes(b"MATLAB 5.0 MAT-file\0\0\x01time,x")
+    with pytest.raises(UserError, match=r"t.csv: not a text file"):
+        make_plan(load_scene(scene_file(tmp_path, survey={"trajectory": "t.csv"})))
+    (tmp_path / "trees.csv").write_bytes(b"x,y\0\0")
+    import yaml
+    path = scene_file(tmp_path)
+    path.write_text(yaml.safe_dump({**yaml.safe_load(path.read_text()), "forest": {"trees_file": "trees.csv"}}))
+    with pytest.raises(UserError, match=r"cannot read the tree list .*trees.csv: .*a binary file"):
+        make_plan(load_scene(path))

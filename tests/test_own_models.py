@@ -108,6 +108,17 @@ def test_qsm_csv_with_end_points_and_ids(tmp_path):
     assert len(model.parts) == 1 and [c.kind for c in model.components] == ["stem"]
 
 
+@pytest.mark.parametrize("encoding", ["cp1252", "utf-16", "utf-8-sig"])
+def test_qsm_table_saved_by_windows_tools_reads_as_utf8(tmp_path, encoding):
+    """A MATLAB or spreadsheet export on Windows: single-byte text with an accented comment, UTF-16 with
+    its byte order mark, or UTF-8 with one, CRLF line ends: the same cylinders as plain UTF-8."""
+    path = tmp_path / "q.csv"
+    path.write_bytes("# Kiefer, gemessen im März\r\nradius,start_x,start_y,start_z,end_x,end_y,end_z\r\n"
+                     "0.1,0,0,0,0,0,2\r\n".encode(encoding))
+    model = qsm_tree_model(QsmTree(qsm=str(path), leaf_area=0), "q")
+    assert model.volume.analytic == pytest.approx(np.pi * 0.01 * 2, rel=1e-12)
+
+
 BAD_TABLES = {   # the file's text, and the error: its real line (comments and blank lines counted)
     "negative length": ("# exported by hand\n\nradius,length,start_x,start_y,start_z,axis_x,axis_y,axis_z\n"
                         "0.1,2,0,0,0,0,0,1\n\n0.05,-1,0,0,2,0,0,1\n", "line 6: length -1 is not positive"),

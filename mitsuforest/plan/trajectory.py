@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import ConfigError, display_path
+from ..textfiles import NotTextError, read_text
 
 ENU_FROM_NED = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
 BODY_FROM_SENSOR = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
@@ -77,8 +78,8 @@ def read_trajectory(path) -> list[Track]:
     """
     shown = display_path(path)
     try:
-        text = open(path, encoding="utf-8-sig").read()
-    except UnicodeDecodeError:
+        text = read_text(path)
+    except NotTextError:
         raise ConfigError(shown, "", "not a text file") from None
     rows = [(n, line) for n, line in enumerate(text.splitlines(), start=1) if line.strip()]
     if not rows:

@@ -11,12 +11,14 @@ default the template's). An empty cell takes the default. Each refusal is a
 from __future__ import annotations
 
 import csv
+import io
 import math
 from dataclasses import dataclass
 
 from ..classes import TREE_SPECIES
 from ..errors import UserError
 from ..specs.archetypes import FIELDS
+from ..textfiles import NotTextError, read_text
 
 COLUMNS = ("x", "y", "height", "crown_radius")
 CROWN_RATIO = (FIELDS["crown_ratio"].metadata["lo"], FIELDS["crown_ratio"].metadata["hi"])
@@ -38,9 +40,8 @@ class ListedTree:
 def read_tree_list(path, offset=(0.0, 0.0, 0.0)) -> list[ListedTree]:
     """The trees of a tree-list CSV, moved into the local frame (``origin.offset`` subtracted)."""
     try:
-        with open(path, newline="", encoding="utf-8-sig") as f:
-            rows = list(csv.reader(f))
-    except (OSError, UnicodeDecodeError) as e:
+        rows = list(csv.reader(io.StringIO(read_text(path), newline="")))
+    except (OSError, NotTextError) as e:
         raise UserError(f"cannot read the tree list {path}: {e}") from None
     if not rows:
         raise UserError(f"{path}: the tree list is empty (it needs a header {','.join(COLUMNS)})")

@@ -34,6 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..specs.sources import ModelFileError
+from ..textfiles import NotTextError, read_text
 
 ALIASES = {
     "radius": ("radius", "rad", "r"),
@@ -155,8 +156,8 @@ def read_qsm(path) -> Cylinders:
 def _table_lines(path) -> list[tuple[int, str]]:
     """(line number from 1, text) of the lines that are neither blank nor comments."""
     try:
-        text = open(path, encoding="utf-8-sig").read()
-    except UnicodeDecodeError:
+        text = read_text(path)
+    except NotTextError:
         raise ModelFileError(path, "", "not a text table (a binary file; TreeQSM's .mat models must be exported "
                              "as a text cylinder table first)") from None
     except OSError as e:
