@@ -73,6 +73,10 @@ CASES = {
                                     "scene.yaml: line 107, column 199: nested deeper than 100 levels"),
     "point position": (GOOD + "simulation: {point_position: axis}\n",
                        "simulation.point_position: must be one of beam_axis, surface, got 'axis'"),
+    "saved as Windows-1252": (("# Fläche\n" + GOOD).encode("cp1252"),
+                              "not UTF-8 text (line 1 holds the byte 0xe4, as Windows-1252 or Latin-1 would write an "
+                              "accented letter); save the file as UTF-8"),
+    "binary": (b"\x00\x01\xff" + GOOD.encode(), "scene.yaml: not a text file"),
 }
 
 
@@ -80,7 +84,7 @@ CASES = {
 def test_bad_scene_gives_one_line_and_exit_2(case, tmp_path, monkeypatch, capsys):
     text, message = CASES[case]
     monkeypatch.chdir(tmp_path)
-    (tmp_path / "scene.yaml").write_text(text)
+    (tmp_path / "scene.yaml").write_bytes(text if isinstance(text, bytes) else text.encode())
     code = main(["render", "scene.yaml", "-o", "out"])
     err = capsys.readouterr().err.strip()
     assert code == 2

@@ -408,17 +408,28 @@ def _nested_too_deep(root: yaml.Node) -> bool:
     return False
 
 
+def _not_utf8(data: bytes, error: UnicodeDecodeError) -> str:
+    """Why a YAML file is not read: binary, or text in another encoding (where, and what to do)."""
+    if b"\0" in data:
+        return "not a text file"
+    line = data.count(b"\n", 0, error.start) + 1
+    return (f"not UTF-8 text (line {line} holds the byte 0x{data[error.start]:02x}, as Windows-1252 or Latin-1 "
+            "would write an accented letter); save the file as UTF-8")
+
+
 def read_yaml(path) -> tuple[object, Context]:
     """Read one YAML file; a missing file or a syntax error is a :class:`ConfigError`."""
     path = Path(path)
     if not path.is_file():
         raise ConfigError(display_path(path), "", "file not found" if not path.exists() else "not a file")
     try:
-        text = path.read_text()
+        data = path.read_bytes()
     except OSError as e:   # unreadable (permissions): bad input, not a failing write
         raise ConfigError(display_path(path), "", f"cannot be read ({e.strerror or e})") from None
-    except UnicodeDecodeError:
-        raise ConfigError(path, "", "not a text file") from None
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise ConfigError(path, "", _not_utf8(data, e)) from None
     try:
         data = _parse_yaml(text)
     except yaml.YAMLError as e:
