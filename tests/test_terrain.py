@@ -29,16 +29,17 @@ def hill(x, y):
     return 120.0 + 3.0 * np.exp(-r2 / (2 * 6.0 ** 2))
 
 
-def write_dem(path, surface, cell=0.25, size=48.0, crs="EPSG:28355", holes=False):
-    """A north-up GeoTIFF whose cell centres hold ``surface`` exactly, covering [EAST, EAST + size]^2."""
+def write_dem(path, surface, cell=0.25, size=48.0, crs="EPSG:28355", holes=False, nodata=-9999.0, hole=-9999.0):
+    """A north-up GeoTIFF whose cell centres hold ``surface`` exactly, covering [EAST, EAST + size]^2; with
+    ``holes``, the ``hole`` value in the middle cell (``nodata``: the value the file declares, or None)."""
     n = int(size / cell)
     x = EAST + (np.arange(n) + 0.5) * cell
     y = NORTH + size - (np.arange(n) + 0.5) * cell
     z = surface(*np.meshgrid(x, y)).astype(np.float32)
     if holes:
-        z[n // 2, n // 2] = -9999.0
+        z[n // 2, n // 2] = hole
     with rasterio.open(path, "w", driver="GTiff", width=n, height=n, count=1, dtype="float32", crs=crs,
-                       transform=Affine(cell, 0, EAST, 0, -cell, NORTH + size), nodata=-9999.0) as dst:
+                       transform=Affine(cell, 0, EAST, 0, -cell, NORTH + size), nodata=nodata) as dst:
         dst.write(z, 1)
     return path
 
@@ -101,6 +102,10 @@ def test_nodata_beyond_the_plot_edge_is_as_if_the_dem_ended_there(tmp_path):
     ("missing", "file not found"),
     ("small", "the DEM does not cover the plot"),
     ("holes", "nodata cells over the plot"),
+    ("undeclared -9999", "the DEM has 1 cells over the plot at heights no ground has (-9999, the first at local x "
+                         "21.12, y 19.88): a nodata value the file does not declare? Declare it (gdal_edit.py "
+                         "-a_nodata -9999), then fill the cells (gdal_fillnodata)"),
+    ("undeclared float32 lowest", "at heights no ground has (-3.40282347e+38, the first at local x 21.12"),
     ("crs", "is not origin.crs"),
     ("text", "cannot read the DEM"),
 ])
@@ -110,6 +115,8 @@ def test_bad_dems_are_refused_in_one_line(tmp_path, capsys, case, reason):
         write_dem(dem, plane, size=30.0)
     elif case == "holes":
         write_dem(dem, plane, holes=True)
+    elif case.startswith("undeclared"):
+        write_dem(dem, plane, holes=True, nodata=None, hole=-9999.0 if "9999" in case else np.finfo(np.float32).min)
     elif case in ("crs",):
         write_dem(dem, plane, crs="EPSG:4326")
     elif case == "text":
@@ -121,6 +128,20 @@ def test_bad_dems_are_refused_in_one_line(tmp_path, capsys, case, reason):
     assert len(err.splitlines()) == 1
     assert "scene.yaml: terrain.path: " in err and reason in err
     assert not (tmp_path / "out").exists()
+
+
+def test_an_undeclared_nodata_value_beyond_the_plot_edge_is_as_if_the_dem_ended_there(tmp_path):
+    """-9999 east of the plot in a file that declares no nodata value: a hole like a declared one there
+    (the edge at its inner neighbour's height), not a 10 km cliff down from the edge."""
+    dem = write_dem(tmp_path / "dem.tif", plane, cell=1.0, nodata=None)
+    with rasterio.open(dem, "r+") as data:
+        z = data.read(1)
+        z[:, 43:] = -9999.0
+        data.write(z, 1)
+    plan = make_plan(load_scene(dem_scene(tmp_path, dem, crs="EPSG:28355")))
+    y = np.array([5.5, 20.5, 35.5])
+    assert np.allclose(plan.terrain.height(np.full(3, 40.0), y), plane(EAST + 3.0 + 39.5, NORTH + 4.0 + y) - OFFSET[2],
+                       atol=1e-4)
 
 
 def test_dem_needs_a_path(tmp_path):

@@ -13,6 +13,11 @@ import numpy as np
 
 from ..errors import UserError
 
+# No ground lies outside these heights, in metres or in feet (the Dead Sea's shore -430 m, Everest
+# 8,849 m or 29,032 ft): a cell beyond them holds a nodata value the file does not declare (-9999,
+# -32768, -3.4e38), read as a hole.
+LOWEST_GROUND, HIGHEST_GROUND = -1000.0, 30_000.0
+
 
 def read_dem(path, size, offset=(0.0, 0.0, 0.0), crs: str | None = None):
     """The DEM cells whose centres surround the plot, one extra cell beyond each edge where the DEM has it.
@@ -44,17 +49,24 @@ def read_dem(path, size, offset=(0.0, 0.0, 0.0), crs: str | None = None):
         band = dataset.read(1, window=window, masked=True)
     x = t.c - ox + (np.arange(cols[0], cols[1]) + 0.5) * t.a
     y = t.f - oy + (np.arange(rows[0], rows[1]) + 0.5) * t.e
-    z = np.ma.filled(band.astype(np.float64), np.nan) - oz
+    height = np.ma.filled(band.astype(np.float64), np.nan)
     if t.a < 0:
-        x, z = x[::-1], z[:, ::-1]
+        x, height = x[::-1], height[:, ::-1]
     if t.e < 0:                      # north-up: rows run south
-        y, z = y[::-1], z[::-1]
-    z = _clamp_outer_holes(x, y, z, size)
+        y, height = y[::-1], height[::-1]
+    foreign = ~((height >= LOWEST_GROUND) & (height <= HIGHEST_GROUND)) & ~np.isnan(height)
+    z = _clamp_outer_holes(x, y, np.where(foreign, np.nan, height) - oz, size)
     holes = ~np.isfinite(z)
     if holes.any():
         j, i = np.argwhere(holes)[0]
-        raise UserError(f"{path}: the DEM has {int(holes.sum())} nodata cells over the plot (the first at local "
-                        f"x {x[i]:.2f}, y {y[j]:.2f}); fill them first (gdal_fillnodata)")
+        where = f"the first at local x {x[i]:.2f}, y {y[j]:.2f}"
+        if foreign[j, i]:
+            value = f"{height[j, i]:.9g}"    # float32 exactly
+            raise UserError(f"{path}: the DEM has {int(holes.sum())} cells over the plot at heights no ground has "
+                            f"({value}, {where}): a nodata value the file does not declare? Declare it "
+                            f"(gdal_edit.py -a_nodata {value}), then fill the cells (gdal_fillnodata)")
+        raise UserError(f"{path}: the DEM has {int(holes.sum())} nodata cells over the plot ({where}); "
+                        "fill them first (gdal_fillnodata)")
     return x, y, np.ascontiguousarray(z)
 
 
