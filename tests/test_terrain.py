@@ -1,5 +1,6 @@
 """Terrain from a GeoTIFF DEM and from a mesh: scanned ground points at the analytic height, clear refusals."""
 
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -107,6 +108,7 @@ def test_nodata_beyond_the_plot_edge_is_as_if_the_dem_ended_there(tmp_path):
                          "-a_nodata -9999), then fill the cells (gdal_fillnodata)"),
     ("undeclared float32 lowest", "at heights no ground has (-3.40282347e+38, the first at local x 21.12"),
     ("crs", "is not origin.crs"),
+    ("no georeference", "the DEM has no georeference (no geotransform): give it its corners and CRS first"),
     ("text", "cannot read the DEM"),
 ])
 def test_bad_dems_are_refused_in_one_line(tmp_path, capsys, case, reason):
@@ -119,6 +121,11 @@ def test_bad_dems_are_refused_in_one_line(tmp_path, capsys, case, reason):
         write_dem(dem, plane, holes=True, nodata=None, hole=-9999.0 if "9999" in case else np.finfo(np.float32).min)
     elif case in ("crs",):
         write_dem(dem, plane, crs="EPSG:4326")
+    elif case == "no georeference":    # a plain TIFF: rasterio gives the identity transform, with a warning
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            with rasterio.open(dem, "w", driver="GTiff", width=64, height=64, count=1, dtype="float32") as dst:
+                dst.write(np.zeros((64, 64), np.float32), 1)
     elif case == "text":
         dem.write_text("not a raster")
     path = dem_scene(tmp_path, dem, crs="EPSG:28355")

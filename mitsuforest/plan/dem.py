@@ -8,6 +8,7 @@ refusal is a :class:`~mitsuforest.errors.UserError` whose text the plan reports 
 from __future__ import annotations
 
 import math
+import warnings
 
 import numpy as np
 
@@ -31,11 +32,16 @@ def read_dem(path, size, offset=(0.0, 0.0, 0.0), crs: str | None = None):
     from rasterio.windows import Window
 
     try:
-        dataset = rasterio.open(path)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)   # refused below, in one line
+            dataset = rasterio.open(path)
     except rasterio.errors.RasterioIOError as e:
         raise UserError(f"cannot read the DEM {path}: {e}") from None
     with dataset:
         t = dataset.transform
+        if t.is_identity and not dataset.gcps[0]:
+            raise UserError(f"{path}: the DEM has no georeference (no geotransform): give it its corners and CRS "
+                            "first (gdal_translate -a_ullr ULX ULY LRX LRY -a_srs EPSG:N)")
         if t.b != 0 or t.d != 0:
             raise UserError(f"{path}: the DEM's grid is rotated or sheared; warp it north-up first (gdalwarp)")
         _check_crs(path, dataset.crs, crs)
