@@ -159,10 +159,15 @@ def test_errors_inside_a_sensor_file_name_that_file(tmp_path, monkeypatch, capsy
     ("intensity: {gain: 0}", "intensity.gain: must be > 0, got 0"),
     ("intensity: {source: counts}", "intensity.source: must be one of amplitude, reflectance, got 'counts'"),
     ("intensity: {scale: 2}", "intensity.scale: unknown key"),
+    ("wavelength: 905", "wavelength: must be <= 2e-05, got 905 (metres: 905 nm is 905e-9)"),
+    ("wavelength: 1e-9", "wavelength: must be >= 2e-07, got 1e-09"),
+    ("pulse_length: 4", "pulse_length: must be <= 1e-06, got 4 (seconds: 4 ns is 4e-9)"),
+    ("beam_divergence: [0.5, 0.5]", "beam_divergence[0]: must be <= 0.3, got 0.5 (radians, full angle: 0.5 mrad is 0.5e-3)"),
 ])
 def test_bad_noise_and_intensity_keys_of_a_sensor_file(tmp_path, monkeypatch, capsys, line, message):
     monkeypatch.chdir(tmp_path)
-    (tmp_path / "s.yaml").write_text(f"name: x\nbeam_divergence: [1.0e-3, 0.5e-3]\npulse_frequencies: [200000]\n{line}\n")
+    divergence = "" if line.startswith("beam_divergence") else "beam_divergence: [1.0e-3, 0.5e-3]\n"
+    (tmp_path / "s.yaml").write_text(f"name: x\n{divergence}pulse_frequencies: [200000]\n{line}\n")
     (tmp_path / "scene.yaml").write_text(GOOD.replace(str(SENSORS / "riegl_vux-1uav22.yaml"), "s.yaml"))
     assert main(["plan", "scene.yaml"]) == 2
     assert capsys.readouterr().err.strip().startswith(f"mitsuforest: s.yaml: {message}")

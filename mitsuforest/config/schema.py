@@ -46,6 +46,7 @@ class Number:
     le: float | None = None
     lt: float | None = None
     nullable: bool = False
+    unit_hint: str = ""    # said after a value above the bounds, where a smaller unit is the likely cause
 
     def parse(self, value, ctx: Context, key: str):
         if value is None and self.nullable:
@@ -68,7 +69,8 @@ class Number:
         for bound, ok, word in ((self.gt, lambda b: value > b, ">"), (self.ge, lambda b: value >= b, ">="),
                                 (self.lt, lambda b: value < b, "<"), (self.le, lambda b: value <= b, "<=")):
             if bound is not None and not ok(bound):
-                ctx.fail(key, f"must be {word} {bound:g}, got {value:g}")
+                slipped = self.unit_hint and word.startswith("<")     # a value in a smaller unit is too large
+                ctx.fail(key, f"must be {word} {bound:g}, got {value:g}" + (f" ({self.unit_hint})" if slipped else ""))
         return value
 
 
