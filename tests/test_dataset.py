@@ -275,6 +275,8 @@ def _assert_complete(out: Path, count: int) -> None:
     ("plots: 2\ntiles: {size: 5, plot_files: 0}\n", "set.yaml: tiles.plot_files:"),
     ("plots: 2\nvary: {forest.trees: {range: [1, 300]}}\n", "set.yaml: plot 0: forest.trees="),
     ("plots: 2\nvary: {seed: {choice: [-3]}}\n", "set.yaml: plot 0: seed=-3: "),
+    ("plots: 2\nvary: {understory.bushes: {range: [150, 200]}}\n",     # refused before any plot, not by each
+     "set.yaml: plot 0: understory.bushes="),
     ("plots: 2\ngrid: {output.formats: [[pcd], [las]]}\ntiles: {size: 10}\n",
      "set.yaml: grid.output.formats: would give the plots' tiles different fields and types"),
     ("vary: {forest.trees: {range: [1, 3]}}\n", "set.yaml: plots: is required"),

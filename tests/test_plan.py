@@ -7,7 +7,7 @@ import pytest
 from helpers import ROOT
 
 from mitsuforest.cli import main
-from mitsuforest.config import FOREST_BANDS, load_scene
+from mitsuforest.config import FOREST_BANDS, ConfigError, load_scene
 from mitsuforest.plan import plan_json
 from mitsuforest.survey import make_plan
 from mitsuforest.plan.flight import flight_legs
@@ -174,15 +174,18 @@ def test_understory_lies_wholly_inside_the_plot():
 
 
 def test_understory_capacity_is_the_jamming_share_of_the_plot_over_a_clear_disc():
-    from mitsuforest.plan import understory_capacity
+    from mitsuforest.config import understory_capacity
     assert understory_capacity((10, 10), "bush") == int(0.547 * 100 / (np.pi * 1.7 ** 2)) == 6
     assert understory_capacity((3.4, 100), "bush") == 0 and understory_capacity((3.5, 100), "bush") > 0
     assert understory_capacity((2, 2), "rock") == 0 and understory_capacity((3, 3), "rock") == 1
-    narrow = load_scene(ROOT / "scenes" / "demo.yaml").with_({"area.size": [3.0, 20.0], "forest.trees": 1},
-                                                                      understory={"bushes": 1})
-    with pytest.raises(Exception, match=r"understory.bushes: a 3 x 20 m plot is too small for bushes \(each needs "
-                                        r"3.4 m across inside the plot\); set it to 0"):
-        make_plan(narrow)
+    demo = load_scene(ROOT / "scenes" / "demo.yaml")
+    with pytest.raises(ConfigError, match=r"understory.bushes: a 3 x 20 m plot is too small for bushes \(each needs "
+                                          r"3.4 m across inside the plot\); set it to 0"):
+        demo.with_({"area.size": [3.0, 20.0], "forest.trees": 1}, understory={"bushes": 1})
+    with pytest.raises(ConfigError, match=r"understory.stumps: 10 stumps do not fit in a 10 x 10 m plot beside the "
+                                          r"other understory \(each keeps a clear disc\); lower the counts"):
+        demo.with_({"area.size": [10.0, 10.0], "forest.trees": 1},
+                   understory={"bushes": 6, "rocks": 0, "deadwood": 0, "stumps": 10})
 
 
 def test_placed_footprints_are_looked_up_by_cell_with_the_answers_of_comparing_all():

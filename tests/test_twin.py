@@ -239,7 +239,7 @@ def test_a_twin_asks_for_no_more_bushes_than_its_plot_can_place(tmp_path, capsys
     disc): a 2 m wide one gets none and a 40 m wide one half the plan's capacity, said on stderr, and
     their scenes plan."""
     from mitsuforest.config import load_scene
-    from mitsuforest.plan import understory_capacity
+    from mitsuforest.config import understory_capacity
     from mitsuforest.survey import make_plan
     for width in (2.0, 40.0):
         _shrubby_clip(tmp_path / f"clip{width:g}.las", width)

@@ -22,6 +22,7 @@ from ..fields import POINT_FORMATS
 from ..specs.archetypes import (DEFAULT_ARCHETYPES, FAMILY_ARCHETYPES, FIELDS as ARCHETYPE_FIELDS, MAX_UNIQUE, Archetype,
                                  UniqueTrees)
 from ..specs.sources import DEFAULT_LEAF_PATTERNS, REPAIR_MODES, UNITS, UP_AXES, MeshTree, QsmTree
+from ..specs.understory import CLEARANCE, UNDERSTORY_KEYS
 from .schema import REQUIRED, Context, Custom, FilePath, Flag, ListOf, Number, Text, Vector, name_problem, parse_mapping
 from .types import (BEAM_PATTERNS, FOREST_BANDS, INTENSITY_SOURCES, OUTPUT_PROFILES, POINT_POSITIONS, Scene, Sensor, display_path,
                     from_mapping, to_mapping)
@@ -513,6 +514,30 @@ def _parsed_scene(data, ctx: Context) -> dict:
     return scene
 
 
+def understory_capacity(size, kind: str) -> int:
+    """How many understory objects of ``kind`` random placement can fit, alone, in a plot of ``size``
+    (w, h) m: their clear discs (``CLEARANCE``) fill at most a share RSA_JAMMING of it, and none fits in a
+    plot no wider than one disc."""
+    (w, h), clearance = size, CLEARANCE[kind]
+    if min(w, h) <= 2 * clearance:
+        return 0
+    return int(RSA_JAMMING * w * h / (math.pi * clearance ** 2))
+
+
+def _check_understory_fits(counts: dict, size, ctx: Context) -> None:
+    """Refuse understory counts whose clear discs cannot fit in the plot together, before any work (a
+    dataset checks every plot's this way); the plan's placement loop stays the exact test."""
+    (w, h), used = size, 0.0
+    for kind, key in UNDERSTORY_KEYS.items():
+        if counts[key] and not understory_capacity((w, h), kind):
+            ctx.fail(f"understory.{key}", f"a {w:g} x {h:g} m plot is too small for {key} (each needs "
+                     f"{2 * CLEARANCE[kind]:g} m across inside the plot); set it to 0")
+        used += counts[key] * math.pi * CLEARANCE[kind] ** 2
+        if used > RSA_JAMMING * w * h:
+            ctx.fail(f"understory.{key}", f"{counts[key]} {key} do not fit in a {w:g} x {h:g} m plot beside the "
+                     "other understory (each keeps a clear disc); lower the counts")
+
+
 def _check_scene(scene: dict, ctx: Context):
     forest, survey, sensor = scene["forest"], scene["survey"], scene["sensor"]
     for i, value in enumerate(scene["origin"]["offset"]):
@@ -531,6 +556,7 @@ def _check_scene(scene: dict, ctx: Context):
         if forest["trees"] > fit:
             ctx.fail("forest.trees", f"{forest['trees']} trees at min_spacing {forest['min_spacing']:g} m do not fit "
                      f"in a {w:g} x {h:g} m plot (random placement fills at most about {fit})")
+    _check_understory_fits(scene["understory"], scene["area"]["size"], ctx)
     cover = forest["canopy_cover"]
     lo, hi = FOREST_BANDS[forest["type"]]
     if cover is not None and not lo <= cover <= hi:

@@ -19,9 +19,9 @@ import numpy as np
 
 from .. import seeds
 from ..classes import DEADWOOD_TREEID, GROUND_OBJECT_ID
-from ..config import RSA_JAMMING, scene_error
+from ..config import scene_error
 from ..errors import UserError
-from ..specs.understory import SHRUB_FORMS, UNDERSTORY_COMPONENTS
+from ..specs.understory import CLEARANCE, SHRUB_FORMS, UNDERSTORY_COMPONENTS, UNDERSTORY_KEYS
 from ..specs.archetypes import Archetype, UniqueTrees, grown_to, nearest_template, unique_archetypes
 from ..specs.sources import MeshTree, QsmTree
 from .cover import CoverGrid, PlacedOutlines, crown_outline
@@ -37,7 +37,6 @@ __all__ = ["plan_scene", "TreeShape", "plan_json", "Plan", "PlacedObject", "Mode
 BUSH_MODELS = 8          # bushes are instances of this many distinct shrubs
 MAX_TREES = 5000
 MAX_TREE_MODELS = 65_534   # treeid is 16 bits, and deadwood takes the number after the last tree model
-UNDERSTORY_KEYS = {"bush": "bushes", "rock": "rocks", "deadwood": "deadwood", "stump": "stumps"}  # understory.KEY
 UNDERSTORY_MODELS = tuple(UNDERSTORY_KEYS)
 
 
@@ -77,7 +76,6 @@ def _plan(scene, tree_shape: TreeShape) -> Plan:
     except UserError as e:
         raise _Refusal("terrain.path", str(e)) from None
     legs = _checked_legs(scene, flight_legs(size, scene.survey, terrain.mean_height), terrain)   # before the slow part
-    _check_understory_fits(scene)
     listed = _tree_list(scene) if scene.forest.trees_file else None
     tree_models = _tree_models(scene.forest, scene.seed, tree_shape) if listed is None else \
         _listed_tree_models(scene, listed, tree_shape)
@@ -319,7 +317,6 @@ class _Stems:
 # Half-widths (m) kept clear around each kind's axis: the largest model of the kind (understory.py)
 # plus a margin. Stems keep 0.6 m (flared base, and 5° tilt over the first 3 m).
 STEM_CLEARANCE = 0.6
-CLEARANCE = {"bush": 1.7, "rock": 1.0, "stump": 1.0, "deadwood": 1.5}  # logs: side branches reach 1.3 m, bow 0.1 m; stump roots 0.9 m
 MIN_LOG = 1.5  # m, the shortest log drawn
 OCCUPIED_CELL = 4.0  # m, the cells by which placed footprints are looked up
 
@@ -358,31 +355,6 @@ def _place_understory(scene: dict, size, trees, terrain, rng, deadwood_treeid: i
                 kind=kind, model=model, treeid=deadwood_treeid if kind == "deadwood" else 0,
                 position=(float(x), float(y), float(terrain.height(x, y))), rotation=spot.yaw, tilt=(0.0, 0.0)))
     return objects, models
-
-
-def understory_capacity(size, kind: str) -> int:
-    """How many understory objects of ``kind`` random placement can fit, alone, in a plot of ``size``
-    (w, h) m: their clearance discs fill at most a share RSA_JAMMING of it, and none fits in a plot no
-    wider than one disc."""
-    (w, h), clearance = size, CLEARANCE[kind]
-    if min(w, h) <= 2 * clearance:
-        return 0
-    return int(RSA_JAMMING * w * h / (np.pi * clearance ** 2))
-
-
-def _check_understory_fits(scene) -> None:
-    """Refuse at once understory counts whose clearance discs cannot fit in the plot (random placement
-    fills at most a share RSA_JAMMING of the plane); the placement loop stays the exact test."""
-    counts = scene.understory
-    (w, h), used = scene.area.size, 0.0
-    for kind, key in UNDERSTORY_KEYS.items():
-        if getattr(counts, key) and not understory_capacity((w, h), kind):
-            raise _Refusal(f"understory.{key}", f"a {w:g} x {h:g} m plot is too small for {key} (each needs "
-                           f"{2 * CLEARANCE[kind]:g} m across inside the plot); set it to 0")
-        used += getattr(counts, key) * np.pi * CLEARANCE[kind] ** 2
-        if used > RSA_JAMMING * w * h:
-            raise _Refusal(f"understory.{key}", f"{getattr(counts, key)} {key} do not fit in a {w:g} x {h:g} m plot "
-                           "beside the other understory (each keeps a clear disc); lower the counts")
 
 
 class _Footprint:

@@ -6,6 +6,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 UNDERSTORY_COMPONENTS = 1   # every understory model is one labelled component
+UNDERSTORY_KEYS = {"bush": "bushes", "rock": "rocks", "deadwood": "deadwood", "stump": "stumps"}  # understory.KEY
+# m: the clear disc (a log's corridor) each understory object keeps from stems and from the others. Logs:
+# side branches reach 1.3 m, bow 0.1 m; stump roots 0.9 m.
+CLEARANCE = {"bush": 1.7, "rock": 1.0, "stump": 1.0, "deadwood": 1.5}
 PATCH_SIZE = 1.0            # m, side of a ground layer patch (and of a plan cell)
 PATCH_MODELS = 4            # distinct ground layer models of each kind (grass, litter) whatever the cover
 

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from ..plan import understory_capacity
+from ..config import understory_capacity
 from . import DEM_CELL, survey as survey_estimation
 
 DEFAULT_SPECIES = "pinus_radiata"   # both real plots we twin are conifers
