@@ -187,6 +187,24 @@ def test_y_up_obj_in_centimetres_stands_upright_at_its_height(tmp_path):
         mesh_tree_model(MeshTree(mesh=str(path), units="m", up="y"), "t")
 
 
+def test_a_tree_read_with_the_wrong_up_axis_is_warned_of_as_lying_on_its_side(tmp_path, caplog):
+    """The stem leans 0° read with its file's up axis and 90° with the other: the second is warned of
+    once, naming the file and the up axis it was given."""
+    import logging
+    stem = cylinder([0, 0, 0], [0, 0, 12.0], 0.25)
+    branch = cylinder([0, 0, 6.0], [3.0, 0, 9.0], 0.05)
+    path = write_obj(tmp_path / "yup.obj", {"trunk": (*stem, "Bark"), "branch": (*branch, "Bark")}, scale=100,
+                     y_up=True)
+    upright = imported_model(MeshTree(mesh=str(path), units="cm", up="y", leaves=()), "t")
+    assert upright.meta["stem_lean_deg"] < 1.0 and "lie on its side" not in caplog.text
+    with caplog.at_level(logging.WARNING):
+        lying = imported_model(MeshTree(mesh=str(path), units="cm", up="z", leaves=()), "t")
+        imported_model(MeshTree(mesh=str(path), units="cm", up="z", leaves=()), "t")
+    assert lying.meta["stem_lean_deg"] > 89.0
+    assert caplog.text.count("yup.obj: the wood's lowest quarter runs 90° from up: does the tree lie on its side? "
+                             "Check up (z or y; it is z)") == 1
+
+
 def _inside(R, r):
     """Volume of a thin branch leaving a stem's axis at 45° that lies inside the stem (to first order)."""
     return np.pi * r * r * R * np.sqrt(2)

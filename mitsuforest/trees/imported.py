@@ -20,7 +20,7 @@ from ..classes import TREE_LEAVES, TREE_WOOD
 from ..errors import display_path
 from .cache import cached
 from .leaves import leaves_on_twigs
-from .meshfile import check_height, joined, read_pieces, split_by_patterns, stem_base, to_tree_frame
+from .meshfile import check_height, joined, read_pieces, split_by_patterns, stem_base, stem_lean, to_tree_frame
 from .models import Component, Model, Part, merge
 from .qsm import read_qsm
 from .repair import PartRepair, UnrepairablePart, boundary_loops, loose_parts, repair_part
@@ -32,7 +32,8 @@ __all__ = ["imported_model", "summary", "mesh_tree_model", "qsm_tree_model", "Me
 
 log = logging.getLogger(__name__)
 MAX_COMPONENTS = 65_535   # component indices are uint16 per triangle
-_warned: set = set()      # (file, part) skipped parts already reported in this process
+_warned: set = set()      # (file, part) skipped parts, (file, "lean") lying trees already reported in this process
+LYING = 60.0              # degrees from up of the wood's lowest quarter: upright stems lean 0-2°, trees on their side 76-87°
 
 
 def imported_model(entry, name: str) -> Model:
@@ -46,6 +47,10 @@ def imported_model(entry, name: str) -> Model:
     model = cached(kind, params, lambda: build(entry, name))
     model.name = name
     model.meta["source"] = source_name(entry)   # the entry may be a copy of another file with the same bytes
+    if model.meta.get("stem_lean_deg", 0.0) > LYING and (entry.source, "lean") not in _warned:
+        _warned.add((entry.source, "lean"))
+        log.warning("mitsuforest: %s: the wood's lowest quarter runs %.0f° from up: does the tree lie on its side? "
+                    "Check up (z or y; it is %s)", display_path(entry.source), model.meta["stem_lean_deg"], entry.up)
     for part in model.meta.get("repair", []):
         if part["action"] == "skipped" and (entry.source, part["part"]) not in _warned:
             _warned.add((entry.source, part["part"]))
@@ -87,7 +92,7 @@ def mesh_tree_model(entry: MeshTree, name: str) -> Model:
                         skipped=sum(r.action == "skipped" for r in reports))
     components = [Component("stem", TREE_WOOD)] + [Component("branch", TREE_WOOD)] * (len(fixed) - 1)
     leaves = (leaf_v, leaf_f) if len(leaf_f) else None
-    meta = {"source": source_name(entry), "height": float(height),
+    meta = {"source": source_name(entry), "height": float(height), "stem_lean_deg": stem_lean(wood_v, wood_f),
             "repair": [r.as_dict() for r in reports if r.action != "ok"],
             "parts_ok": sum(r.action == "ok" for r in reports)}
     return _model(name, fixed, range(len(fixed)), components, leaves, volume, meta)

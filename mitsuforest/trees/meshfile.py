@@ -122,6 +122,20 @@ def stem_base(wood_vertices: np.ndarray) -> np.ndarray:
     return np.array([centre[0], centre[1], z0])
 
 
+def stem_lean(wood_vertices: np.ndarray, wood_faces: np.ndarray, samples: int = 20_000) -> float:
+    """The angle (degrees) from +z of the main axis of the wood's surface in its lowest quarter of height
+    (points spread over the surface by area, as a stem's long faces have vertices only at their ends): a
+    stem leans a few degrees, a tree lying on its side (``up`` wrong) about 90."""
+    trimesh = import_held("trimesh")
+    surface = trimesh.Trimesh(wood_vertices, wood_faces, process=False)
+    points = np.asarray(trimesh.sample.sample_surface(surface, samples, seed=0)[0])
+    z = points[:, 2]
+    low = points[z <= z.min() + 0.25 * np.ptp(z)]
+    spread = low - low.mean(axis=0)
+    axis = np.linalg.eigh(spread.T @ spread)[1][:, -1]
+    return float(np.degrees(np.arccos(min(abs(axis[2]), 1.0))))
+
+
 def check_height(path, height: float, units: str, up: str) -> None:
     if not MIN_HEIGHT <= height <= MAX_HEIGHT:
         raise ModelFileError(path, "units", f"the tree is {height:,.4g} m tall with units: {units} and up: {up} "
