@@ -350,14 +350,16 @@ def test_plot_draws_do_not_depend_on_the_plot_count(tmp_path):
 
 @pytest.mark.slow
 def test_a_plot_failing_on_a_worker_fails_alone(tmp_path, capsys, cluster):
-    """Found only while planning (on the worker): that plot fails, the other is finished and indexed."""
+    """Found only while planning (on the worker): that plot fails, the other is finished and indexed. 12
+    rocks pass the scene's check (their clear discs fit the 12 m plot by area) but leave no place for the
+    log the placement draws after them."""
     from mitsuforest.cli import main
-    path = _dataset_file(tmp_path, "grid: {understory.rocks: [1, 400]}\n")
+    path = _dataset_file(tmp_path, "grid: {understory.rocks: [1, 12]}\n")
     out = tmp_path / "out"
     assert main(["dataset", str(path), "-o", str(out), "--scheduler", cluster.scheduler_address, "--quiet"]) == 1
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1
-    assert "1 of 2 plots failed (first: plot_0001: " in err and "understory.rocks: 400 rocks do not fit" in err, err
+    assert "1 of 2 plots failed (first: plot_0001: " in err and "understory.deadwood: no free place left" in err, err
     assert [r["id"] for r in _index(out) if r["kind"] == "plot"] == ["plot_0000"]
     assert json.loads((out / "dataset_manifest.json").read_text())["plots"]["failed"].keys() == {"plot_0001"}
 

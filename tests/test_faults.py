@@ -175,6 +175,7 @@ def test_an_unreadable_input_file_is_bad_input(tmp_path, monkeypatch, capsys, un
     scene = GOOD.replace(str(SENSORS / "riegl_vux-1uav22.yaml"), "sensor.yaml")
     (tmp_path / "scene.yaml").write_text(scene.replace("trees: 1", "trees: 1, models: [{qsm: tree.csv}]"))
     monkeypatch.setattr(Path, "read_text", _denied(unreadable, Path.read_text))
+    monkeypatch.setattr(Path, "read_bytes", _denied(unreadable, Path.read_bytes))   # YAML is read as bytes
     monkeypatch.setattr(sources, "open", _denied(unreadable, open), raising=False)
     assert main(["render", "scene.yaml", "-o", "out"]) == 2
     err = capsys.readouterr().err
