@@ -173,6 +173,23 @@ def test_understory_lies_wholly_inside_the_plot():
     assert kinds == {"bush": 4, "rock": 12, "deadwood": 6, "stump": 12}
 
 
+def test_understory_not_given_is_the_papers_per_hectare_for_the_plot_and_follows_an_edit(tmp_path):
+    """200 bushes, 40 rocks, 25 logs and 15 stumps a hectare (the paper's 1 ha plots): a 20 x 20 m plot
+    gets 8, 2, 1 and 1 (1.6 and 1.0 and 0.6 rounded), a 100 x 50 m one half the hectare's; a count given
+    stays. Before, a scene that left them out of a 20 m plot was refused (200 bushes do not fit)."""
+    path = tmp_path / "s.yaml"
+    path.write_text("name: s\narea: {size: [20, 20]}\nforest: {trees: 2}\nsensor: ideal\n")
+    scene = load_scene(path)
+    assert scene.understory.bushes is None
+    assert scene.understory_counts == {"bushes": 8, "rocks": 2, "deadwood": 1, "stumps": 1}
+    plan = make_plan(scene)
+    assert {k: sum(o.kind == k for o in plan.objects) for k in ("bush", "rock", "deadwood", "stump")} == \
+        {"bush": 8, "rock": 2, "deadwood": 1, "stump": 1}
+    wider = scene.with_({"area.size": [100, 50], "understory.rocks": 3})
+    assert wider.understory_counts == {"bushes": 100, "rocks": 3, "deadwood": 12, "stumps": 8}
+    assert wider.describe()["understory"]["bushes"] == 100
+
+
 def test_understory_capacity_is_the_jamming_share_of_the_plot_over_a_clear_disc():
     from mitsuforest.config import understory_capacity
     assert understory_capacity((10, 10), "bush") == int(0.547 * 100 / (np.pi * 1.7 ** 2)) == 6

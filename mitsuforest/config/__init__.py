@@ -25,7 +25,7 @@ from ..specs.sources import DEFAULT_LEAF_PATTERNS, REPAIR_MODES, UNITS, UP_AXES,
 from ..specs.understory import CLEARANCE, UNDERSTORY_KEYS
 from .schema import REQUIRED, Context, Custom, FilePath, Flag, ListOf, Number, Text, Vector, name_problem, parse_mapping
 from .types import (BEAM_PATTERNS, FOREST_BANDS, INTENSITY_SOURCES, OUTPUT_PROFILES, POINT_POSITIONS, Scene, Sensor, display_path,
-                    from_mapping, to_mapping)
+                    UNDERSTORY_PER_HECTARE, from_mapping, to_mapping, understory_counts)
 
 __all__ = ["load_scene", "load_sensor", "scene_from_mapping", "read_yaml", "validate_scene", "scene_error", "Scene", "Sensor",
            "ConfigError", "FOREST_BANDS"]
@@ -286,8 +286,7 @@ SCENE_SPEC = {
         "trees_file": FilePath(None, nullable=True),
         "surround": Number(0.0, ge=0, le=500),
     },
-    "understory": {**{k: Number(d, integer=True, ge=0) for k, d in
-                      (("bushes", 200), ("rocks", 40), ("deadwood", 25), ("stumps", 15))},
+    "understory": {**{k: Number(None, integer=True, ge=0, nullable=True) for k in UNDERSTORY_PER_HECTARE},
                    "grass": {"cover": Number(0.0, ge=0, le=1), "height": Number(0.3, gt=0, le=1.0)},
                    "litter": {"cover": Number(0.0, ge=0, le=1)}},
     "sensor": Custom(_sensor, REQUIRED),
@@ -556,7 +555,7 @@ def _check_scene(scene: dict, ctx: Context):
         if forest["trees"] > fit:
             ctx.fail("forest.trees", f"{forest['trees']} trees at min_spacing {forest['min_spacing']:g} m do not fit "
                      f"in a {w:g} x {h:g} m plot (random placement fills at most about {fit})")
-    _check_understory_fits(scene["understory"], scene["area"]["size"], ctx)
+    _check_understory_fits(understory_counts(scene["understory"], scene["area"]["size"]), scene["area"]["size"], ctx)
     cover = forest["canopy_cover"]
     lo, hi = FOREST_BANDS[forest["type"]]
     if cover is not None and not lo <= cover <= hi:

@@ -196,12 +196,23 @@ class Litter:
     cover: float                              # share of the plot under leaf-litter patches (0: none)
 
 
+UNDERSTORY_PER_HECTARE = {"bushes": 200, "rocks": 40, "deadwood": 25, "stumps": 15}   # the paper's 1 ha plots
+
+
+def understory_counts(given, size) -> dict[str, int]:
+    """Bushes, rocks, deadwood and stumps by key: the ``given`` count (a mapping), or where it is None
+    UNDERSTORY_PER_HECTARE over the plot's ``size`` (w, h) m, rounded."""
+    area_ha = size[0] * size[1] / 10_000
+    return {key: given[key] if given[key] is not None else int(round(per_ha * area_ha))
+            for key, per_ha in UNDERSTORY_PER_HECTARE.items()}
+
+
 @dataclass(frozen=True)
 class Understory:
-    bushes: int
-    rocks: int
-    deadwood: int
-    stumps: int
+    bushes: int | None                        # None: UNDERSTORY_PER_HECTARE for the plot (Scene.understory_counts)
+    rocks: int | None
+    deadwood: int | None
+    stumps: int | None
     grass: Grass
     litter: Litter
 
@@ -318,6 +329,12 @@ class Scene:
         return min(self.sensor.pulse_frequencies, key=lambda f: abs(f - 200_000))
 
     @property
+    def understory_counts(self) -> dict[str, int]:
+        """Bushes, rocks, deadwood and stumps to place: the file's counts, or the paper's per hectare
+        (200, 40, 25, 15) for the plot's area, rounded."""
+        return understory_counts(dataclasses.asdict(self.understory), self.area.size)
+
+    @property
     def scan_frequency(self) -> float:
         """The survey's scan frequency, or 50 Hz clamped to the sensor's range."""
         if self.survey.scan_frequency is not None:
@@ -360,6 +377,7 @@ class Scene:
         d["survey"]["pulse_frequency"] = self.pulse_frequency
         d["survey"]["scan_frequency"] = self.scan_frequency
         d["forest"]["canopy_cover"] = self.forest.target_cover
+        d["understory"].update(self.understory_counts)
         return d
 
 

@@ -328,15 +328,15 @@ def _place_understory(scene: dict, size, trees, terrain, rng, deadwood_treeid: i
     Each object occupies a corridor of half-width CLEARANCE around its axis (a point, or a log's
     length); a new object is placed only where its corridor meets no other and stays in the plot.
     """
-    counts = scene.understory
+    counts = scene.understory_counts
     taken = _Occupied([_Footprint(np.array(t.position[:2]), 0.0, 0.0, STEM_CLEARANCE) for t in trees])
     objects, models = [], {}
-    for i in range(BUSH_MODELS if counts.bushes else 0):   # every shrub form, in turn
+    for i in range(BUSH_MODELS if counts["bushes"] else 0):   # every shrub form, in turn
         models[f"bush{i + 1:02d}"] = ModelSpec("bush", UNDERSTORY_COMPONENTS,
                                                seed=seeds.key(scene.seed, "bush-model", i, bits=31),
                                                form=i % len(SHRUB_FORMS))
     for kind, key in UNDERSTORY_KEYS.items():
-        for i in range(getattr(counts, key)):
+        for i in range(counts[key]):
             spec = ModelSpec(kind, UNDERSTORY_COMPONENTS, seed=int(rng.integers(0, 2**31 - 1)))
             if kind == "deadwood":
                 spec = dataclasses.replace(spec, length=float(rng.uniform(MIN_LOG, 7.0)),
