@@ -64,6 +64,18 @@ def test_a_narrow_plots_top_view_keeps_room_for_its_axes_and_title(tmp_path):
             assert im.size == (round(width_in * DPI), round(7.0 * DPI)), (area, im.size)
 
 
+def test_a_narrow_plots_side_view_keeps_a_bounded_height(tmp_path):
+    """A 1 x 27 m plot's tile is 1 m wide: at the 20 m tile's scale its 31 m of height would make a
+    figure 108 inches (10,800 pixels) tall; it stops at MAX_TILE_HEIGHT_IN."""
+    from mitsuforest.write.figures import DPI, MAX_TILE_HEIGHT_IN
+    tile = SideTile((1, 27))
+    tile.add(points([(0.5, 13.5, 0.0, GROUND, 0, 1), (0.5, 13.5, 30.0, TREE_LEAVES, 1, 1)]))
+    assert tile.tile == 1.0
+    write_tile_figure(tmp_path / "side.png", tile)
+    with Image.open(tmp_path / "side.png") as im:
+        assert MAX_TILE_HEIGHT_IN * DPI < im.size[1] < (MAX_TILE_HEIGHT_IN + 4) * DPI
+
+
 def test_the_top_view_outlines_the_tile_from_its_outline_alone(tmp_path):
     """The top view is sent the tile's outline, not its points: the same picture, the tile untouched."""
     tile = SideTile((40, 30))

@@ -21,6 +21,7 @@ _WOODY = np.isin(np.arange(256), WOODY_CLASSES)          # by class code
 _TREE = np.isin(np.arange(256), (TREE_WOOD, TREE_LEAVES))
 NON_TREE_GREY = 200
 MIN_AXES_IN = 3.9     # inches: the narrowest axes box of a top view, half of it the half-width of its title
+MAX_TILE_HEIGHT_IN = 12.0   # inches: the side view's panels at most (a 1 m tile of 30 m trees would be 108)
 LEGEND_DROP_IN = 0.5   # inches from an axes' bottom edge down to a legend under it: clear of tick labels and x label
 
 
@@ -173,7 +174,7 @@ def tile_figure(tile):
         ("trees by instance", paint(shape, pixels, by_instance), None),
     ]
     panel_in = 3.6                                   # width of one panel's tile, inches
-    height_in = panel_in * (z_range[1] - z_range[0]) / tile.tile
+    height_in = min(panel_in * (z_range[1] - z_range[0]) / tile.tile, MAX_TILE_HEIGHT_IN)   # a narrow plot's tile is thin
     rows = max(len(present), 10) / 2          # legend rows (two columns; the instances' legend has up to 10)
     top, bottom = 0.25, 0.45 + LEGEND_DROP_IN + 0.25 * rows       # title; ticks, x label and legend
     fig = _figure(3 * (panel_in + 0.45) + 0.4, top + height_in + bottom, left=0.6, right=0.1, bottom=bottom, top=top,
@@ -184,9 +185,9 @@ def tile_figure(tile):
         _title(ax, f"{tile.tile:g} m tile from the south: {title}", fontsize=9)
         ax.set(xlabel="x (m)", xticks=np.arange(np.ceil(x_range[0] / 5) * 5, x_range[1] - 1, 5))   # no label at the shared edges
         ax.set_anchor("N")      # spare height goes below, where the legend is
-        if codes is not None:
+        if codes:
             _class_legend(ax, codes, ncol=2, **_below(ax))
-        else:
+        elif codes is None:
             _instance_legend(ax, pts["instance"][is_tree], _field(pts, "treeid", is_tree), palette)
     axes[0].set_ylabel("z (m)")
     return fig
