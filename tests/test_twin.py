@@ -271,6 +271,23 @@ def test_tree_list_refuses_a_tree_outside_the_plot_and_a_count_beside_it(tmp_pat
         load_scene(tmp_path / "s.yaml")
 
 
+@pytest.mark.parametrize("text, message", [
+    ("x,y,height,crown_radius\n5,5,1200,2\n",        # centimetres, say
+     "line 2: height 1200 m is no tree's (a tree is 0.1-150 m tall; the list is in metres)"),
+    ("x;y;height;crown_radius\n5,5;5;12,1;2\n",      # a spreadsheet set to decimal commas
+     "the tree list is separated by ';' (a spreadsheet set to decimal commas): save it as CSV with ','"),
+])
+def test_tree_list_in_other_units_or_separators_is_refused_saying_so(tmp_path, text, message):
+    from mitsuforest.config import load_scene
+    from mitsuforest.errors import ConfigError
+    from mitsuforest.survey import make_plan
+    (tmp_path / "trees.csv").write_text(text)
+    (tmp_path / "s.yaml").write_text(f"area: {{size: [20, 20]}}\nsensor: ideal\nforest: {{trees_file: trees.csv}}\n")
+    with pytest.raises(ConfigError) as e:
+        make_plan(load_scene(tmp_path / "s.yaml"))
+    assert e.value.key == "forest.trees_file" and message in e.value.reason
+
+
 REAL = ROOT.parent / "shared" / "data" / "real"
 
 

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 from ..classes import TREE_SPECIES
 from ..errors import UserError
 from ..specs.archetypes import FIELDS
+from ..specs.sources import MAX_HEIGHT, MIN_HEIGHT
 from ..textfiles import NotTextError, read_text
 
 COLUMNS = ("x", "y", "height", "crown_radius")
@@ -47,6 +48,9 @@ def read_tree_list(path, offset=(0.0, 0.0, 0.0)) -> list[ListedTree]:
         raise UserError(f"{path}: the tree list is empty (it needs a header {','.join(COLUMNS)})")
     header = [h.strip().lower() for h in rows[0]]
     missing = [c for c in COLUMNS if c not in header]
+    if missing and len(header) == 1 and ";" in header[0]:
+        raise UserError(f"{path}: the tree list is separated by ';' (a spreadsheet set to decimal commas): save it "
+                        "as CSV with ',' between cells and '.' in numbers")
     if missing:
         raise UserError(f"{path}: the tree list lacks the column(s) {', '.join(missing)} (header: {','.join(header)})")
     at = {c: header.index(c) for c in (*COLUMNS, "species", "leaf_area", "crown_ratio") if c in header}
@@ -59,6 +63,9 @@ def read_tree_list(path, offset=(0.0, 0.0, 0.0)) -> list[ListedTree]:
         values = {c: _number(row[at[c]], path, line, c) for c in COLUMNS}
         if values["height"] <= 0 or values["crown_radius"] <= 0:
             raise UserError(f"{path}: line {line}: height and crown_radius must be > 0")
+        if not MIN_HEIGHT <= values["height"] <= MAX_HEIGHT:
+            raise UserError(f"{path}: line {line}: height {values['height']:g} m is no tree's (a tree is "
+                            f"{MIN_HEIGHT:g}-{MAX_HEIGHT:g} m tall; the list is in metres)")
         species = row[at["species"]].strip() if "species" in at else ""
         if species and species not in TREE_SPECIES:
             raise UserError(f"{path}: line {line}: species must be one of {', '.join(TREE_SPECIES)}, got {species!r}")
