@@ -36,3 +36,13 @@ def read_text(path) -> str:
         return data.decode("utf-8-sig")
     except UnicodeDecodeError:
         return data.decode("latin-1")
+
+
+SEMICOLONS = ("separated by ';' (a spreadsheet set to decimal commas): save it as CSV with ',' between cells and "
+              "'.' in numbers")
+
+
+def semicolon_separated(header: list[str]) -> bool:
+    """Whether a CSV header split at commas is one cell holding semicolons (what a spreadsheet set to
+    decimal commas writes)."""
+    return len(header) == 1 and ";" in header[0]

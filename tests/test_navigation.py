@@ -6,7 +6,7 @@ import pytest
 from helpers import SENSORS, scene_file
 
 from mitsuforest.cli import main
-from mitsuforest.config import load_scene
+from mitsuforest.config import ConfigError, load_scene
 from mitsuforest.survey import make_plan
 from mitsuforest.plan.trajectory import ENU_FROM_NED, euler_matrix, matrix_euler
 from mitsuforest.scan import scan
@@ -423,6 +423,13 @@ def test_a_trajectory_and_a_tree_list_as_spreadsheets_on_windows_save_them_are_r
     plan = make_plan(load_scene(path))
     assert (plan.legs[0].t0, plan.legs[0].t1) == (0.0, 3.0) and plan.legs[0].start[:2] == (20.0, 5.0)
     assert len(plan.trees) == 1 and plan.trees[0].position[:2] == (10.0, 12.0)
+
+
+def test_a_semicolon_separated_trajectory_is_refused_saying_so(tmp_path):
+    (tmp_path / "t.csv").write_text("time;x;y;z;roll;pitch;yaw\n0;20;5;30;0;0;0\n3;20;35;30;0;0;0\n")
+    with pytest.raises(ConfigError, match=r"t.csv: line 1: the file is separated by ';' \(a spreadsheet set to "
+                                          r"decimal commas\): save it as CSV with ','"):
+        make_plan(load_scene(scene_file(tmp_path, survey={"trajectory": "t.csv"})))
 
 
 def test_a_binary_trajectory_or_tree_list_is_refused_in_one_line(tmp_path):

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import ConfigError, display_path
-from ..textfiles import NotTextError, read_text
+from ..textfiles import SEMICOLONS, NotTextError, read_text, semicolon_separated
 
 ENU_FROM_NED = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
 BODY_FROM_SENSOR = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
@@ -87,6 +87,8 @@ def read_trajectory(path) -> list[Track]:
     header_line, header = rows[0]
     names = [c.strip().lower() for c in header.split(",")]
     missing = [c for c in COLUMNS if c not in names]
+    if missing and semicolon_separated(names):
+        raise ConfigError(shown, f"line {header_line}", f"the file is {SEMICOLONS}")
     if missing:
         raise ConfigError(shown, f"line {header_line}", f"the header lacks {', '.join(missing)}: it must name "
                           f"{','.join(COLUMNS)}")

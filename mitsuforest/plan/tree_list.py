@@ -19,7 +19,7 @@ from ..classes import TREE_SPECIES
 from ..errors import UserError
 from ..specs.archetypes import FIELDS
 from ..specs.sources import MAX_HEIGHT, MIN_HEIGHT
-from ..textfiles import NotTextError, read_text
+from ..textfiles import SEMICOLONS, NotTextError, read_text, semicolon_separated
 
 COLUMNS = ("x", "y", "height", "crown_radius")
 CROWN_RATIO = (FIELDS["crown_ratio"].metadata["lo"], FIELDS["crown_ratio"].metadata["hi"])
@@ -48,9 +48,8 @@ def read_tree_list(path, offset=(0.0, 0.0, 0.0)) -> list[ListedTree]:
         raise UserError(f"{path}: the tree list is empty (it needs a header {','.join(COLUMNS)})")
     header = [h.strip().lower() for h in rows[0]]
     missing = [c for c in COLUMNS if c not in header]
-    if missing and len(header) == 1 and ";" in header[0]:
-        raise UserError(f"{path}: the tree list is separated by ';' (a spreadsheet set to decimal commas): save it "
-                        "as CSV with ',' between cells and '.' in numbers")
+    if missing and semicolon_separated(header):
+        raise UserError(f"{path}: the tree list is {SEMICOLONS}")
     if missing:
         raise UserError(f"{path}: the tree list lacks the column(s) {', '.join(missing)} (header: {','.join(header)})")
     at = {c: header.index(c) for c in (*COLUMNS, "species", "leaf_area", "crown_ratio") if c in header}
