@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..specs.sources import ModelFileError
-from ..textfiles import NotTextError, read_text
+from ..textfiles import SEMICOLONS, NotTextError, read_text, semicolon_separated
 
 ALIASES = {
     "radius": ("radius", "rad", "r"),
@@ -138,6 +138,8 @@ def read_qsm(path) -> Cylinders:
     first = lines[0][1]
     sep = "," if "," in first else ("\t" if "\t" in first else None)
     header = [c.strip() for c in first.split(sep)]
+    if semicolon_separated(header):
+        raise ModelFileError(path, "", f"the cylinder table is {SEMICOLONS}")
     if all(_number(c) for c in header if c):
         if len([c for c in header if c]) < len(TREEQSM_COLUMNS):
             raise ModelFileError(path, "", "no header line, and fewer than the 12 columns of TreeQSM's cylinder "
