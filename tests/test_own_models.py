@@ -139,6 +139,13 @@ BAD_TABLES = {   # the file's text, and the error: its real line (comments and b
                    "the cylinder table is separated by ';' (a spreadsheet set to decimal commas)"),
     "absurd radius": ("radius,start_x,start_y,start_z,end_x,end_y,end_z\n0.1,0,0,0,0,0,1\n# top\n1e9,0,0,1,0,0,2\n",
                       "line 4: radius 1e+09 m with units: m is wider than any tree (at most 10 m); check units"),
+    "own parent": ("radius,start_x,start_y,start_z,end_x,end_y,end_z,id,parent\n0.2,0,0,0,0,0,3,1,0\n"
+                   "# top\n0.1,0,0,3,0,0,6,2,2\n", "line 4: the cylinder is its own ancestor (the parent ids go round "
+                   "in a loop); check the parent and id columns"),
+    "parent loop": ("radius,start_x,start_y,start_z,end_x,end_y,end_z,id,parent\n0.2,0,0,0,0,0,3,1,0\n"
+                    "0.1,0,0,3,0,0,6,2,4\n0.1,0,0,6,0,0,7,3,2\n0.1,0,0,7,0,0,8,4,3\n",
+                    "line 4: the cylinder is its own ancestor (the parent ids go round in a loop); check the parent "
+                    "and id columns"),
 }
 
 
@@ -153,6 +160,19 @@ def test_bad_qsm_table_names_its_real_line(case, tmp_path):
         assert f"{e.value.key}: {e.value.reason}" == message
     else:
         assert e.value.reason.startswith(message)
+
+
+def test_qsm_whose_branches_all_grow_from_each_other_is_refused_for_leaves(tmp_path):
+    """Cylinder 2 (branch 1) grows from cylinder 3 (branch 2), which grows from the stem (branch 1): a tree of
+    cylinders, but no branch is a tip; the leaves had no twig (a ValueError from numpy)."""
+    path = tmp_path / "q.csv"
+    path.write_text("radius,start_x,start_y,start_z,end_x,end_y,end_z,id,parent,branch\n0.2,0,0,0,0,0,3,1,0,1\n"
+                    "0.1,0,0,3,0,0,6,2,3,1\n0.1,0,0,3,1,0,4,3,1,2\n")
+    with pytest.raises(ModelFileError) as e:
+        qsm_tree_model(QsmTree(qsm=str(path)), "q")
+    assert f"{e.value.key}: {e.value.reason}" == ("branch: every branch grows from another, so no branch ends in a tip "
+                                                  "to carry leaves; check the branch column, or give leaf_area: 0")
+    assert len(qsm_tree_model(QsmTree(qsm=str(path), leaf_area=0), "q").parts) == 1
 
 
 def test_qsm_listed_top_down_stands_on_the_ground(tmp_path):

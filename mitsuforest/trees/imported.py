@@ -170,6 +170,9 @@ def _qsm_leaves(entry: QsmTree, cyl):
         twigs = [np.array([cyl.start[i], cyl.end[i]]) for i in terminal]
     else:
         twigs = [lines[b] for b in terminal]
+    if not twigs:   # the cylinders' parents make a tree (read_qsm), so only the branch ids can loop
+        raise ModelFileError(entry.qsm, "branch", "every branch grows from another, so no branch ends in a tip to "
+                             "carry leaves; check the branch column, or give leaf_area: 0")
     rng = seeds.rng(entry.seed, "leaves")
     return leaves_on_twigs(twigs, entry.leaf_area, entry.leaf_length, entry.leaf_width, entry.leaf_inclination,
                            entry.leaf_clumping, rng)

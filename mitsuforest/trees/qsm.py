@@ -221,7 +221,7 @@ def _cylinders(path, col: dict, line: np.ndarray) -> Cylinders:
         end = start + axis / norm[:, None] * length[:, None]
     _positive(path, "radius", radius, line)
     _positive(path, "length", np.linalg.norm(end - start, axis=1), line)
-    return Cylinders(start, end, radius, _parent_rows(path, col, len(radius)),
+    return Cylinders(start, end, radius, _parent_rows(path, col, line),
                      col.get("branch", np.zeros(len(radius))).astype(np.int64),
                      col.get("order", np.zeros(len(radius))).astype(np.int64), line)
 
@@ -233,11 +233,25 @@ def _positive(path, name: str, values: np.ndarray, line: np.ndarray) -> None:
         raise ModelFileError(path, f"line {line[bad[0]]}", f"{name} {values[bad[0]]:g} is not positive{more}")
 
 
-def _parent_rows(path, col, n) -> np.ndarray:
+def _parent_rows(path, col, line) -> np.ndarray:
     """Parent ids as rows (-1: none). Ids are the ``id`` column, else 1-based line numbers (TreeQSM)."""
+    n = len(line)
     if "parent" not in col:
         return np.full(n, -1)
     ids = col["id"].astype(np.int64) if "id" in col else np.arange(1, n + 1)
     row_of = {int(i): r for r, i in enumerate(ids)}
     parents = col["parent"].astype(np.int64)
-    return np.array([row_of.get(int(p), -1) for p in parents])
+    rows = np.array([row_of.get(int(p), -1) for p in parents])
+    _check_no_loops(path, rows, line)
+    return rows
+
+
+def _check_no_loops(path, parent: np.ndarray, line: np.ndarray) -> None:
+    """Refuse parents that lead round in a loop (a cylinder its own parent or ancestor): such a tree has
+    no tip cylinders to carry leaves. ``parent`` (n,) rows, -1 for none."""
+    up = parent.copy()
+    for _ in range(len(parent).bit_length()):   # up: the ancestor 2^k generations up, -1 past the base
+        up = np.where(up >= 0, up[np.maximum(up, 0)], -1)
+    if np.any(up >= 0):   # more generations than cylinders: a loop, which up now points into
+        raise ModelFileError(path, f"line {line[up[up >= 0][0]]}", "the cylinder is its own ancestor (the parent "
+                             "ids go round in a loop); check the parent and id columns")
