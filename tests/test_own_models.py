@@ -361,6 +361,8 @@ def test_models_come_after_the_archetypes_in_treeid_and_deadwood_moves_past_them
     ("bad units", {"mesh": "tree.obj", "units": "ft"}, "forest.models[0].units: must be one of m, cm, mm"),
     ("nan vertex", {"mesh": "nan.obj"}, "nan.obj: piece 'stem': a vertex is not finite, the first at (0, 1, nan)"),
     ("a folder", {"mesh": "."}, "forest.models[0].mesh: not a file (a folder): "),
+    ("JSON, not glTF", {"mesh": "list.gltf"}, "list.gltf: cannot read the mesh"),
+    ("glTF buffer uri not text", {"mesh": "uri.gltf"}, "uri.gltf: cannot read the mesh"),
     ("no mtl", {"mesh": "nomtl.obj"}, "match no piece (pieces and materials: crown_crown, stem_stem); the material "
                                       "file nomtl.mtl is missing, so material names are unknown"),
 ])
@@ -368,6 +370,8 @@ def test_bad_model_input_is_one_line_exit_2_and_nothing_written(tmp_path, capsys
     write_obj(tmp_path / "tree.obj", {"stem": (*cylinder([0, 0, 0], [0, 0, 10.0], 0.2), "bark"),
                                       "leaves": (*leaf_sheet(9.0), "leaf")}, scale=100, y_up=True)
     (tmp_path / "junk.glb").write_bytes(b"glTF not really")
+    (tmp_path / "list.gltf").write_text("[1, 2]")   # read for its buffers' names before the mesh reader sees it
+    (tmp_path / "uri.gltf").write_text('{"buffers": [{"uri": 5}]}')
     write_obj(tmp_path / "nomtl.obj", {"stem": (*cylinder([0, 0, 0], [0, 0, 10.0], 0.2), "bark"),
                                        "crown": (*leaf_sheet(9.0), "leaf")}, scale=100, y_up=True)
     (tmp_path / "nomtl.mtl").unlink()

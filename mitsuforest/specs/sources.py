@@ -110,8 +110,9 @@ def companion_files(path) -> list[Path]:
             document = json.loads(path.read_text(encoding="utf-8"))
         except (ValueError, UnicodeDecodeError):
             return []   # the reader reports it
-        uris = [b.get("uri", "") for b in document.get("buffers", []) if isinstance(b, dict)]
-        return [path.parent / unquote(u) for u in uris if u and not u.startswith("data:")]
+        buffers = document.get("buffers") if isinstance(document, dict) else None   # else not glTF: the reader says so
+        uris = [b.get("uri") for b in buffers if isinstance(b, dict)] if isinstance(buffers, list) else []
+        return [path.parent / unquote(u) for u in uris if isinstance(u, str) and u and not u.startswith("data:")]
     return []
 
 
