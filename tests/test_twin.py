@@ -272,12 +272,10 @@ def test_tree_list_refuses_a_tree_outside_the_plot_and_a_count_beside_it(tmp_pat
 
 
 @pytest.mark.parametrize("text, message", [
-    ("x,y,height,crown_radius\n5,5,1200,2\n",        # centimetres, say
-     "line 2: height 1200 m is no tree's (a tree is 0.1-150 m tall; the list is in metres)"),
     ("x;y;height;crown_radius\n5,5;5;12,1;2\n",      # a spreadsheet set to decimal commas
      "the tree list is separated by ';' (a spreadsheet set to decimal commas): save it as CSV with ','"),
 ])
-def test_tree_list_in_other_units_or_separators_is_refused_saying_so(tmp_path, text, message):
+def test_tree_list_in_other_separators_is_refused_saying_so(tmp_path, text, message):
     from mitsuforest.config import load_scene
     from mitsuforest.errors import ConfigError
     from mitsuforest.survey import make_plan
@@ -286,6 +284,24 @@ def test_tree_list_in_other_units_or_separators_is_refused_saying_so(tmp_path, t
     with pytest.raises(ConfigError) as e:
         make_plan(load_scene(tmp_path / "s.yaml"))
     assert e.value.key == "forest.trees_file" and message in e.value.reason
+
+
+def test_tree_list_refuses_a_tree_taller_than_the_procedural_trees_grow(tmp_path, capsys):
+    """A list in centimetres (1,200 m) was grown to the archetypes' 80 m without a word; one line, exit 2,
+    nothing written."""
+    from mitsuforest.cli import main
+    (tmp_path / "trees.csv").write_text("x,y,height,crown_radius\n5,5,12,2\n6,8,1200,250\n")
+    (tmp_path / "s.yaml").write_text(f"area: {{size: [20, 20]}}\nsensor: {ROOT / 'sensors' / 'ideal.yaml'}\n"
+                                     "understory: {bushes: 0, rocks: 0, deadwood: 0, stumps: 0}\n"
+                                     "forest: {trees_file: trees.csv}\nsimulation: {variant: llvm_ad_mono}\n")
+    capsys.readouterr()
+    assert main(["render", str(tmp_path / "s.yaml"), "-o", str(tmp_path / "out"), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err, err
+    assert "s.yaml: forest.trees_file: " in err
+    assert "trees.csv: line 3: height 1,200 m is taller than the procedural trees grow (at most 80 m); the list is " \
+           "in metres" in err
+    assert not (tmp_path / "out").exists()
 
 
 REAL = ROOT.parent / "shared" / "data" / "real"

@@ -18,11 +18,11 @@ from dataclasses import dataclass
 from ..classes import TREE_SPECIES
 from ..errors import UserError
 from ..specs.archetypes import FIELDS
-from ..specs.sources import MAX_HEIGHT, MIN_HEIGHT
 from ..textfiles import SEMICOLONS, NotTextError, read_text, semicolon_separated
 
 COLUMNS = ("x", "y", "height", "crown_radius")
 CROWN_RATIO = (FIELDS["crown_ratio"].metadata["lo"], FIELDS["crown_ratio"].metadata["hi"])
+MAX_HEIGHT = FIELDS["height"].metadata["hi"]   # m: the procedural trees grow no taller (shorter ones are raised)
 
 
 @dataclass(frozen=True)
@@ -62,9 +62,9 @@ def read_tree_list(path, offset=(0.0, 0.0, 0.0)) -> list[ListedTree]:
         values = {c: _number(row[at[c]], path, line, c) for c in COLUMNS}
         if values["height"] <= 0 or values["crown_radius"] <= 0:
             raise UserError(f"{path}: line {line}: height and crown_radius must be > 0")
-        if not MIN_HEIGHT <= values["height"] <= MAX_HEIGHT:
-            raise UserError(f"{path}: line {line}: height {values['height']:g} m is no tree's (a tree is "
-                            f"{MIN_HEIGHT:g}-{MAX_HEIGHT:g} m tall; the list is in metres)")
+        if values["height"] > MAX_HEIGHT:   # was grown to MAX_HEIGHT: a list in cm or feet made a stand of 80 m trees
+            raise UserError(f"{path}: line {line}: height {values['height']:,g} m is taller than the procedural trees "
+                            f"grow (at most {MAX_HEIGHT:g} m); the list is in metres")
         species = row[at["species"]].strip() if "species" in at else ""
         if species and species not in TREE_SPECIES:
             raise UserError(f"{path}: line {line}: species must be one of {', '.join(TREE_SPECIES)}, got {species!r}")
