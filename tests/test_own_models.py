@@ -139,6 +139,10 @@ BAD_TABLES = {   # the file's text, and the error: its real line (comments and b
                    "the cylinder table is separated by ';' (a spreadsheet set to decimal commas)"),
     "absurd radius": ("radius,start_x,start_y,start_z,end_x,end_y,end_z\n0.1,0,0,0,0,0,1\n# top\n1e9,0,0,1,0,0,2\n",
                       "line 4: radius 1e+09 m with units: m is wider than any tree (at most 10 m); check units"),
+    "fractional branch": ("radius,start_x,start_y,start_z,end_x,end_y,end_z,branch\n0.2,0,0,0,0,0,3,1\n"
+                          "0.1,0,0,3,0,0,6,1.5\n", "line 3: branch 1.5 is not a whole number"),
+    "huge parent": ("radius,start_x,start_y,start_z,end_x,end_y,end_z,parent\n0.2,0,0,0,0,0,3,1e30\n",
+                    "line 2: parent 1e+30 is not a whole number"),
     "own parent": ("radius,start_x,start_y,start_z,end_x,end_y,end_z,id,parent\n0.2,0,0,0,0,0,3,1,0\n"
                    "# top\n0.1,0,0,3,0,0,6,2,2\n", "line 4: the cylinder is its own ancestor (the parent ids go round "
                    "in a loop); check the parent and id columns"),

@@ -222,8 +222,8 @@ def _cylinders(path, col: dict, line: np.ndarray) -> Cylinders:
     _positive(path, "radius", radius, line)
     _positive(path, "length", np.linalg.norm(end - start, axis=1), line)
     return Cylinders(start, end, radius, _parent_rows(path, col, line),
-                     col.get("branch", np.zeros(len(radius))).astype(np.int64),
-                     col.get("order", np.zeros(len(radius))).astype(np.int64), line)
+                     _whole(path, "branch", col.get("branch", np.zeros(len(radius))), line),
+                     _whole(path, "branch order", col.get("order", np.zeros(len(radius))), line), line)
 
 
 def _positive(path, name: str, values: np.ndarray, line: np.ndarray) -> None:
@@ -233,14 +233,23 @@ def _positive(path, name: str, values: np.ndarray, line: np.ndarray) -> None:
         raise ModelFileError(path, f"line {line[bad[0]]}", f"{name} {values[bad[0]]:g} is not positive{more}")
 
 
+def _whole(path, name: str, values: np.ndarray, line: np.ndarray) -> np.ndarray:
+    """``values`` as int64; an id that is not a whole number (a column read as the wrong quantity) is refused,
+    where a cast would cut it, or turn one beyond int64 into a RuntimeWarning and a meaningless id."""
+    bad = np.flatnonzero(~((values == np.round(values)) & (np.abs(values) < 2.0 ** 53)))
+    if len(bad):
+        raise ModelFileError(path, f"line {line[bad[0]]}", f"{name} {values[bad[0]]:g} is not a whole number")
+    return values.astype(np.int64)
+
+
 def _parent_rows(path, col, line) -> np.ndarray:
     """Parent ids as rows (-1: none). Ids are the ``id`` column, else 1-based line numbers (TreeQSM)."""
     n = len(line)
     if "parent" not in col:
         return np.full(n, -1)
-    ids = col["id"].astype(np.int64) if "id" in col else np.arange(1, n + 1)
+    ids = _whole(path, "id", col["id"], line) if "id" in col else np.arange(1, n + 1)
     row_of = {int(i): r for r, i in enumerate(ids)}
-    parents = col["parent"].astype(np.int64)
+    parents = _whole(path, "parent", col["parent"], line)
     rows = np.array([row_of.get(int(p), -1) for p in parents])
     _check_no_loops(path, rows, line)
     return rows
