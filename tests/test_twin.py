@@ -280,7 +280,7 @@ def test_tree_list_in_other_separators_is_refused_saying_so(tmp_path, text, mess
     from mitsuforest.errors import ConfigError
     from mitsuforest.survey import make_plan
     (tmp_path / "trees.csv").write_text(text)
-    (tmp_path / "s.yaml").write_text(f"area: {{size: [20, 20]}}\nsensor: ideal\nforest: {{trees_file: trees.csv}}\n")
+    (tmp_path / "s.yaml").write_text("area: {size: [20, 20]}\nsensor: ideal\nforest: {trees_file: trees.csv}\n")
     with pytest.raises(ConfigError) as e:
         make_plan(load_scene(tmp_path / "s.yaml"))
     assert e.value.key == "forest.trees_file" and message in e.value.reason
