@@ -135,6 +135,8 @@ BAD_TABLES = {   # the file's text, and the error: its real line (comments and b
     "long row": ("radius,start_x,start_y,start_z,end_x,end_y,end_z\n0.1,0,0,0,0,0,1,7\n",
                  "line 2: 8 values, the header names 7 columns"),
     "binary": (b"MATLAB 5.0 MAT-file\x00\xff\xfe\x80", "not a text table (a binary file; TreeQSM's .mat models"),
+    "a quantity twice": ("radius,start_x,start_y,start_z,end_x,end_y,end_z,r\n0.1,0,0,0,0,0,2,0.3\n",
+                         "columns 1 and 8 both give radius; keep one"),
     "semicolons": ("radius;start_x;start_y;start_z;end_x;end_y;end_z\n0,1;0;0;0;0;0;2\n",
                    "the cylinder table is separated by ';' (a spreadsheet set to decimal commas)"),
     "absurd radius": ("radius,start_x,start_y,start_z,end_x,end_y,end_z\n0.1,0,0,0,0,0,1\n# top\n1e9,0,0,1,0,0,2\n",

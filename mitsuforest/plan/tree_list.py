@@ -52,7 +52,10 @@ def read_tree_list(path, offset=(0.0, 0.0, 0.0)) -> list[ListedTree]:
         raise UserError(f"{path}: the tree list is {SEMICOLONS}")
     if missing:
         raise UserError(f"{path}: the tree list lacks the column(s) {', '.join(missing)} (header: {','.join(header)})")
-    at = {c: header.index(c) for c in (*COLUMNS, "species", "leaf_area", "crown_ratio") if c in header}
+    read = (*COLUMNS, "species", "leaf_area", "crown_ratio")
+    if twice := next((c for c in read if header.count(c) > 1), None):
+        raise UserError(f"{path}: the tree list has the column {twice} {header.count(twice)} times; keep one")
+    at = {c: header.index(c) for c in read if c in header}
     out = []
     for line, row in enumerate(rows[1:], start=2):
         if not row or not "".join(row).strip():

@@ -49,6 +49,7 @@ VECTORS = {   # quantity: (names of the vector header cell, prefixes and suffixe
     "axis": (("axisdirection", "axis", "axe", "direction"), ("axis", "axisdirection", "a", "dir", "axe"), ("axis",)),
     "end": (("endpoint", "end"), ("end", "endpoint", "e"), ("end", "e")),
 }
+QUANTITIES = set(ALIASES) | {f"{q}_{a}" for q in VECTORS for a in "xyz"}   # the columns read
 TREEQSM_COLUMNS = ["radius", "length", "start_x", "start_y", "start_z", "axis_x", "axis_y", "axis_z", "parent",
                    "extension", "branch", "order"]
 
@@ -150,8 +151,10 @@ def read_qsm(path) -> Cylinders:
     table = _numbers(path, rows, sep, len(columns), exact)
     named = {}
     for i, c in enumerate(columns):
+        if c in named and c in QUANTITIES:
+            raise ModelFileError(path, "", f"columns {columns.index(c) + 1} and {i + 1} both give {c}; keep one")
         if c:
-            named.setdefault(c, table[:, i])
+            named[c] = table[:, i]
     return _cylinders(path, named, np.array([n for n, _ in rows]))
 
 
