@@ -233,6 +233,16 @@ def test_a_tree_read_with_the_wrong_up_axis_is_warned_of_as_lying_on_its_side(tm
                              "Check up (z or y; it is z)") == 1
 
 
+def test_a_stem_given_twice_in_the_file_is_one_closed_part(tmp_path):
+    """An exporter's duplicate of a closed stem (same vertices, same faces) made one non-manifold part
+    after merging vertices, refused as 'a flat sheet such as a leaf'; the copy's faces are dropped."""
+    stem = cylinder([0, 0, 0], [0, 0, 6.0], 0.2)
+    path = write_obj(tmp_path / "twice.obj", {"trunk": (*stem, "Bark"), "trunk_copy": (*stem, "Bark")})
+    model = mesh_tree_model(MeshTree(mesh=str(path), leaves=()), "t")
+    assert model.volume.parts == 1 and model.volume.repaired == 0
+    assert model.volume.union == pytest.approx(np.pi * 0.04 * 6.0, rel=1e-9)
+
+
 def _inside(R, r):
     """Volume of a thin branch leaving a stem's axis at 45° that lies inside the stem (to first order)."""
     return np.pi * r * r * R * np.sqrt(2)

@@ -89,7 +89,8 @@ def split_by_patterns(path, pieces: list[Piece], patterns) -> tuple[list[Piece],
 
 def joined(pieces: list[Piece], merge: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """One mesh of pieces, degenerate faces dropped and, with ``merge``, vertices at the same position
-    merged (to 10 nm: exported meshes split vertices along UV and normal seams, which opens them).
+    merged (to 10 nm: exported meshes split vertices along UV and normal seams, which opens them) and
+    faces on the same three vertices kept once.
 
     :returns: vertices (n, 3) float64, faces (m, 3) int64, and each face's piece (m,) (index into ``pieces``).
     """
@@ -101,9 +102,11 @@ def joined(pieces: list[Piece], merge: bool = True) -> tuple[np.ndarray, np.ndar
     f = np.vstack([p.faces + b for p, b in zip(pieces, base)])
     piece = np.repeat(np.arange(len(pieces)), [len(p.faces) for p in pieces])
     mesh = trimesh.Trimesh(v, f, process=False)
+    keep = np.ones(len(f), bool)
     if merge:
         mesh.merge_vertices(merge_tex=True, merge_norm=True)
-    keep = mesh.nondegenerate_faces()
+        keep = mesh.unique_faces()     # a piece given twice (an exporter's copy) would close nothing
+    keep &= mesh.nondegenerate_faces()
     return np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int64)[keep], piece[keep]
 
 
