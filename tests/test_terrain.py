@@ -99,6 +99,24 @@ def test_nodata_beyond_the_plot_edge_is_as_if_the_dem_ended_there(tmp_path):
                        atol=1e-4)
 
 
+@pytest.mark.parametrize("width, height", [(1, 1), (1, 3), (3, 1)])
+def test_a_dem_one_cell_wide_or_high_is_level_that_way(tmp_path, width, height):
+    """A coarse DEM clipped to the plot can hold a single cell along an axis (here 100 m cells over the
+    40 m plot); the ground is level along it at the cell's height (it raised an IndexError)."""
+    dem = tmp_path / "dem.tif"
+    z = (130.0 + np.arange(width * height).reshape(height, width)).astype(np.float32)
+    with rasterio.open(dem, "w", driver="GTiff", width=width, height=height, count=1, dtype="float32",
+                       crs="EPSG:28355", transform=Affine(100, 0, EAST - 20, 0, -100, NORTH + 80)) as dst:
+        dst.write(z, 1)
+    t = make_plan(load_scene(dem_scene(tmp_path, dem, crs="EPSG:28355"))).terrain
+    assert t.x[0] == 0 and t.x[-1] == 40 and t.y[0] == 0 and t.y[-1] == 40
+    if width == 1:
+        assert np.ptp(t.z, axis=1).max() < 1e-9
+    if height == 1:
+        assert np.ptp(t.z, axis=0).max() < 1e-9
+    assert 130.0 - OFFSET[2] - 1e-6 <= t.z.min() <= t.z.max() <= z.max() - OFFSET[2] + 1e-6
+
+
 @pytest.mark.parametrize("case, reason", [
     ("missing", "file not found"),
     ("small", "the DEM does not cover the plot"),

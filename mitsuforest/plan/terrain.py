@@ -109,11 +109,23 @@ def dem_terrain(x, y, z, size) -> Terrain:
     """The terrain of DEM cell centres ``x`` (nx,), ``y`` (ny,) (ascending, local frame) and heights ``z``
     (ny, nx): grid lines at the centres inside the plot and at its edges, heights bilinear in the cells
     (the DEM's own values at its centres; held level beyond the outermost centres)."""
-    cells = Terrain("dem", np.asarray(x, float), np.asarray(y, float), np.asarray(z, float))
-    gx = np.unique(np.concatenate([[0.0], cells.x[(cells.x > 0) & (cells.x < size[0])], [size[0]]]))
-    gy = np.unique(np.concatenate([[0.0], cells.y[(cells.y > 0) & (cells.y < size[1])], [size[1]]]))
+    x, y = np.asarray(x, float), np.asarray(y, float)
+    cells = Terrain("dem", *_two_centres_each_way(x, y, np.asarray(z, float)))
+    gx = np.unique(np.concatenate([[0.0], x[(x > 0) & (x < size[0])], [size[0]]]))
+    gy = np.unique(np.concatenate([[0.0], y[(y > 0) & (y < size[1])], [size[1]]]))
     heights = cells.height(*np.meshgrid(gx, gy))
     return Terrain("dem", gx, gy, heights)
+
+
+def _two_centres_each_way(x, y, z):
+    """``x``, ``y``, ``z`` with an axis of a single centre (a DEM one cell wide or high) given a second
+    centre 1 m beyond it at the same heights, which :meth:`Terrain.height` needs to interpolate: the
+    ground is level along that axis, as beyond the outermost centres of any DEM."""
+    if len(x) == 1:
+        x, z = np.append(x, x[0] + 1.0), np.repeat(z, 2, axis=1)
+    if len(y) == 1:
+        y, z = np.append(y, y[0] + 1.0), np.repeat(z, 2, axis=0)
+    return x, y, z
 
 
 def _relief(x, y, amplitude, wavelength, seed):
