@@ -272,6 +272,18 @@ def test_a_bad_trajectory_file_is_one_line_and_exit_2(tmp_path, capsys, text, wh
     assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
 
 
+def test_a_trajectory_below_the_ground_is_refused_as_the_files_not_survey_altitude(tmp_path, capsys):
+    """Heights above the datum less an offset gone wrong: the refusal named survey.altitude (not flown with
+    a trajectory) and 'the ground rises 0.0 m above its mean height'."""
+    csv = _trajectory_csv(tmp_path / "t.csv", [[0, 20, 5, -5, 0, 0, 0], [1, 20, 15, -5, 0, 0, 0]])
+    path = scene_file(tmp_path, survey={"trajectory": str(csv)})
+    assert main(["plan", str(path), "-o", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "scene.yaml: survey.trajectory: the trajectory comes down to z -5.0 m, below " \
+        "the ground's highest point at 0.0 m" in err and "in the scene's local frame (origin.offset subtracted)" in err
+    assert not (tmp_path / "out").exists()
+
+
 def test_trajectory_settings_that_contradict_are_refused(tmp_path, capsys):
     csv = _trajectory_csv(tmp_path / "t.csv", [[0, 20, 5, 30, 0, 0, 0], [1, 20, 15, 30, 0, 0, 0]])
     both = scene_file(tmp_path / "a", survey={"trajectory": str(csv), "lines": [[[0, 0], [1, 1]]]})

@@ -130,6 +130,11 @@ def _check_ground_below_flight(scene, legs: list[Leg], terrain: Terrain) -> None
     top, flight = float(terrain.z.max()), min(min(leg.start[2], leg.end[2]) for leg in legs)
     clearance = scene.sensor.range_min
     if top > flight - clearance:
+        if scene.survey.trajectory:   # survey.altitude is not flown: the file's heights are
+            plus = f" plus the sensor's minimum range {clearance:g} m" if clearance else ""
+            raise _Refusal("survey.trajectory", f"the trajectory comes down to z {flight:,.1f} m, below the ground's "
+                           f"highest point at {top:,.1f} m{plus}; its heights must be in the scene's local frame "
+                           "(origin.offset subtracted)")
         key = "terrain.amplitude" if scene.terrain.type == "noise" else "survey.altitude"
         less = f" less the sensor's minimum range {clearance:g} m" if clearance else ""
         raise _Refusal(key, f"the ground rises {top - terrain.mean_height:,.1f} m above its mean height, higher than "
