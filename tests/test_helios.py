@@ -247,6 +247,18 @@ def test_an_unreadable_survey_is_bad_input(tmp_path, monkeypatch, capsys):
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.parametrize("text", ["", "not a mesh\n"])
+def test_a_part_without_triangles_is_named_with_the_survey(tmp_path, monkeypatch, capsys, text):
+    """An empty or unreadable part OBJ named only itself: the survey file and its part come first."""
+    _demo_like_survey(tmp_path)
+    (tmp_path / "assets" / "parts" / "box.obj").write_text(text)
+    monkeypatch.chdir(tmp_path)
+    assert main(["render", "data/survey.xml", "--assets", "assets", "-o", "out"]) == 2
+    assert capsys.readouterr().err == (f"mitsuforest: data/survey.xml: scene.part[1]: "
+                                       f"{tmp_path / 'assets/parts/box.obj'}: the OBJ file holds no triangles\n")
+    assert not (tmp_path / "out").exists()
+
+
 def test_a_missing_material_file_is_named(tmp_path, monkeypatch, capsys):
     """Without its .mtl the ground part has no helios_isGround: the refusal says why."""
     _demo_like_survey(tmp_path)

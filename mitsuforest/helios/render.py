@@ -19,7 +19,7 @@ import numpy as np
 
 from ..classes import CLASS_NAMES, GROUND
 from ..config import MAX_BEAM_SAMPLES, scene_from_mapping
-from ..errors import ConfigError, display_path
+from ..errors import ConfigError, UserError, display_path
 from ..plan import MAX_LEG_PULSES
 from ..plan.terrain import MeshGround
 from ..plan.types import Leg, ModelSpec, PlacedObject, Plan
@@ -167,13 +167,17 @@ def _placed_parts(survey: HeliosSurvey, fail):
     all_meshes, objects, models, notes = [], [], {}, []
     ground_meshes, ground_ids = [], []
     keys, missing = {}, []
-    for part in survey.parts:
+    for index, part in enumerate(survey.parts):
         m = np.eye(4)
         m[:3, :3], m[:3, 3] = part.rotation, part.offset
         by_class = {}
         for path in part.files:
             missing += missing_companions(path)   # an OBJ's faces are unclassified without its .mtl
-            for mesh in read_obj(path, part.y_up):
+            try:
+                meshes = read_obj(path, part.y_up)
+            except UserError as e:   # name the part of the survey as well as the OBJ
+                raise fail(f"scene.part[{index}]", str(e)) from None
+            for mesh in meshes:
                 all_meshes.append(mesh)
                 by_class.setdefault(mesh.classification, []).append((path, mesh))
         for code, group in sorted(by_class.items()):
