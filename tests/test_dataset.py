@@ -334,6 +334,20 @@ def test_tiled_plots_may_choose_their_area_from_a_list(tmp_path):
         load_dataset(_dataset_file(tmp_path, "plots: 2\ntiles: {size: 0.13}\n" + choice))   # 12 m: 93², 14 m: 108²
 
 
+def test_a_varied_sensor_may_be_a_built_in_name(tmp_path, capsys):
+    """``sensor: ideal`` names a built-in sensor in a scene; varied in a dataset it was read as the file
+    ``ideal`` beside the dataset file (file not found). A path is still a path from the dataset's folder."""
+    from mitsuforest.cli import main
+    from mitsuforest.dataset import load_dataset
+    dataset = load_dataset(_dataset_file(tmp_path, "plots: 8\nvary: {sensor: {choice: [ideal, riegl_vux-1uav22]}}\n"))
+    assert {p.scene.sensor.name for p in dataset.plots} == {"ideal", "RIEGL VUX-1UAV22"}
+    assert {p.values["sensor"] for p in dataset.plots} == {"ideal", "riegl_vux-1uav22"}
+    path = _dataset_file(tmp_path, "plots: 2\ngrid: {sensor: [ideal, own.yaml]}\n")
+    assert main(["dataset", str(path), "-o", str(tmp_path / "out"), "--workers", "1"]) == 2
+    assert f"set.yaml: plot 1: sensor='{tmp_path / 'own.yaml'}': " in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
+
+
 def test_plot_draws_do_not_depend_on_the_plot_count(tmp_path):
     from mitsuforest.dataset import load_dataset
     body = "seed: 9\nvary: {forest.trees: {range: [1, 3]}, survey.altitude: {range: [25.0, 35.0]}}\n"

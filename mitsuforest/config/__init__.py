@@ -207,10 +207,15 @@ def _sensor(value, ctx: Context, key: str):
     ctx.fail(key, "must be a built-in sensor's name, a sensor file path or a mapping")
 
 
+def names_builtin_sensor(value: str) -> bool:
+    """Whether a scene's ``sensor: VALUE`` is read as a built-in sensor's name rather than a file's path."""
+    return "/" not in value and "\\" not in value and not value.endswith((".yaml", ".yml"))
+
+
 def _sensor_path(value: str, ctx: Context, key: str) -> Path:
     """A built-in sensor by its name (``livox_mid-70``), or a sensor file's path relative to the scene file."""
     names = builtin_sensors()
-    if "/" not in value and "\\" not in value and not value.endswith((".yaml", ".yml")):
+    if names_builtin_sensor(value):
         if value not in names:
             ctx.fail(key, f"unknown built-in sensor {value!r}; built-in sensors: {', '.join(names)} "
                           "(or give a sensor file's path)")

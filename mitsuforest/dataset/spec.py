@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import seeds
-from ..config import SCENE_SPEC, load_scene, read_yaml
+from ..config import SCENE_SPEC, load_scene, names_builtin_sensor, read_yaml
 from ..config.schema import REQUIRED, Context, Custom, FilePath, Flag, Number, Text, name_problem, parse_mapping
 from ..config.types import Scene
 from ..errors import ConfigError
@@ -218,7 +218,7 @@ def _grid_values(value, ctx: Context, key: str) -> list:
 def _as_path(value, dotted: str, ctx: Context):
     """File names in a dataset file are relative to its folder (the base scene's are relative to its own)."""
     spec = _spec_of(dotted)
-    if isinstance(value, str) and (isinstance(spec, FilePath) or dotted == "sensor"):
+    if isinstance(value, str) and (isinstance(spec, FilePath) or dotted == "sensor" and not names_builtin_sensor(value)):
         return str((ctx.folder / Path(value).expanduser()).resolve())
     return value
 
