@@ -142,6 +142,15 @@ def test_missing_scene_file(tmp_path, monkeypatch, capsys):
     assert capsys.readouterr().err.strip() == "mitsuforest: missing.yaml: file not found"
 
 
+def test_a_sensor_files_syntax_error_names_it_as_the_scene_names_it(tmp_path, monkeypatch, capsys):
+    """Relative to the working folder, as every other error names a file (it printed the absolute path)."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "s.yaml").write_text("name: x\nbeam_divergence: [1,\n")
+    (tmp_path / "scene.yaml").write_text(GOOD.replace(str(SENSORS / "riegl_vux-1uav22.yaml"), "s.yaml"))
+    assert main(["plan", "scene.yaml"]) == 2
+    assert capsys.readouterr().err.startswith("mitsuforest: s.yaml: YAML syntax error: line 3")
+
+
 def test_errors_inside_a_sensor_file_name_that_file(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
     (tmp_path / "s.yaml").write_text("name: x\nbeam_divergence: -1\npulse_frequencies: [1000]\n")

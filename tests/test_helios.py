@@ -259,6 +259,16 @@ def test_a_part_without_triangles_is_named_with_the_survey(tmp_path, monkeypatch
     assert not (tmp_path / "out").exists()
 
 
+def test_a_part_path_naming_a_folder_says_so(tmp_path, monkeypatch, capsys):
+    _demo_like_survey(tmp_path)
+    scene = tmp_path / "data" / "scene.xml"
+    scene.write_text(scene.read_text().replace('value="parts/ground.obj"', f'value="{tmp_path / "assets"}"'))
+    monkeypatch.chdir(tmp_path)
+    assert main(["render", "data/survey.xml", "--assets", "assets", "-o", "out"]) == 2
+    assert capsys.readouterr().err == (f"mitsuforest: data/survey.xml: scene.part[0].filter[0]: a folder, not a file: "
+                                       f"{tmp_path / 'assets'}\n")
+
+
 def test_a_missing_material_file_is_named(tmp_path, monkeypatch, capsys):
     """Without its .mtl the ground part has no helios_isGround: the refusal says why."""
     _demo_like_survey(tmp_path)

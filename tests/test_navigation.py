@@ -444,6 +444,12 @@ def test_a_semicolon_separated_trajectory_is_refused_saying_so(tmp_path):
         make_plan(load_scene(scene_file(tmp_path, survey={"trajectory": "t.csv"})))
 
 
+def test_a_trajectory_naming_a_column_twice_is_refused(tmp_path):
+    (tmp_path / "t.csv").write_text("time,x,y,z,roll,pitch,yaw,x\n0,20,5,30,0,0,0,1\n3,20,35,30,0,0,0,1\n")
+    with pytest.raises(ConfigError, match=r"t.csv: line 1: the header names x 2 times; keep one"):
+        make_plan(load_scene(scene_file(tmp_path, survey={"trajectory": "t.csv"})))
+
+
 def test_a_binary_trajectory_or_tree_list_is_refused_in_one_line(tmp_path):
     from mitsuforest.errors import UserError
     (tmp_path / "t.csv").write_bytes(b"MATLAB 5.0 MAT-file\0\0\x01time,x")

@@ -435,14 +435,14 @@ def read_yaml(path) -> tuple[object, Context]:
     try:
         text = data.decode("utf-8")
     except UnicodeDecodeError as e:
-        raise ConfigError(path, "", _not_utf8(data, e)) from None
+        raise ConfigError(display_path(path), "", _not_utf8(data, e)) from None
     try:
         data = _parse_yaml(text)
     except yaml.YAMLError as e:
         mark = getattr(e, "problem_mark", None)
         where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark else ""
         kind = "" if isinstance(e, _TooDeep) else "YAML syntax error: "
-        raise ConfigError(path, "", f"{kind}{where}{getattr(e, 'problem', None) or e}") from None
+        raise ConfigError(display_path(path), "", f"{kind}{where}{getattr(e, 'problem', None) or e}") from None
     return data, Context(display_path(path))
 
 

@@ -139,7 +139,7 @@ class _Reader:
         path = Path(params["filepath"])
         if path.is_absolute():
             if not path.is_file():
-                self.fail(where, f"file not found: {path}")
+                self.fail(where, f"{'a folder, not a file' if path.is_dir() else 'file not found'}: {path}")
             return (path,)
         for a in self.assets:
             if (a / path).is_file():

@@ -92,6 +92,8 @@ def read_trajectory(path) -> list[Track]:
     if missing:
         raise ConfigError(shown, f"line {header_line}", f"the header lacks {', '.join(missing)}: it must name "
                           f"{','.join(COLUMNS)}")
+    if twice := next((c for c in (*COLUMNS, "line") if names.count(c) > 1), None):
+        raise ConfigError(shown, f"line {header_line}", f"the header names {twice} {names.count(twice)} times; keep one")
     if len(rows) < 3:
         raise ConfigError(shown, f"line {header_line}", "a flight line needs at least two rows after the header")
     wanted = [names.index(c) for c in (*COLUMNS, "line") if c in names]
