@@ -130,6 +130,58 @@ def test_without_ground_classes_the_lowest_point_filter_finds_a_sloped_ground():
     assert any(n.startswith("no classes: ground from the lowest-point filter") for n in bare["notes"])
 
 
+def test_near_ground_means_at_most_0_2_m_above_the_ground_model():
+    """The ground returns behind the canopy, left unclassified, half 0.15 m and half 0.35 m up (litter, a
+    low log): only those at most 0.2 m up (``GROUND_REACH_M``) reached the ground. Near the ground: the
+    800 classified ground points and 200 of these, 1,000 of 2,000; under the canopy 200 of its 800 last
+    returns (400 canopy-only, 400 of these)."""
+    points = _forest()
+    behind = points["return_number"] == 2
+    low = behind & (np.round((points["y"] - 0.25) / STEP) % 2 == 0)
+    points["classification"][behind] = 0
+    points["z"][behind] = np.where(low[behind], 0.15, 0.35)
+    s = compare_clouds(points, points)["a"]
+    assert low.sum() == 200 and s["ground"]["points"] == 800
+    assert s["near_ground_share"] == pytest.approx(1000 / 2000)
+    assert s["ground_share_under_canopy"] == pytest.approx(200 / 800)
+
+
+def test_canopy_begins_at_2_m_above_the_ground():
+    """A canopy layer at exactly 2 m is canopy ("at least 2 m"): half the cells, its height 2 m; at
+    1.9 m it is none."""
+    at_2 = compare_clouds(_forest(canopy_m=2.0), _forest(canopy_m=1.9))
+    assert at_2["a"]["canopy_cover_2m"] == 0.5
+    assert at_2["a"]["canopy_height_m"] == pytest.approx({"p50": 2.0, "p95": 2.0, "p99": 2.0}, abs=1e-9)
+    assert at_2["b"]["canopy_cover_2m"] == 0.0 and at_2["b"]["canopy_height_m"]["p50"] is None
+
+
+def test_a_cell_is_canopy_by_its_highest_first_return():
+    """Under the canopy every other pulse misses it and hits the ground first: each 1 m cell there still
+    holds a 10 m first return, so the cover stays 0.5 (its highest first return, not its lowest), and
+    every last return under the canopy reaches the ground."""
+    points = _forest()
+    gap = (points["x"] < SIDE / 2) & (points["number_of_returns"] == 1)
+    points["z"][gap], points["classification"][gap] = 0.0, 1
+    s = compare_clouds(points, points)["a"]
+    assert gap.sum() == 400 and s["canopy_cover_2m"] == 0.5
+    assert s["ground_share_under_canopy"] == 1.0
+
+
+def test_canopy_height_percentiles_are_those_of_first_returns_from_2_m_up():
+    """First returns uniform from 2 to 22 m above 1,000 ground returns: p50 12 m, p95 21 m, p99 21.8 m
+    (linear percentiles of 2,001 evenly spaced heights); the ground does not count."""
+    h = np.r_[np.zeros(1000), np.linspace(2.0, 22.0, 2001)]
+    assert m.canopy_heights(h) == pytest.approx({"p50": 12.0, "p95": 21.0, "p99": 21.8}, abs=1e-9)
+
+
+def test_the_vertical_profile_keeps_a_bird_and_a_pit_in_its_end_bins():
+    """Heights beyond -20 and 200 m count in the end bins: 1 m bins from -20 to 200 m (221), a fifth of
+    the points in each end bin, not 1,051 bins from -50 to 1,000 m."""
+    edges, shares = m.vertical_profile(np.array([0.2, 0.7, 1.5, 1000.0, -50.0]))
+    assert len(edges) == 221 and edges[0] == -20.0 and edges[-1] == 200.0
+    assert shares[0] == shares[-1] == pytest.approx(0.2) and shares[20] == pytest.approx(0.4)
+
+
 def load_cloud_like(points, classes=True) -> Cloud:
     from mitsuforest.compare.cloud import as_cloud
     cloud = as_cloud(points)
