@@ -47,6 +47,17 @@ def test_a_steep_sided_crown_is_found_at_its_cell_at_its_height_with_its_disc_ra
     assert trees.crown_radius == pytest.approx([math.sqrt(29 / math.pi)], abs=1e-9)
 
 
+def test_a_lower_tier_under_half_the_top_s_height_is_not_its_crown():
+    """A crown 15 m tall within 2 m of its top (13 cells of 1 m: a disc of 2.03 m), ringed out to 4 m by a
+    tier 6.8-7.4 m high, under half its height (7.5 m): the crown is the 13 cells (CHM unsmoothed, so
+    that the 7.5 m line is the drawn one), not the 49 within 4 m (3.95 m)."""
+    rows, cols = np.indices((21, 31))
+    r = np.hypot(rows - 10, cols - 20)
+    chm = np.where(r <= 2.0, 15.0 - r, np.where(r <= 4.0, 7.4 - 0.3 * (r - 2.0), 0.0))
+    trees = detection.detect_trees(chm, 0.0, 0.0, detection.DetectionSettings(smoothing=0.0))
+    assert trees.crown_radius == pytest.approx([math.sqrt(13 / math.pi)], abs=1e-9)
+
+
 @pytest.mark.xfail(strict=True, reason="scipy's watershed_ift floods by steps of the relief, so the background "
                    "markers (CHM < 2 m) climb a gently sloping crown: this crown keeps its 3 x 3 top cells")
 def test_an_isolated_cone_s_crown_is_its_cells_at_least_half_its_height():
