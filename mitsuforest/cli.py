@@ -276,6 +276,11 @@ def _trees(args) -> int:
         from .config import load_scene
         scene = load_scene(args.scene)
         archetypes, models = expanded(scene.forest.archetypes, scene.seed), scene.forest.models   # unique: the plot's trees
+        if scene.forest.trees_file:
+            from .errors import display_path
+            print(f"mitsuforest: {display_path(scene.forest.trees_file)}: these are the templates the listed trees grow from; each "
+                  "is grown to its row's size when the plot is planned (`mitsuforest export` writes them)",
+                  file=sys.stderr)
     else:
         archetypes = DEFAULT_ARCHETYPES
     write_gallery(archetypes, args.output, models=models)

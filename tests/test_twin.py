@@ -287,6 +287,18 @@ def test_tree_list_in_other_separators_is_refused_saying_so(tmp_path, text, mess
     assert e.value.key == "forest.trees_file" and message in e.value.reason
 
 
+def test_trees_command_on_a_tree_list_scene_says_it_shows_the_templates(tmp_path, capsys, monkeypatch):
+    from mitsuforest.cli import main
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "trees.csv").write_text("x,y,height,crown_radius,species\n5,5,12,2,pinus_radiata\n")
+    (tmp_path / "s.yaml").write_text("area: {size: [20, 20]}\nsensor: ideal\nforest: {trees_file: trees.csv, "
+                                     "archetypes: [{species: pinus_radiata, base: 1}]}\n")
+    capsys.readouterr()
+    assert main(["trees", "--scene", "s.yaml", "-o", "gallery"]) == 0
+    err = capsys.readouterr().err
+    assert err.startswith("mitsuforest: trees.csv: these are the templates the listed trees grow from"), err
+
+
 def test_tree_list_refuses_a_tree_taller_than_the_procedural_trees_grow(tmp_path, capsys):
     """A list in centimetres (1,200 m) was grown to the archetypes' 80 m without a word; one line, exit 2,
     nothing written."""
