@@ -169,6 +169,17 @@ def test_an_undeclared_nodata_value_beyond_the_plot_edge_is_as_if_the_dem_ended_
                        atol=1e-4)
 
 
+def test_a_dem_without_a_crs_under_a_scene_with_one_is_warned_of_once(tmp_path, caplog):
+    import logging
+    dem = write_dem(tmp_path / "dem.tif", plane, crs=None)
+    scene = load_scene(dem_scene(tmp_path, dem, crs="EPSG:28355"))
+    with caplog.at_level(logging.WARNING):
+        make_plan(scene)
+        make_plan(scene)
+    assert caplog.text.count("dem.tif: the DEM names no CRS; its coordinates are taken to be in origin.crs "
+                             "(EPSG:28355)") == 1
+
+
 def test_dem_needs_a_path(tmp_path):
     with pytest.raises(ConfigError, match="terrain.path: is required when terrain.type is dem"):
         load_scene(scene_file(tmp_path, terrain={"type": "dem"}))

@@ -7,12 +7,16 @@ refusal is a :class:`~mitsuforest.errors.UserError` whose text the plan reports 
 
 from __future__ import annotations
 
+import logging
 import math
 import warnings
 
 import numpy as np
 
-from ..errors import UserError
+from ..errors import UserError, display_path
+
+log = logging.getLogger(__name__)
+_WARNED: set[str] = set()    # DEMs without a CRS already warned of in this process
 
 # No ground lies outside these heights, in metres or in feet (the Dead Sea's shore -430 m, Everest
 # 8,849 m or 29,032 ft): a cell beyond them holds a nodata value the file does not declare (-9999,
@@ -110,6 +114,10 @@ def _extent(t, dataset, ox, oy) -> str:
 
 
 def _check_crs(path, dem_crs, scene_crs: str | None) -> None:
+    if scene_crs is not None and dem_crs is None and str(path) not in _WARNED:
+        _WARNED.add(str(path))
+        log.warning("mitsuforest: %s: the DEM names no CRS; its coordinates are taken to be in origin.crs (%s)",
+                    display_path(path), scene_crs)
     if scene_crs is None or dem_crs is None:
         return
     from pyproj import CRS
