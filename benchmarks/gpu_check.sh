@@ -11,7 +11,8 @@
 #   run(command="bash benchmarks/gpu_check.sh run", carry=[".whl", ".gpu"], timeout_s=500)   # there
 #
 # VARIANT and SCENE (defaults cuda_ad_mono, scenes/open.yaml) change what runs: `VARIANT=llvm_ad_mono
-# SCENE=scenes/demo.yaml PATH=.venv/bin:$PATH bash benchmarks/gpu_check.sh run` tries the script on a CPU.
+# SCENE=scenes/demo.yaml PATH=$PWD/.venv/bin:$PATH bash benchmarks/gpu_check.sh run` tries the script on a CPU
+# (an absolute PATH: the base renders run from .gpu/base).
 # Each render line gives the wall time, the manifest's stage times and the LAZ's SHA-256: the same
 # bytes head and base unless the scan changed. About 7 minutes on an H200 with the models cached by
 # the first render.
