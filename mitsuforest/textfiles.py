@@ -46,3 +46,8 @@ def semicolon_separated(header: list[str]) -> bool:
     """Whether a CSV header split at commas is one cell holding semicolons (what a spreadsheet set to
     decimal commas writes)."""
     return len(header) == 1 and ";" in header[0]
+
+
+def repeated(header: list[str], names) -> str | None:
+    """The first of ``names`` that ``header`` holds more than once (a reader would take one copy), or None."""
+    return next((c for c in names if header.count(c) > 1), None)

@@ -93,7 +93,7 @@ class _Reader:
         if path not in self.docs:
             named = "" if path == self.survey_file.resolve() else f"{path}: "   # the error names the survey
             if not path.is_file():
-                self.fail(element, f"{named}{'a folder, not a file' if path.is_dir() else 'file not found'}")
+                self.fail(element, f"{named}{_not_a_file(path)}")
             try:
                 self.docs[path] = ET.parse(path).getroot()
             except ET.ParseError as e:
@@ -139,13 +139,18 @@ class _Reader:
         path = Path(params["filepath"])
         if path.is_absolute():
             if not path.is_file():
-                self.fail(where, f"{'a folder, not a file' if path.is_dir() else 'file not found'}: {path}")
+                self.fail(where, f"{_not_a_file(path)}: {path}")
             return (path,)
         for a in self.assets:
             if (a / path).is_file():
                 return ((a / path).resolve(),)
         self.fail(where, f"{path} is in no assets folder ({', '.join(map(str, self.assets))}); HELIOS++ "
                          "reads a relative filepath only from its assets folders")
+
+
+def _not_a_file(path: Path) -> str:
+    """Why a path a survey names is not read: a folder, or nothing there."""
+    return "a folder, not a file" if path.is_dir() else "file not found"
 
 
 def read_survey(path, assets=()) -> HeliosSurvey:

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import ConfigError, display_path
-from ..textfiles import SEMICOLONS, NotTextError, read_text, semicolon_separated
+from ..textfiles import SEMICOLONS, NotTextError, read_text, repeated, semicolon_separated
 
 ENU_FROM_NED = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
 BODY_FROM_SENSOR = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
@@ -92,7 +92,7 @@ def read_trajectory(path) -> list[Track]:
     if missing:
         raise ConfigError(shown, f"line {header_line}", f"the header lacks {', '.join(missing)}: it must name "
                           f"{','.join(COLUMNS)}")
-    if twice := next((c for c in (*COLUMNS, "line") if names.count(c) > 1), None):
+    if twice := repeated(names, (*COLUMNS, "line")):
         raise ConfigError(shown, f"line {header_line}", f"the header names {twice} {names.count(twice)} times; keep one")
     if len(rows) < 3:
         raise ConfigError(shown, f"line {header_line}", "a flight line needs at least two rows after the header")

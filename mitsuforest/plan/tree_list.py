@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from ..classes import TREE_SPECIES
 from ..errors import UserError
 from ..specs.archetypes import FIELDS
-from ..textfiles import SEMICOLONS, NotTextError, read_text, semicolon_separated
+from ..textfiles import SEMICOLONS, NotTextError, read_text, repeated, semicolon_separated
 
 COLUMNS = ("x", "y", "height", "crown_radius")
 CROWN_RATIO = (FIELDS["crown_ratio"].metadata["lo"], FIELDS["crown_ratio"].metadata["hi"])
@@ -53,7 +53,7 @@ def read_tree_list(path, offset=(0.0, 0.0, 0.0)) -> list[ListedTree]:
     if missing:
         raise UserError(f"{path}: the tree list lacks the column(s) {', '.join(missing)} (header: {','.join(header)})")
     read = (*COLUMNS, "species", "leaf_area", "crown_ratio")
-    if twice := next((c for c in read if header.count(c) > 1), None):
+    if twice := repeated(header, read):
         raise UserError(f"{path}: the tree list has the column {twice} {header.count(twice)} times; keep one")
     at = {c: header.index(c) for c in read if c in header}
     out = []
