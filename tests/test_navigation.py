@@ -261,6 +261,9 @@ def test_a_lever_arm_and_boresight_move_the_beam(tmp_path):
      "a flight line needs at least two rows"),
     ("time,x,y,z,roll,pitch,yaw\n", "line 1", "a flight line needs at least two rows"),
     ("", "", "empty"),
+    ("time,x,y,z,roll,pitch,yaw\n0,20,5,30,0,0,0\n3000,20,35,30,0,0,0\n", "line 2",
+     "the flight line goes 30.0 m in 3,000 s (0.01 m/s), slower than any platform flies: the time column must be "
+     "seconds (is it milliseconds?)"),
 ])
 def test_a_bad_trajectory_file_is_one_line_and_exit_2(tmp_path, capsys, text, where, reason):
     csv = tmp_path / "bad.csv"
@@ -282,6 +285,14 @@ def test_a_trajectory_below_the_ground_is_refused_as_the_files_not_survey_altitu
     assert err.count("\n") == 0 and "scene.yaml: survey.trajectory: the trajectory comes down to z -5.0 m, below " \
         "the ground's highest point at 0.0 m" in err and "in the scene's local frame (origin.offset subtracted)" in err
     assert not (tmp_path / "out").exists()
+
+
+def test_a_hovering_platform_is_not_taken_for_a_trajectory_in_milliseconds(tmp_path):
+    """4.9 m of drift in 100 s, and 30 m in 600 s (0.05 m/s), are flown; the speed check spares them."""
+    for rows in ([[0, 20, 5, 30, 0, 0, 0], [100, 20, 9.9, 30, 0, 0, 0]], [[0, 20, 5, 30, 0, 0, 0], [600, 20, 35, 30, 0, 0, 0]]):
+        csv = _trajectory_csv(tmp_path / "t.csv", rows)
+        plan = make_plan(load_scene(scene_file(tmp_path, survey={"trajectory": str(csv)})))
+        assert (plan.legs[0].t0, plan.legs[0].t1) == (0.0, rows[1][0])
 
 
 def test_trajectory_settings_that_contradict_are_refused(tmp_path, capsys):

@@ -33,6 +33,8 @@ ENU_FROM_NED = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
 BODY_FROM_SENSOR = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
 TABLE_STEP = 0.005        # s: the pose table's spacing (200 Hz, an INS's rate); linear between rows
 COLUMNS = ("time", "x", "y", "z", "roll", "pitch", "yaw")
+SLOWEST_SPEED = 0.05      # m/s: a line going further than SLOW_DISTANCE slower than this has its time in ms
+SLOW_DISTANCE = 5.0       # m: (a UAV flies 1-20 m/s, a walker 1: in milliseconds 0.001-0.02 m/s)
 
 
 def euler_matrix(roll, pitch, yaw) -> np.ndarray:
@@ -124,8 +126,22 @@ def read_trajectory(path) -> list[Track]:
         if tracks and chunk[0, 0] <= tracks[-1].time[-1]:
             raise ConfigError(shown, f"line {numbers[a]}", "time must increase: this flight line starts before "
                               "the previous one ends")
+        _check_speed(chunk[:, 0], chunk[:, 1:4], shown, numbers[a])
         tracks.append(Track(str(path), int(numbers[a]), chunk[:, 0].copy(), chunk[:, 1:4].copy(), chunk[:, 4:7].copy()))
     return tracks
+
+
+def _check_speed(time: np.ndarray, position: np.ndarray, shown: str, first_line: int) -> None:
+    """Refuses a flight line that goes far at a crawl: times in milliseconds plan an hours-long flight.
+
+    :param time: (n,) s. :param position: (n, 3) m.
+    """
+    distance = float(np.linalg.norm(np.diff(position, axis=0), axis=1).sum())
+    duration = float(time[-1] - time[0])
+    if distance > SLOW_DISTANCE and distance / duration < SLOWEST_SPEED:
+        raise ConfigError(shown, f"line {first_line}", f"the flight line goes {distance:.1f} m in {duration:,.0f} s "
+                          f"({distance / duration:.2g} m/s), slower than any platform flies: the time column must "
+                          "be seconds (is it milliseconds?)")
 
 
 @dataclass(frozen=True)
