@@ -4,7 +4,7 @@ Tree tops are variable-window local maxima (Popescu & Wynne 2004, *Photogrammetr
 Remote Sensing* 70: 589-604): a CHM cell is a top when it is the highest within a circular window whose
 diameter grows with its height, their crown-width regressions
 ``CW = 2.51503 + 0.00901 h²`` (pines) and ``CW = 3.09632 + 0.00895 h²`` (broadleaves), scaled by
-``window_scale``. Crowns are grown from the tops by a marker watershed on the CHM (cells above
+``window_scale``. Crowns are grown from the tops by a marker watershed (a priority flood) on the CHM (cells above
 ``min_height`` and above ``crown_share`` of their top's height, no farther from it than ``crown_reach``
 times the regression's crown width: twice the radius it predicts), as Dalponte & Coomes (2016) do; a
 crown's radius is that of the disc of its area.
@@ -93,15 +93,18 @@ def tree_tops(chm: np.ndarray, settings: DetectionSettings) -> np.ndarray:
 
 
 def crowns(chm: np.ndarray, tops: np.ndarray, settings: DetectionSettings) -> np.ndarray:
-    """Crown labels (ny, nx): 1..k for the crown of top k, 0 outside every crown."""
+    """Crown labels (ny, nx): 1..k for the crown of top k, 0 outside every crown.
+
+    A priority flood (scikit-image's ``watershed``) from the tops down the CHM, within the cells above
+    ``min_height``: a cell joins the crown whose flood reaches it first, level by level. (scipy's
+    ``watershed_ift`` orders by the steps between cells instead, so on a gentle slope the bare ground's
+    marker climbed a crown standing alone and left it its top cells.)
+    """
+    from skimage.segmentation import watershed
     markers = np.zeros(chm.shape, np.int32)
     markers[tops[:, 0], tops[:, 1]] = np.arange(1, len(tops) + 1)
-    scaled = np.clip(chm.max() - chm, 0, None)
-    relief = np.round(scaled / max(scaled.max(), 1e-9) * 65000).astype(np.uint16)
-    background = chm < settings.min_height
-    markers[background & (markers == 0)] = -1
-    labels = ndimage.watershed_ift(relief, markers).astype(np.int64)
-    labels[labels < 0] = 0
+    canopy = chm >= settings.min_height
+    labels = watershed(-chm, markers, mask=canopy).astype(np.int64)
     top_height = np.zeros(len(tops) + 1)
     top_height[1:] = chm[tops[:, 0], tops[:, 1]]
     rows, cols = np.indices(chm.shape)
@@ -112,7 +115,7 @@ def crowns(chm: np.ndarray, tops: np.ndarray, settings: DetectionSettings) -> np
     centre_r[1:], centre_c[1:] = tops[:, 0], tops[:, 1]
     far = np.hypot(rows - centre_r[labels], cols - centre_c[labels]) > reach[labels]
     low = chm < settings.crown_share * top_height[labels]
-    labels[far | low | background] = 0
+    labels[far | low | ~canopy] = 0
     return labels
 
 
