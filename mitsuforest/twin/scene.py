@@ -231,7 +231,7 @@ def write_twin(analysis: dict, scan, out: Path, name: str, species: tuple[str, .
         "plot": {"offset": list(frame.offset), "size": list(frame.size)},
         "ground": analysis["ground_source"],
         "trees": {"count": len(trees.x), "method": "variable-window local maxima (Popescu & Wynne 2004) on a CHM, "
-                  "crowns by marker watershed", "settings": dataclasses.asdict(analysis["settings"]),
+                  "crowns by marker watershed (priority flood)", "settings": dataclasses.asdict(analysis["settings"]),
                   "species": list(species), "crown_gap_fraction": analysis["crown_gap_fraction"],
                   "median_scan_angle": analysis["scan_angle"], "crown_lai": analysis["crown_lai"],
                   "crown_ratio": analysis.get("crown_ratio"),
