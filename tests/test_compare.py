@@ -398,3 +398,28 @@ def test_the_lowest_point_filter_finds_the_uas_clips_classified_ground():
     gap = np.abs(model.z - reference.z)
     assert np.median(gap) < 0.05 and np.percentile(gap, 90) < 0.12, np.percentile(gap, [50, 90])
     assert np.mean(found[classified]) > 0.95        # the classified ground is found
+
+
+def test_a_bird_a_multipath_echo_a_stray_point_and_copies_are_left_out(tmp_path, capsys):
+    """Another tool's file without ground classes, with a bird 500 m up, a multipath echo 80 m under the
+    ground, a point 20 km east and 100 points written twice: each is left out and said, and the file
+    measures as the plot does (before, the stray point coarsened the ground model to 10 m cells, the
+    copies halved the spacing to 0, and the filter took the echo 80 m down for ground)."""
+    points = _forest(slope=0.1)
+    extra = points[[0, 1, 2]].copy()
+    extra["z"] += [500.0, -80.0, 0.0]
+    extra["x"] += [0.0, 0.0, 20_000.0]
+    messy = np.concatenate([points, extra, points[::20]])
+    clean = compare_files(_foreign_las(tmp_path / "clean.las", points, ground=False),
+                          _foreign_las(tmp_path / "messy.las", messy, ground=False))
+    assert capsys.readouterr().err == ""
+    a, b = clean["a"], clean["b"]
+    assert b["notes"][:2] == ["100 repeated points (exact copies) left out",
+                              "3 isolated points (fewer than 6 others in the 5 m cubes around them: birds, "
+                              "multipath, stray coordinates) left out"]
+    assert b["points"] == a["points"] == 2000 and b["covered_area_m2"] == 400
+    assert b["spacing_m"] == pytest.approx(STEP)
+    assert b["height_m"] == a["height_m"] and b["canopy_height_m"] == a["canopy_height_m"]
+    assert a["canopy_height_m"]["p50"] == pytest.approx(10.0, abs=0.02)
+    assert b["height_profile"] == a["height_profile"] and b["near_ground_share"] == pytest.approx(0.6)
+    assert clean["distance"]["height_ks"] == 0 and clean["distance"]["density_ratio"] == 1

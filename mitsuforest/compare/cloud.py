@@ -79,15 +79,10 @@ def as_cloud(value, name: str = "cloud") -> Cloud:
 
 def cloud_from_columns(columns: dict, name: str, scheme: str) -> Cloud:
     """A Cloud of a file's columns by name (scan angles already in degrees)."""
-    notes = []
-    if scheme == "ASPRS" and "classification" in columns:
-        columns = _left_out(columns, np.isin(columns["classification"], ASPRS_NOISE),
-                            "noise points (ASPRS classes 7, 18)", notes)
-    if "withheld" in columns:           # LAS: "should not be included in processing"
-        columns = _left_out(columns, np.asarray(columns["withheld"], bool), "withheld points", notes)
+    columns, notes = usable_points(columns, foreign=scheme == "ASPRS")
     n = len(columns["x"])
     if n == 0:
-        raise UserError(f"{name}: no points other than noise or withheld ones")
+        raise UserError(f"{name}: no points other than {LEFT_OUT} ({'; '.join(notes)})")
     rn = nr = None
     if "return_number" in columns and "number_of_returns" in columns:
         rn, nr = (np.asarray(columns[k], np.int16) for k in ("return_number", "number_of_returns"))
@@ -106,6 +101,40 @@ def cloud_from_columns(columns: dict, name: str, scheme: str) -> Cloud:
     classification = np.asarray(columns["classification"], np.int16) if "classification" in columns else None
     return Cloud(name, *(np.asarray(columns[a], np.float64) for a in "xyz"), rn, nr, intensity, scan_angle,
                  classification, scheme, notes)
+
+
+LEFT_OUT = "noise, withheld, repeated or isolated ones"     # what usable_points leaves out, for messages
+
+
+def usable_points(columns: dict, foreign: bool = True) -> tuple[dict, list[str]]:
+    """A file's columns less the points a measure of the scan must not see, and what was left out, in
+    words: points flagged withheld and, in another tool's file (``foreign``), its ASPRS noise (classes
+    7, 18), exact copies of a point (every field the same: a tile merged twice) and isolated points
+    (:func:`~.metrics.isolated_points`: a bird, a multipath echo, a stray coordinate), whose height
+    or place would stretch a grid or a canopy. Our own files have none of these but withheld points."""
+    from .metrics import ISOLATION_CELL_M, ISOLATION_OTHERS, isolated_points
+    notes = []
+    if foreign and "classification" in columns:
+        columns = _left_out(columns, np.isin(columns["classification"], ASPRS_NOISE),
+                            "noise points (ASPRS classes 7, 18)", notes)
+    if "withheld" in columns:           # LAS: "should not be included in processing"
+        columns = _left_out(columns, np.asarray(columns["withheld"], bool), "withheld points", notes)
+    if foreign and len(columns["x"]):
+        columns = _left_out(columns, repeated_points(columns), "repeated points (exact copies)", notes)
+        xyz = (np.asarray(columns[a], np.float64) for a in "xyz")
+        columns = _left_out(columns, isolated_points(*xyz), f"isolated points (fewer than {ISOLATION_OTHERS} "
+                            f"others in the {ISOLATION_CELL_M:g} m cubes around them: birds, multipath, stray "
+                            "coordinates)", notes)
+    return columns, notes
+
+
+def repeated_points(columns: dict) -> np.ndarray:
+    """(n,) bool: every point that is an exact copy, in all of ``columns``, of one before it."""
+    records = np.rec.fromarrays([np.asarray(v) for v in columns.values()])
+    raw = np.ascontiguousarray(records).view(np.dtype((np.void, records.dtype.itemsize)))
+    repeated = np.ones(len(raw), bool)
+    repeated[np.unique(raw, return_index=True)[1]] = False
+    return repeated
 
 
 def _left_out(columns: dict, drop: np.ndarray, what: str, notes: list) -> dict:

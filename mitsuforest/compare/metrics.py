@@ -21,6 +21,8 @@ FILTER_RISE_M = 1.5
 FILTER_BAND_M = 0.3       # ... and points within this of the surface through the kept points are ground
 PROFILE_RANGE_M = (-20.0, 200.0)  # the vertical profile's bins span at most this
 MAX_GRID_CELLS = 4_000_000  # the ground model's grid coarsens beyond this many cells (a very wide file)
+ISOLATION_CELL_M = 5.0    # a point is isolated when the 3 x 3 x 3 cubes of this size around it ...
+ISOLATION_OTHERS = 6      # ... hold fewer than this many other points (lidR's isolated voxel filter)
 
 
 def grid_origin(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
@@ -35,6 +37,28 @@ def cell_keys(x: np.ndarray, y: np.ndarray, cell: float = CELL_M, origin=None) -
     ix = np.floor((np.asarray(x, np.float64) - x0) / cell).astype(np.int64)
     iy = np.floor((np.asarray(y, np.float64) - y0) / cell).astype(np.int64)
     return (ix << 32) | iy
+
+
+def isolated_points(x: np.ndarray, y: np.ndarray, z: np.ndarray, cell: float = ISOLATION_CELL_M,
+                    others: int = ISOLATION_OTHERS) -> np.ndarray:
+    """(n,) bool: points alone in space, a bird, a multipath echo far below the ground, a stray
+    coordinate: the ``cell`` m cube holding the point and the 26 cubes around it hold fewer than
+    ``others`` other points (an isolated voxel filter, as lidR's ``ivf(res = 5, n = 6)`` and LAStools'
+    ``lasnoise``). A scan samples its ground and crowns densely enough that no surface point is that
+    alone (the two real scans: none of 390,877 and 37,657 points)."""
+    v = np.floor(np.column_stack([x - np.min(x), y - np.min(y), z - np.min(z)]) / cell).astype(np.int64) + 1
+    v = np.minimum(v, (1 << 21) - 2)      # 21 bits an axis: beyond 10,000 km, all in the last cube
+
+    def key(c):
+        return (c[:, 0] << 42) | (c[:, 1] << 21) | c[:, 2]
+
+    keys, first, inverse, count = np.unique(key(v), return_index=True, return_inverse=True, return_counts=True)
+    around = np.zeros(len(keys), np.int64)
+    for step in np.array(np.meshgrid([-1, 0, 1], [-1, 0, 1], [-1, 0, 1])).reshape(3, -1).T:
+        wanted = key(v[first] + step)
+        at = np.clip(np.searchsorted(keys, wanted), 0, len(keys) - 1)
+        around += np.where(keys[at] == wanted, count[at], 0)
+    return (around - 1 < others)[inverse.ravel()]
 
 
 def covered_area(x: np.ndarray, y: np.ndarray, cell: float = CELL_M) -> float:

@@ -47,7 +47,7 @@ def analyse(scan, settings: detection.DetectionSettings | None = None) -> dict:
     """Everything the twin scene needs from a :class:`~.points.RealScan` (pure): frame, DEM, trees,
     bushes, survey estimate and the notes on what was assumed. Without ``settings``, the detection's
     defaults with a CHM cell for the scan's density (:func:`~.detection.chm_cell`)."""
-    notes = []
+    notes = list(scan.notes)
     if scan.ground is not None and scan.ground.any():
         is_ground, ground_source = scan.ground, "the file's ground class"
     else:

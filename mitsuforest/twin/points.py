@@ -28,6 +28,7 @@ class RealScan:
     intensity: np.ndarray | None
     crs: str | None                     # WKT of the file's CRS
     tree_id: np.ndarray | None = None   # a reference segmentation (``treeID``, ``treeid``), for benchmarks
+    notes: tuple[str, ...] = ()         # the points left out, in words (noise, withheld, repeated, isolated)
 
     def __len__(self) -> int:
         return len(self.x)
@@ -37,10 +38,14 @@ def read_scan(path) -> RealScan:
     """The columns of a LAS/LAZ (or our PCD) file; an empty, damaged or unreadable file is a one-line
     :class:`~mitsuforest.errors.UserError`."""
     from ..write.info import load_points
+    from ..compare.cloud import LEFT_OUT, usable_points
     cols, names, class_names = load_points(path)
+    if len(cols["x"]) == 0:
+        raise UserError(f"{path}: holds no points")
+    cols, notes = usable_points(cols, foreign=class_names is not CLASS_NAMES)
     n = len(cols["x"])
     if n == 0:
-        raise UserError(f"{path}: holds no points")
+        raise UserError(f"{path}: holds no points other than {LEFT_OUT} ({'; '.join(notes)})")
     x, y, z = (np.asarray(cols[k], np.float64) for k in ("x", "y", "z"))
     if not (np.isfinite(x).all() and np.isfinite(y).all() and np.isfinite(z).all()):
         raise UserError(f"{path}: holds non-finite coordinates")
@@ -55,7 +60,7 @@ def read_scan(path) -> RealScan:
         gps_time=_varying(cols.get("gps_time")), scan_angle=_scan_angle(cols, names),
         point_source_id=_varying(cols.get("point_source_id")), intensity=cols.get("intensity"),
         crs=_crs(path),
-        tree_id=next((np.asarray(cols[k]) for k in ("treeID", "treeid") if k in cols), None))
+        tree_id=next((np.asarray(cols[k]) for k in ("treeID", "treeid") if k in cols), None), notes=tuple(notes))
 
 
 def _column(cols: dict, name: str, n: int, default: int) -> np.ndarray:
