@@ -1,5 +1,5 @@
 """The coordinate reference system of ``origin.crs``: checked by the scene file's validation, written
-into LAS, LAZ and COPC headers. Imports no stage."""
+into LAS, LAZ and COPC headers; and the CRS of a point file read (its units). Imports no stage."""
 
 from __future__ import annotations
 
@@ -37,6 +37,41 @@ def _metric_projection_problem(crs) -> str | None:
     if units - {"metre", "meter"}:
         return f"has its axes in {', '.join(sorted(units))}"
     return None
+
+
+def file_crs(path) -> str | None:
+    """The CRS of a LAS/LAZ file as WKT, or None (a PCD, no CRS, or a CRS record laspy cannot parse,
+    which is as good as none to a reader)."""
+    if str(path).lower().endswith(".pcd"):
+        return None
+    import laspy
+    try:
+        with laspy.open(str(path)) as reader:
+            crs = reader.header.parse_crs()
+    except Exception:
+        return None
+    return crs.to_wkt() if crs is not None else None
+
+
+def length_units(wkt: str) -> tuple[str, str, float, float]:
+    """The name of the CRS ``wkt``, its units in words (``"metre"``, ``"foot"``, ``"metre, heights in US
+    survey foot"``), and the metres per unit of its x and y and of its heights (0.3048 for feet). Heights
+    are in the unit of the vertical axis, or where the CRS has none, in that of x and y (a state plane in
+    feet has its heights in feet).
+
+    :raises ValueError: a CRS whose x and y are not lengths (geographic: degrees), with the reason.
+    """
+    import pyproj
+    crs = pyproj.CRS.from_user_input(wkt)
+    axes = [a for sub in (crs.sub_crs_list if crs.is_compound else [crs]) for a in sub.axis_info]
+    across = [a for a in axes if a.direction not in ("up", "down")][:2]
+    if not crs.is_projected or not across:
+        units = ", ".join(sorted({a.unit_name for a in across})) or "no axes"
+        raise ValueError(f"its CRS ({crs.name}) is not projected: its x and y are in {units}")
+    up = next((a for a in axes if a.direction in ("up", "down")), across[0])
+    words = across[0].unit_name if up.unit_name == across[0].unit_name else \
+        f"{across[0].unit_name}, heights in {up.unit_name}"
+    return crs.name, words, across[0].unit_conversion_factor, up.unit_conversion_factor
 
 
 def _proj_reason(error: Exception) -> str:

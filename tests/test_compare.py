@@ -423,3 +423,29 @@ def test_a_bird_a_multipath_echo_a_stray_point_and_copies_are_left_out(tmp_path,
     assert a["canopy_height_m"]["p50"] == pytest.approx(10.0, abs=0.02)
     assert b["height_profile"] == a["height_profile"] and b["near_ground_share"] == pytest.approx(0.6)
     assert clean["distance"]["height_ks"] == 0 and clean["distance"]["density_ratio"] == 1
+
+
+def test_a_file_in_feet_is_measured_in_metres_and_one_in_degrees_is_refused(tmp_path, capsys):
+    """A state plane in feet (NAD83 / Arizona Central (ft), no vertical CRS: heights in feet too) measures
+    as the same plot in metres, said in the notes (before: a 10 m canopy measured 32.8 "m" tall and the
+    density per square foot); a file in longitude and latitude is refused in one line."""
+    import pyproj
+    points = _forest()
+    feet = points.copy()
+    for axis in "xyz":
+        feet[axis] = points[axis] / 0.3048
+    path = _foreign_las(tmp_path / "feet.las", feet)
+    las = laspy.read(str(path))
+    las.header.add_crs(pyproj.CRS.from_epsg(2223))
+    las.write(str(path))
+    result = compare_files(_foreign_las(tmp_path / "metres.las", points), path)
+    b = result["b"]
+    assert b["notes"] == ["coordinates in foot (CRS NAD83 / Arizona Central (ft)): converted to metres"]
+    assert b["canopy_height_m"]["p95"] == pytest.approx(10.0, abs=1e-3) and b["density_per_m2"] == 5.0
+    assert b["spacing_m"] == pytest.approx(STEP, abs=1e-3) and result["distance"]["height_emd_m"] < 1e-3
+    las.header.add_crs(pyproj.CRS.from_epsg(4326))
+    las.write(str(tmp_path / "degrees.las"))
+    assert main(["compare", str(tmp_path / "degrees.las"), str(path)]) == 2
+    assert capsys.readouterr().err == (f"mitsuforest: {tmp_path / 'degrees.las'}: its CRS (WGS 84) is not projected: its x "
+                                       "and y are in degree; compare measures in metres: reproject the file to a "
+                                       "projected CRS (such as its UTM zone) first\n")

@@ -462,3 +462,22 @@ def test_a_twin_leaves_out_noise_withheld_repeated_and_isolated_points(tmp_path,
     assert np.atleast_1d(rows["height"]).tolist() == pytest.approx([15.0], abs=0.2)
     report = json.loads((tmp_path / "out" / "twin.json").read_text())
     assert report["points"] == len(x) - 3 and report["notes"][0] == "2 noise points (ASPRS classes 7, 18) left out"
+
+
+@pytest.mark.parametrize("epsg, words", [
+    ("EPSG:2223", "its CRS (NAD83 / Arizona Central (ft)) is in foot"),
+    ("EPSG:32612+6360", "its CRS (WGS 84 / UTM zone 12N + NAVD88 height (ftUS)) is in metre, heights in US survey foot"),
+    ("EPSG:4326", "its CRS (WGS 84) is not projected: its x and y are in degree")])
+def test_a_file_not_in_metres_is_refused_in_one_line_before_any_work(tmp_path, capsys, epsg, words):
+    """A twin is built in metres: a file in feet, or with heights in feet (before: a twin 3.28 times too
+    tall, as the scene checks only x and y), or in degrees is refused naming its CRS, nothing written."""
+    import pyproj
+    _shrubby_clip(tmp_path / "clip.las", 10.0)
+    las = laspy.convert(laspy.read(str(tmp_path / "clip.las")), point_format_id=6, file_version="1.4")   # WKT
+    las.header.add_crs(pyproj.CRS.from_user_input(epsg))
+    las.write(str(tmp_path / "clip.las"))
+    r = _run(capsys, "twin", tmp_path / "clip.las", "-o", tmp_path / "out")
+    assert r.returncode == 2 and r.stderr == (f"mitsuforest: {tmp_path / 'clip.las'}: {words}; a twin is built in "
+                                              "metres: reproject the file to a projected CRS in metres (such as its "
+                                              "UTM zone) first\n"), r.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["clip.las"]

@@ -48,10 +48,13 @@ def load_cloud(path) -> Cloud:
 
     :raises UserError: a missing, damaged or foreign file, or one without points.
     """
+    from ..crs import file_crs
     from ..write.info import load_points
     columns, _, class_names = load_points(path)
     if len(columns["x"]) == 0:
         raise UserError(f"{path}: the file holds no points")
+    wkt = file_crs(path)
+    columns, unit_note = in_metres(columns, wkt, path) if wkt else (columns, None)
     if "scan_angle" in columns and Path(path).suffix.lower() != ".pcd":   # LAS 1.4 counts; our PCD has degrees
         columns = {**columns, "scan_angle": columns["scan_angle"] * SCAN_ANGLE_UNIT}
     elif "scan_angle_rank" in columns:                                     # LAS point formats 0-5: whole degrees
@@ -59,7 +62,28 @@ def load_cloud(path) -> Cloud:
     amplitude = FIELD["intensity"].read_from              # our LAS: the exact amplitude, as our PCD's
     if amplitude in columns and class_names is CLASS_NAMES:   # intensity (16-bit intensity may clip)
         columns = {**columns, "intensity": columns[amplitude]}
-    return cloud_from_columns(columns, Path(path).name, "mitsuforest" if class_names is CLASS_NAMES else "ASPRS")
+    cloud = cloud_from_columns(columns, Path(path).name, "mitsuforest" if class_names is CLASS_NAMES else "ASPRS")
+    cloud.notes[:0] = [unit_note] if unit_note else []
+    return cloud
+
+
+def in_metres(columns: dict, wkt: str, path) -> tuple[dict, str | None]:
+    """The columns with x, y, z in metres, for a file whose CRS ``wkt`` is in other units (feet), and the
+    note that says so (None for a CRS in metres).
+
+    :raises UserError: a CRS whose x and y are not lengths (degrees): nothing to measure areas with.
+    """
+    from ..crs import length_units
+    try:
+        name, words, across, up = length_units(wkt)
+    except ValueError as e:
+        raise UserError(f"{path}: {e}; compare measures in metres: reproject the file to a projected CRS "
+                        "(such as its UTM zone) first") from None
+    if across == 1 and up == 1:
+        return columns, None
+    scaled = {"x": np.asarray(columns["x"]) * across, "y": np.asarray(columns["y"]) * across,
+              "z": np.asarray(columns["z"]) * up}
+    return {**columns, **scaled}, f"coordinates in {words} (CRS {name}): converted to metres"
 
 
 def as_cloud(value, name: str = "cloud") -> Cloud:

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..classes import CLASS_NAMES, GROUND
+from ..crs import file_crs, length_units
 from ..errors import UserError
 from ..fields import SCAN_ANGLE_UNIT
 
@@ -40,6 +41,10 @@ def read_scan(path) -> RealScan:
     from ..write.info import load_points
     from ..compare.cloud import LEFT_OUT, usable_points
     cols, names, class_names = load_points(path)
+    crs = file_crs(path)
+    if crs and (problem := units_problem(crs)):
+        raise UserError(f"{path}: {problem}; a twin is built in metres: reproject the file to a projected CRS "
+                        "in metres (such as its UTM zone) first")
     if len(cols["x"]) == 0:
         raise UserError(f"{path}: holds no points")
     cols, notes = usable_points(cols, foreign=class_names is not CLASS_NAMES)
@@ -59,8 +64,17 @@ def read_scan(path) -> RealScan:
         path=str(path), x=x, y=y, z=z, ground=ground, return_number=returns, number_of_returns=counts,
         gps_time=_varying(cols.get("gps_time")), scan_angle=_scan_angle(cols, names),
         point_source_id=_varying(cols.get("point_source_id")), intensity=cols.get("intensity"),
-        crs=_crs(path),
+        crs=crs,
         tree_id=next((np.asarray(cols[k]) for k in ("treeID", "treeid") if k in cols), None), notes=tuple(notes))
+
+
+def units_problem(wkt: str) -> str | None:
+    """Why a file in the CRS ``wkt`` cannot be twinned as it is (not in metres), or None."""
+    try:
+        name, words, across, up = length_units(wkt)
+    except ValueError as e:
+        return str(e)
+    return None if across == 1 and up == 1 else f"its CRS ({name}) is in {words}"
 
 
 def _column(cols: dict, name: str, n: int, default: int) -> np.ndarray:
@@ -83,16 +97,3 @@ def _scan_angle(cols: dict, names: list[str]) -> np.ndarray | None:
     if "scan_angle" in cols:                   # our PCD: degrees
         return _varying(np.asarray(cols["scan_angle"], np.float64))
     return None
-
-
-def _crs(path) -> str | None:
-    """The file's CRS as WKT (LAS/LAZ), or None."""
-    if str(path).lower().endswith(".pcd"):
-        return None
-    import laspy
-    try:
-        with laspy.open(str(path)) as reader:
-            crs = reader.header.parse_crs()
-    except Exception:       # a CRS record laspy cannot parse is as good as none for a twin
-        return None
-    return crs.to_wkt() if crs is not None else None
