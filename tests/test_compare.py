@@ -449,3 +449,24 @@ def test_a_file_in_feet_is_measured_in_metres_and_one_in_degrees_is_refused(tmp_
     assert capsys.readouterr().err == (f"mitsuforest: {tmp_path / 'degrees.las'}: its CRS (WGS 84) is not projected: its x "
                                        "and y are in degree; compare measures in metres: reproject the file to a "
                                        "projected CRS (such as its UTM zone) first\n")
+
+
+def test_another_tools_label_dimension_is_not_taken_for_our_classes(tmp_path):
+    """A foreign LAS with its own extra ``label`` (a segmentation's, here 7 everywhere) keeps its ASPRS
+    classes: ground class 2, 1,200 points (before, its labels were read as our classes, none of them our
+    ground 1, and the lowest-point filter stood in); our LAS, whose ``label`` says ``mitsuforest class``,
+    is still ours."""
+    from mitsuforest.write.las import write_las
+    points = _forest()
+    path = _foreign_las(tmp_path / "labelled.las", points)
+    las = laspy.read(str(path))
+    las.add_extra_dim(laspy.ExtraBytesParams("label", "u1", "instance label"))
+    las.label = np.full(len(las), 7, np.uint8)
+    las.write(str(path))
+    ours = tmp_path / "ours.las"
+    write_las(ours, points, offset=[0, 0, 0])
+    result = compare_files(path, ours)
+    a, b = result["a"], result["b"]
+    assert a["classes"] == "ASPRS" and a["ground"] == {"from": "class 2 (ASPRS ground)", "points": 1200}
+    assert b["classes"] == "mitsuforest" and b["ground"] == {"from": "class 1 (our ground)", "points": 1200}
+    assert a["notes"] == [] and result["distance"]["height_ks"] == 0

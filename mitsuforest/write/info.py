@@ -79,10 +79,19 @@ def _load_las(path: Path) -> tuple[dict, list[str], dict]:
     cols = {n: np.asarray(las[n]) for n in names}
     cols["x"], cols["y"], cols["z"] = np.asarray(las.x), np.asarray(las.y), np.asarray(las.z)
     ours = FIELD["classification"].read_from           # our class, beside the ASPRS classification
-    if ours in cols:
+    if ours in cols and _described_as_ours(las.point_format, ours):
         cols["classification"] = cols[ours]
         return cols, names, CLASS_NAMES
     return cols, names, {k: f"{v} (ASPRS {k})" for k, v in ASPRS_NAMES.items()}
+
+
+OUR_CLASS_DESCRIPTION = "mitsuforest class"    # our class dimension's description: "mitsuforest class 1-8"
+
+
+def _described_as_ours(point_format, name: str) -> bool:
+    """Whether the extra dimension ``name`` is our class, by its description (``mitsuforest class 1-8``,
+    ``1-7`` in early files), not another tool's dimension of that name (a segmentation's ``label``)."""
+    return point_format.dimension_by_name(name).description.startswith(OUR_CLASS_DESCRIPTION)
 
 
 UNFINISHED = "an unfinished file (its writer stopped before closing it, as a killed render's does)"
