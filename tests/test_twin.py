@@ -481,3 +481,20 @@ def test_a_file_not_in_metres_is_refused_in_one_line_before_any_work(tmp_path, c
                                               "metres: reproject the file to a projected CRS in metres (such as its "
                                               "UTM zone) first\n"), r.stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == ["clip.las"]
+
+
+def test_a_file_wider_than_a_plot_is_refused_naming_it_before_any_grid(tmp_path, capsys):
+    """Two shrubby clips 3 km apart: the twin says the file's span and the 2,000 m limit, naming the
+    file (before: the scene's validation, naming the staging scene, after a 3 x 3 km grid of work)."""
+    _shrubby_clip(tmp_path / "a.las", 10.0)
+    las = laspy.read(str(tmp_path / "a.las"))
+    far = laspy.read(str(tmp_path / "a.las"))
+    far.x, far.y = np.asarray(far.x) + 3000.0, np.asarray(far.y) + 3000.0
+    both = laspy.LasData(las.header)
+    both.points = laspy.ScaleAwarePointRecord(np.concatenate([las.points.array, far.points.array]), las.point_format,
+                                              las.header.scales, las.header.offsets)
+    both.write(str(tmp_path / "two.las"))
+    r = _run(capsys, "twin", tmp_path / "two.las", "-o", tmp_path / "out")
+    assert r.returncode == 2 and r.stderr == (f"mitsuforest: {tmp_path / 'two.las'}: its points span 3,010 x 3,030 m; "
+                                              "a twin's plot is at most 2,000 m a side: clip the file to the plot\n")
+    assert not (tmp_path / "out").exists()
