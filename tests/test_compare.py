@@ -306,6 +306,16 @@ def test_return_numbers_left_at_zero_are_said_and_stand_in_as_single_returns(tmp
     assert saved["a"]["pulses_by_returns"] == {"1": 1.0} and saved["a"]["pulses"] == len(points)
 
 
+def test_numbers_of_returns_left_at_zero_are_said_as_such(tmp_path):
+    """A LAS whose return numbers are filled but whose numbers of returns are all 0: the note names the
+    field that is 0 (before, it said the return numbers were, which they are not)."""
+    points = _forest()
+    points["number_of_returns"] = 0
+    cloud = load_cloud(_foreign_las(tmp_path / "nr0.las", points))
+    assert cloud.notes == ["numbers of returns are 0 everywhere: every point taken as a single-return pulse"]
+    assert len(cloud) == 2000 and not (cloud.return_number - 1).any()
+
+
 def test_an_output_folder_that_is_a_file_is_refused_first(tmp_path, capsys):
     a = _our_pcd(tmp_path / "a.pcd", _forest())
     blocker = tmp_path / "file"

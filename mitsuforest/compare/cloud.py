@@ -111,8 +111,9 @@ def cloud_from_columns(columns: dict, name: str, scheme: str) -> Cloud:
     if "return_number" in columns and "number_of_returns" in columns:
         rn, nr = (np.asarray(columns[k], np.int16) for k in ("return_number", "number_of_returns"))
         if not (rn.any() and nr.any()):     # LAS writers that do not know them leave 0
+            zero = "return numbers are" if not rn.any() else "numbers of returns are"
             rn = nr = None
-            notes.append("return numbers are 0 everywhere: every point taken as a single-return pulse")
+            notes.append(f"{zero} 0 everywhere: every point taken as a single-return pulse")
     else:
         notes.append("no return numbers: every point taken as a single-return pulse")
     if rn is None:
