@@ -498,3 +498,12 @@ def test_a_file_wider_than_a_plot_is_refused_naming_it_before_any_grid(tmp_path,
     assert r.returncode == 2 and r.stderr == (f"mitsuforest: {tmp_path / 'two.las'}: its points span 3,010 x 3,030 m; "
                                               "a twin's plot is at most 2,000 m a side: clip the file to the plot\n")
     assert not (tmp_path / "out").exists()
+
+
+def test_a_copc_file_s_twin_is_named_without_copc(tmp_path, capsys):
+    """``clip.copc.laz`` (read as any LAZ) makes the scene ``clip``, not ``clip.copc``."""
+    _shrubby_clip(tmp_path / "clip.las", 10.0)
+    laspy.read(str(tmp_path / "clip.las")).write(str(tmp_path / "clip.copc.laz"))
+    r = _run(capsys, "twin", tmp_path / "clip.copc.laz", "-o", tmp_path / "out")
+    assert r.returncode == 0, r.stderr
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["clip.yaml", "clip_dem.tif", "trees.csv", "twin.json"]

@@ -90,6 +90,14 @@ def analyse(scan, settings: detection.DetectionSettings | None = None) -> dict:
             "settings": settings}
 
 
+def scene_stem(path) -> str:
+    """A point file's name less its format's suffix: ``plot`` of ``plot.laz`` and of ``plot.copc.laz``."""
+    from ..fields import POINT_FORMATS
+    from ..write.formats import format_of
+    name, fmt = Path(path).name, format_of(path)
+    return name[:-len(POINT_FORMATS[fmt])] if fmt else Path(path).stem
+
+
 def make_twin(path, out_dir, species=(), sensor=None, name: str | None = None, log=None, calibrate: int = 0,
               variant: str | None = None) -> dict:
     """Write the twin of the scan ``path`` into ``out_dir``: ``<name>.yaml``, ``<name>_dem.tif``,
@@ -119,7 +127,7 @@ def make_twin(path, out_dir, species=(), sensor=None, name: str | None = None, l
         from ..config import load_sensor
         load_sensor(sensor)                     # a bad sensor file is refused before any work
     scan = read_scan(path)
-    stem = Path(path).stem
+    stem = scene_stem(path)
     name = name or (stem if name_problem(stem) is None else "twin")
     analysis = analyse(scan)
     report = write_twin(analysis, scan, Path(out_dir), name, tuple(species), sensor, log)
