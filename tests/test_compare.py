@@ -480,3 +480,15 @@ def test_another_tools_label_dimension_is_not_taken_for_our_classes(tmp_path):
     assert a["classes"] == "ASPRS" and a["ground"] == {"from": "class 2 (ASPRS ground)", "points": 1200}
     assert b["classes"] == "mitsuforest" and b["ground"] == {"from": "class 1 (our ground)", "points": 1200}
     assert a["notes"] == [] and result["distance"]["height_ks"] == 0
+
+
+def test_a_file_spanning_kilometres_says_its_ground_model_is_coarse(tmp_path):
+    """20 points 5 km from the plot (a block of points with zeroed or shifted coordinates, too many to be
+    isolated) make the ground model's cells 2.5 m: said in the notes (before, silently)."""
+    points = _forest()
+    far = points[:20].copy()
+    far["x"] += 5000.0
+    cloud = describe(load_cloud(_foreign_las(tmp_path / "far.las", np.concatenate([points, far]))))
+    assert cloud.summary["notes"] == ["the points span 5,010 m: the ground model's cells are 2.5 m, not 1 m (at most "
+                                      "4,000,000 cells), and heights follow the ground less closely; clip the file "
+                                      "to its plot"]

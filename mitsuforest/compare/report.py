@@ -38,6 +38,10 @@ def describe(cloud: Cloud) -> Description:
 
     ground, source = _ground(cloud, notes)
     model = m.ground_model(x, y, x[ground], y[ground], z[ground])
+    if model.cell > m.CELL_M:       # a file this wide has points far apart: say that its ground is coarse
+        notes.append(f"the points span {max(np.ptp(x), np.ptp(y)):,.0f} m: the ground model's cells are "
+                     f"{model.cell:,.1f} m, not {m.CELL_M:g} m (at most {m.MAX_GRID_CELLS:,} cells), and heights "
+                     "follow the ground less closely; clip the file to its plot")
     height = z - model.height(x, y)
     origin = m.grid_origin(x, y)
     cells, canopy = m.canopy_cells(x[first], y[first], height[first], origin)
