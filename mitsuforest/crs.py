@@ -39,6 +39,12 @@ def _metric_projection_problem(crs) -> str | None:
     return None
 
 
+def projection_problem(wkt: str) -> str | None:
+    """Why the CRS ``wkt`` cannot be a scene's ``origin.crs`` (:func:`_metric_projection_problem`), or None."""
+    import pyproj
+    return _metric_projection_problem(pyproj.CRS.from_user_input(wkt))
+
+
 def file_crs(path) -> str | None:
     """The CRS of a LAS/LAZ file as WKT, or None (a PCD, no CRS, or a CRS record laspy cannot parse,
     which is as good as none to a reader)."""
@@ -59,15 +65,16 @@ def length_units(wkt: str) -> tuple[str, str, float, float]:
     are in the unit of the vertical axis, or where the CRS has none, in that of x and y (a state plane in
     feet has its heights in feet).
 
-    :raises ValueError: a CRS whose x and y are not lengths (geographic: degrees), with the reason.
+    :raises ValueError: a geographic CRS (x and y in degrees, not lengths), or one without axes.
     """
     import pyproj
     crs = pyproj.CRS.from_user_input(wkt)
-    axes = [a for sub in (crs.sub_crs_list if crs.is_compound else [crs]) for a in sub.axis_info]
+    parts = crs.sub_crs_list if crs.is_compound else [crs]
+    axes = [a for sub in parts for a in sub.axis_info]
     across = [a for a in axes if a.direction not in ("up", "down")][:2]
-    if not crs.is_projected or not across:
+    if parts[0].is_geographic or not across:
         units = ", ".join(sorted({a.unit_name for a in across})) or "no axes"
-        raise ValueError(f"its CRS ({crs.name}) is not projected: its x and y are in {units}")
+        raise ValueError(f"its CRS ({crs.name}) is geographic: its x and y are in {units}")
     up = next((a for a in axes if a.direction in ("up", "down")), across[0])
     words = across[0].unit_name if up.unit_name == across[0].unit_name else \
         f"{across[0].unit_name}, heights in {up.unit_name}"

@@ -456,7 +456,7 @@ def test_a_file_in_feet_is_measured_in_metres_and_one_in_degrees_is_refused(tmp_
     las.header.add_crs(pyproj.CRS.from_epsg(4326))
     las.write(str(tmp_path / "degrees.las"))
     assert main(["compare", str(tmp_path / "degrees.las"), str(path)]) == 2
-    assert capsys.readouterr().err == (f"mitsuforest: {tmp_path / 'degrees.las'}: its CRS (WGS 84) is not projected: its x "
+    assert capsys.readouterr().err == (f"mitsuforest: {tmp_path / 'degrees.las'}: its CRS (WGS 84) is geographic: its x "
                                        "and y are in degree; compare measures in metres: reproject the file to a "
                                        "projected CRS (such as its UTM zone) first\n")
 

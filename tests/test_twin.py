@@ -467,7 +467,7 @@ def test_a_twin_leaves_out_noise_withheld_repeated_and_isolated_points(tmp_path,
 @pytest.mark.parametrize("epsg, words", [
     ("EPSG:2223", "its CRS (NAD83 / Arizona Central (ft)) is in foot"),
     ("EPSG:32612+6360", "its CRS (WGS 84 / UTM zone 12N + NAVD88 height (ftUS)) is in metre, heights in US survey foot"),
-    ("EPSG:4326", "its CRS (WGS 84) is not projected: its x and y are in degree")])
+    ("EPSG:4326", "its CRS (WGS 84) is geographic: its x and y are in degree")])
 def test_a_file_not_in_metres_is_refused_in_one_line_before_any_work(tmp_path, capsys, epsg, words):
     """A twin is built in metres: a file in feet, or with heights in feet (before: a twin 3.28 times too
     tall, as the scene checks only x and y), or in degrees is refused naming its CRS, nothing written."""
@@ -507,3 +507,19 @@ def test_a_copc_file_s_twin_is_named_without_copc(tmp_path, capsys):
     r = _run(capsys, "twin", tmp_path / "clip.copc.laz", "-o", tmp_path / "out")
     assert r.returncode == 0, r.stderr
     assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["clip.yaml", "clip_dem.tif", "trees.csv", "twin.json"]
+
+
+def test_a_file_on_a_local_grid_in_metres_gets_a_twin_without_a_crs(tmp_path, capsys):
+    """A site grid in metres (an engineering CRS) is no CRS a scene can hold: the twin is written without
+    ``origin.crs``, said (before: the scene's validation refused it, naming the staging scene)."""
+    import pyproj
+    _shrubby_clip(tmp_path / "clip.las", 10.0)
+    las = laspy.convert(laspy.read(str(tmp_path / "clip.las")), point_format_id=6, file_version="1.4")
+    las.header.add_crs(pyproj.CRS.from_wkt('LOCAL_CS["site grid",LOCAL_DATUM["site",0],UNIT["metre",1],'
+                                           'AXIS["Easting",EAST],AXIS["Northing",NORTH]]'))
+    las.write(str(tmp_path / "clip.las"))
+    r = _run(capsys, "twin", tmp_path / "clip.las", "-o", tmp_path / "out")
+    assert r.returncode == 0, r.stderr
+    assert "twin: its CRS (site grid) is not a projected CRS: the twin's scene has no origin.crs\n" in r.stderr
+    scene = yaml.safe_load((tmp_path / "out" / "clip.yaml").read_text())
+    assert "crs" not in scene["origin"] and scene["origin"]["offset"][:2] == [500_000.0, 6_000_000.0]

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..classes import CLASS_NAMES, GROUND
-from ..crs import file_crs, length_units
+from ..crs import file_crs, length_units, projection_problem
 from ..errors import UserError
 from ..fields import SCAN_ANGLE_UNIT
 
@@ -41,13 +41,18 @@ def read_scan(path) -> RealScan:
     from ..write.info import load_points
     from ..compare.cloud import LEFT_OUT, usable_points
     cols, names, class_names = load_points(path)
+    if len(cols["x"]) == 0:
+        raise UserError(f"{path}: holds no points")
     crs = file_crs(path)
     if crs and (problem := units_problem(crs)):
         raise UserError(f"{path}: {problem}; a twin is built in metres: reproject the file to a projected CRS "
                         "in metres (such as its UTM zone) first")
-    if len(cols["x"]) == 0:
-        raise UserError(f"{path}: holds no points")
+    unplaced = crs and projection_problem(crs)          # a local grid in metres: a twin, but not georeferenced
+    if unplaced:
+        unplaced = f"its CRS ({length_units(crs)[0]}) {unplaced}: the twin's scene has no origin.crs"
+        crs = None
     cols, notes = usable_points(cols, foreign=class_names is not CLASS_NAMES)
+    notes += [unplaced] if unplaced else []
     n = len(cols["x"])
     if n == 0:
         raise UserError(f"{path}: holds no points other than {LEFT_OUT} ({'; '.join(notes)})")
@@ -69,7 +74,8 @@ def read_scan(path) -> RealScan:
 
 
 def units_problem(wkt: str) -> str | None:
-    """Why a file in the CRS ``wkt`` cannot be twinned as it is (not in metres), or None."""
+    """Why a file in the CRS ``wkt`` cannot be twinned, or None: a twin's x, y and heights are the file's,
+    so they must be metres (a scene is simulated in metres)."""
     try:
         name, words, across, up = length_units(wkt)
     except ValueError as e:
