@@ -170,10 +170,10 @@ def _crs_text(wkt: str | None) -> str | None:
 
 def _write_dem(path: Path, dem: np.ndarray, x0: float, y0: float, crs: str | None) -> None:
     import rasterio
-    from rasterio.transform import from_origin
+    from rasterio.transform import Affine   # (from_origin warns of its own '*' in rasterio 1.4)
     north_up = dem[::-1].astype(np.float32)
     with rasterio.open(path, "w", driver="GTiff", width=dem.shape[1], height=dem.shape[0], count=1, dtype="float32",
-                       transform=from_origin(x0, y0 + dem.shape[0] * DEM_CELL, DEM_CELL, DEM_CELL),
+                       transform=Affine(DEM_CELL, 0.0, x0, 0.0, -DEM_CELL, y0 + dem.shape[0] * DEM_CELL),
                        crs=crs, compress="deflate") as dataset:
         dataset.write(north_up, 1)
 
