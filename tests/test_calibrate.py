@@ -8,7 +8,7 @@ import pytest
 from mitsuforest.twin import TwinFrame
 from mitsuforest.twin.calibrate import (CONTRAST_LIMITS, CONTRAST_SLOPE, base_crown_ratios, canopy_spread, canopy_state,
                                         contrast_ratios, contrast_step, converged, crown_scale, dominant_crowns,
-                                        echo_scale, lai_scale, leaf_exponent, leaf_rule, leaf_scale, rescale_trees,
+                                        echo_scale, footprint, lai_scale, leaf_exponent, leaf_rule, leaf_scale, rescale_trees,
                                         spread_slope)
 
 
@@ -39,6 +39,25 @@ def test_crown_scale_gives_discs_the_target_cover():
     cover = n * math.pi * r ** 2 / area
     k = crown_scale(0.3, cover)
     assert n * math.pi * (k * r) ** 2 / area == pytest.approx(0.3, rel=1e-12)
+
+
+def test_a_circular_clip_is_measured_within_its_footprint():
+    """A real clip of radius 10 m, canopy everywhere in it (a first return 10 m up in each 0.5 m spot), and
+    a twin rendered over the clip's 20 x 20 m rectangle, its canopy the same circle and its corners bare
+    ground: over the whole plot the twin's cover would be the share of the circle's cells, 0.83, against
+    the real 1.0 (and its crowns widened to close the gap); within the real footprint both are 1.0."""
+    frame = TwinFrame((0.0, 0.0, 90.0), (20.0, 20.0))
+    dem = np.full((22, 22), 100.0)
+    x, y = (a.ravel() + 0.25 for a in np.mgrid[0:20:0.5, 0:20:0.5])
+    in_circle = np.hypot(x - 10, y - 10) <= 10
+    real = (x[in_circle], y[in_circle], np.full(in_circle.sum(), 110.0), np.ones(in_circle.sum(), int))
+    twin = (x, y, np.where(in_circle, 110.0, 100.0), np.ones(len(x), int))
+    cells = footprint(real[0], real[1], real[3], frame)
+    assert math.pi * 100 < cells.sum() < math.pi * 100 + 2 * math.pi * 10 * 0.5   # the circle and its edge's cells
+    whole = canopy_state(*twin, dem, (-1.0, -1.0), frame)
+    assert whole["cover"] == pytest.approx(cells.sum() / 400, abs=1e-12) and whole["cover"] < 0.85
+    within = canopy_state(*twin, dem, (-1.0, -1.0), frame, cells)
+    assert within["cover"] == canopy_state(*real, dem, (-1.0, -1.0), frame, cells)["cover"] == 1.0
 
 
 def test_canopy_state_counts_gap_and_cover_of_a_constructed_cloud():
@@ -254,7 +273,8 @@ def test_the_loop_converges_on_a_stand_whose_measures_follow_power_laws(tmp_path
         return {"echoes_per_pulse": 1.0 + 1.2 * lai ** -0.7, "cover": min(1.0, 0.6 * (r[0] / 1.0) ** 1.5),
                 "spread": 5.0 + 14.0 * contrast, "gap_fraction": 0.2}
 
-    monkeypatch.setattr(c, "_render_state", lambda scene, variant, analysis: measured(scene.parent))
+    monkeypatch.setattr(c, "_render_state", lambda scene, variant, analysis, cells: measured(scene.parent))
+    monkeypatch.setattr(c, "footprint", lambda *args: None)
     real = {"echoes_per_pulse": 1.0 + 1.2 * 3.0 ** -0.7, "cover": 0.6 * 1.2 ** 1.5, "spread": 8.5, "gap_fraction": 0.1}
     monkeypatch.setattr(c, "canopy_state", lambda *args: real)
     scan = SimpleNamespace(x=None, y=None, z=None, return_number=None)

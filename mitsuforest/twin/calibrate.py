@@ -1,7 +1,8 @@
 """Calibrating a twin's crowns against its real scan: render, measure, rescale, render again.
 
 Measures of the canopy, taken the same way on the real scan and on the twin's render, both over the
-real scan's DEM (:func:`canopy_state`):
+real scan's DEM and within its footprint, the plot's 1 m cells holding a first return of it (:func:`footprint`:
+a circular or holed clip's twin is rendered over the whole rectangle, whose corners would count as gaps):
 
 - the echoes per pulse: all returns over first returns;
 - the crown gap fraction ``P``: the share of first returns under crowns (CHM at or above 2 m) that reach
@@ -181,17 +182,43 @@ def _bounded(k: float) -> float:
     return float(min(max(k, SCALE_LIMITS[0]), SCALE_LIMITS[1]))
 
 
-def canopy_state(x, y, z, return_number, dem: np.ndarray, dem_origin, frame) -> dict:
+def _grid(frame) -> tuple[float, float, tuple[int, int]]:
+    """The SW corner and shape (ny, nx) of the plot's :data:`CHM_CELL` cells."""
+    return frame.offset[0], frame.offset[1], (int(math.ceil(frame.size[1] / CHM_CELL)), int(math.ceil(frame.size[0] / CHM_CELL)))
+
+
+def _in_cells(x: np.ndarray, y: np.ndarray, frame, cells: np.ndarray | None) -> np.ndarray:
+    """(n,) bool: the points in the plot's cells, and in ``cells`` (ny, nx) where given."""
+    x0, y0, shape = _grid(frame)
+    inside = (x >= x0) & (y >= y0) & (x < x0 + shape[1] * CHM_CELL) & (y < y0 + shape[0] * CHM_CELL)
+    if cells is not None:
+        row, col = ground.grid_index(x[inside], y[inside], x0, y0, CHM_CELL, shape)
+        inside[inside] = cells[row, col]
+    return inside
+
+
+def footprint(x, y, return_number, frame) -> np.ndarray:
+    """(ny, nx) bool: the plot's :data:`CHM_CELL` cells that hold a first return of the scan (x, y and
+    return_number of shape (n,))."""
+    x, y = np.asarray(x, float), np.asarray(y, float)
+    x0, y0, shape = _grid(frame)
+    first = (np.asarray(return_number) == 1) & _in_cells(x, y, frame, None)
+    cells = np.zeros(shape, bool)
+    cells[ground.grid_index(x[first], y[first], x0, y0, CHM_CELL, shape)] = True
+    return cells
+
+
+def canopy_state(x, y, z, return_number, dem: np.ndarray, dem_origin, frame, cells: np.ndarray | None = None) -> dict:
     """The echoes per pulse, crown gap fraction, canopy cover and canopy spread (:func:`canopy_spread`, of
-    all returns) of a scan over the plot ``frame`` (a :class:`~.TwinFrame`), heights over ``dem`` (1 m cells from
-    ``dem_origin``). Arrays of shape (n,)."""
+    all returns) of a scan over the plot ``frame`` (a :class:`~.TwinFrame`), or over its ``cells`` (ny, nx)
+    where given (the real scan's :func:`footprint`), heights over ``dem`` (1 m cells from ``dem_origin``).
+    Arrays of shape (n,)."""
     from . import DEM_CELL
     x, y, z = (np.asarray(a, float) for a in (x, y, z))
     h = z - ground.ground_height(dem, dem_origin[0], dem_origin[1], DEM_CELL, x, y)
     first = np.asarray(return_number) == 1
-    x0, y0 = frame.offset[0], frame.offset[1]
-    shape = (int(math.ceil(frame.size[1] / CHM_CELL)), int(math.ceil(frame.size[0] / CHM_CELL)))
-    in_plot = (x >= x0) & (y >= y0) & (x < x0 + shape[1] * CHM_CELL) & (y < y0 + shape[0] * CHM_CELL)
+    x0, y0, shape = _grid(frame)
+    in_plot = _in_cells(x, y, frame, cells)
     inside = first & in_plot
     chm = detection.canopy_height_model(x[inside], y[inside], h[inside], x0, y0, shape, CHM_CELL)
     row, col = ground.grid_index(x[inside], y[inside], x0, y0, CHM_CELL, shape)
@@ -268,7 +295,8 @@ def calibrate(real_scan, analysis: dict, folder: Path, name: str, iterations: in
     measures, each step's twin measures and factors, the total factors applied and the crown contrast."""
     log = log or (lambda msg: print(msg, file=sys.stderr))
     frame, dem, origin = analysis["frame"], analysis["dem"], analysis["dem_origin"]
-    real = canopy_state(real_scan.x, real_scan.y, real_scan.z, real_scan.return_number, dem, origin, frame)
+    cells = footprint(real_scan.x, real_scan.y, real_scan.return_number, frame)
+    real = canopy_state(real_scan.x, real_scan.y, real_scan.z, real_scan.return_number, dem, origin, frame, cells)
     record = {"real": real, "leaf_from": leaf_rule(real), "steps": [], "lai_factor": 1.0, "crown_factor": 1.0,
               "crown_contrast": 0.0, "converged": False}
     if real["gap_fraction"] is None:
@@ -280,7 +308,7 @@ def calibrate(real_scan, analysis: dict, folder: Path, name: str, iterations: in
         record["note"] = "no crown contrast: " + ("the real scan's canopy holds too few returns"
                                                   if basis is not None else "the trees have no crown ratio")
     for i in range(iterations):
-        twin = _render_state(folder / f"{name}.yaml", variant, analysis)
+        twin = _render_state(folder / f"{name}.yaml", variant, analysis, cells)
         step = {"gap_fraction": twin["gap_fraction"], "cover": twin["cover"], "spread": twin["spread"],
                 "echoes_per_pulse": twin["echoes_per_pulse"], "crown_contrast": record["crown_contrast"]}
         if twin["gap_fraction"] is None or converged(real, twin, spread=with_contrast):
@@ -329,8 +357,9 @@ def _spread_slope(steps: list[dict], step: dict) -> float:
     return spread_slope((last["crown_contrast"], last["spread"]), (step["crown_contrast"], step["spread"]))
 
 
-def _render_state(scene_file: Path, variant: str | None, analysis: dict) -> dict:
-    """Render the twin's scene into a scratch folder beside it and measure it (:func:`canopy_state`)."""
+def _render_state(scene_file: Path, variant: str | None, analysis: dict, cells: np.ndarray) -> dict:
+    """Render the twin's scene into a scratch folder beside it and measure it within the real scan's
+    footprint ``cells`` (:func:`canopy_state`)."""
     from ..pipeline import render
     from .points import read_scan
     work = Path(tempfile.mkdtemp(prefix=".calibrate.", dir=scene_file.parent))
@@ -341,7 +370,7 @@ def _render_state(scene_file: Path, variant: str | None, analysis: dict) -> dict
     finally:
         shutil.rmtree(work, ignore_errors=True)
     return canopy_state(twin_scan.x, twin_scan.y, twin_scan.z, twin_scan.return_number, analysis["dem"],
-                        analysis["dem_origin"], analysis["frame"])
+                        analysis["dem_origin"], analysis["frame"], cells)
 
 
 def _measures(twin: dict, real: dict) -> str:
