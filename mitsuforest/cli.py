@@ -123,6 +123,9 @@ def _add_compare(sub: argparse._SubParsersAction) -> None:
     p.add_argument("b", type=_named("B", "a file"), help="the second point file (B; distances are B against A)")
     p.add_argument("-o", "--output", type=_folder, default=Path("out/compare"),
                    help="output folder (default: out/compare)")
+    p.add_argument("--within-a", action="store_true",
+                   help="measure B only in the 1 m cells that hold a point of A: a render with the stand around "
+                        "its plot, or of a circular clip's twin, where the real clip is")
 
 
 _SUBPARSERS = (_add_render, _add_plan, _add_trees, _add_export, _add_dataset, _add_twin, _add_info, _add_compare)
@@ -327,7 +330,7 @@ def _info(args) -> int:
 
 def _compare(args) -> int:
     from .compare import compare_files, format_table
-    result = compare_files(args.a, args.b, out_dir=args.output)
+    result = compare_files(args.a, args.b, out_dir=args.output, within_a=args.within_a)
     for side in ("a", "b"):
         for note in result[side]["notes"]:
             print(f"mitsuforest: {result[side]['file']}: {note}", file=sys.stderr)

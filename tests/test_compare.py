@@ -267,6 +267,32 @@ def test_the_command_writes_table_json_and_figure(tmp_path, capsys):
     assert sorted(p.name for p in out.iterdir()) == ["compare.json", "compare.png"]   # no temporary left
 
 
+def test_within_a_measures_b_only_in_a_s_cells(tmp_path, capsys):
+    """A: the constructed plot clipped to a disc 6 m across centred at (7, 10) (its 1 m cells whose centres lie
+    within it: whole cells, mostly under the canopy of the plot's west half); B: the whole 20 x 20 m plot,
+    half canopy. Over all of B the two differ; with --within-a B is measured in A's cells only, which hold
+    A's very points: every distance is zero, and B's note says how many of its 2,000 points were measured.
+    A B in another frame (georeferenced against A's local one) shares no cell with A and is refused."""
+    points = _forest()
+    centre = np.hypot(np.floor(points["x"]) + 0.5 - 7, np.floor(points["y"]) + 0.5 - 10) <= 6
+    from mitsuforest.write.las import write_las
+    a = _our_pcd(tmp_path / "disc.pcd", points[centre])
+    b = tmp_path / "plot.las"
+    write_las(b, points, offset=[0, 0, 0])
+    whole = compare_files(a, b)["distance"]
+    assert whole["returns_tv"] > 0.1 and whole["height_ks"] > 0.1 and whole["density_ratio"] < 0.9
+    assert main(["compare", str(a), str(b), "--within-a", "-o", str(tmp_path / "cmp")]) == 0
+    saved = json.loads((tmp_path / "cmp" / "compare.json").read_text())
+    d = saved["distance"]
+    assert d["density_ratio"] == 1 and d["returns_tv"] == 0 and d["ground_share"] == 0 and d["height_ks"] == 0
+    assert saved["a"]["points"] == saved["b"]["points"] == int(centre.sum()) > 500
+    assert f"{int(centre.sum()):,} of 2,000 points" in capsys.readouterr().err
+    elsewhere = _foreign_las(tmp_path / "utm.las", points)          # the same plot 470 km east: no common cell
+    assert main(["compare", str(a), str(elsewhere), "--within-a", "-o", str(tmp_path / "cmp2")]) == 2
+    assert "utm.las: none of its points lies within disc.pcd's footprint (its 1 m cells)" in capsys.readouterr().err
+    assert not (tmp_path / "cmp2").exists()
+
+
 def test_no_ground_class_is_said_on_stderr(tmp_path, capsys):
     points = _forest()
     a = _foreign_las(tmp_path / "a.las", points, ground=False)

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from . import metrics as m
-from .cloud import Cloud, as_cloud, load_cloud
+from .cloud import Cloud, as_cloud, load_cloud, within_footprint
 
 RETURN_NUMBERS = (1, 2, 3)   # intensity by return number; intensity_ks is the largest KS of these
 MIN_ECHOES = 20              # a return number with fewer echoes in either cloud is left out of intensity_ks
@@ -145,9 +145,10 @@ def compare_clouds(cloud_a, cloud_b) -> dict:
     return compare_descriptions(describe(as_cloud(cloud_a, "A")), describe(as_cloud(cloud_b, "B")))
 
 
-def compare_files(a, b, out_dir=None) -> dict:
+def compare_files(a, b, out_dir=None, within_a: bool = False) -> dict:
     """Compare the point files ``a`` and ``b`` (PCD, LAS or LAZ); with ``out_dir``, write
-    ``compare.json`` and ``compare.png`` there (each atomically).
+    ``compare.json`` and ``compare.png`` there (each atomically). With ``within_a``, ``b`` is measured
+    only in the 1 m cells that hold a point of ``a`` (:func:`~.cloud.within_footprint`).
 
     :returns: compare.json's dict ``{"a": {...}, "b": {...}, "distance": {...}}``.
     :raises UserError: a missing, damaged or empty file, or an output folder that cannot be written.
@@ -155,7 +156,10 @@ def compare_files(a, b, out_dir=None) -> dict:
     if out_dir is not None:
         from ..write import check_output_folder
         check_output_folder(out_dir)
-    da, db = describe(load_cloud(a)), describe(load_cloud(b))
+    cloud_a, cloud_b = load_cloud(a), load_cloud(b)
+    if within_a:
+        cloud_b = within_footprint(cloud_b, cloud_a)
+    da, db = describe(cloud_a), describe(cloud_b)
     result = compare_descriptions(da, db)
     if out_dir is not None:
         from ..write.atomic import write_json
