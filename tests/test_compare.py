@@ -289,7 +289,8 @@ def test_within_a_measures_b_only_in_a_s_cells(tmp_path, capsys):
     assert f"{int(centre.sum()):,} of 2,000 points" in capsys.readouterr().err
     elsewhere = _foreign_las(tmp_path / "utm.las", points)          # the same plot 470 km east: no common cell
     assert main(["compare", str(a), str(elsewhere), "--within-a", "-o", str(tmp_path / "cmp2")]) == 2
-    assert "utm.las: none of its points lies within disc.pcd's footprint (its 1 m cells)" in capsys.readouterr().err
+    assert "utm.las: none of its points lies within A (disc.pcd)'s footprint (the 1 m cells holding its points): " \
+        "are the two files in one frame?" in capsys.readouterr().err
     assert not (tmp_path / "cmp2").exists()
 
 

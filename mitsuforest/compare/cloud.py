@@ -86,19 +86,22 @@ def in_metres(columns: dict, wkt: str, path) -> tuple[dict, str | None]:
     return {**columns, **scaled}, f"coordinates in {words} (CRS {name}): converted to metres"
 
 
-def within_footprint(cloud: Cloud, of: Cloud, cell: float = 1.0) -> Cloud:
-    """``cloud``'s points in the ``cell`` m cells that hold a point of ``of`` (its footprint), with a note:
-    a render with the stand around its plot, or of a circular clip's twin, measured where the real clip is.
+def within_footprint(cloud: Cloud, of: Cloud, cell: float = 1.0, called: str | None = None) -> Cloud:
+    """``cloud``'s points in the ``cell`` m cells that hold a point of ``of`` (its footprint), with a note
+    naming ``of`` as ``called`` (default its name): a render with the stand around its plot, or of a circular
+    clip's twin, measured where the real clip is.
 
     :raises UserError: no point of ``cloud`` within the footprint.
     """
     from .metrics import cell_keys
+    called = called or of.name
     origin = (float(np.floor(min(np.min(cloud.x), np.min(of.x)))), float(np.floor(min(np.min(cloud.y), np.min(of.y)))))
     keep = np.isin(cell_keys(cloud.x, cloud.y, cell, origin), cell_keys(of.x, of.y, cell, origin))
     if not keep.any():
-        raise UserError(f"{cloud.name}: none of its points lies within {of.name}'s footprint (its {cell:g} m cells)")
+        raise UserError(f"{cloud.name}: none of its points lies within {called}'s footprint (the {cell:g} m cells "
+                        "holding its points): are the two files in one frame?")
     kept = {f.name: (v[keep] if isinstance(v := getattr(cloud, f.name), np.ndarray) else v) for f in fields(cloud)}
-    note = (f"measured within {of.name}'s footprint (the {cell:g} m cells holding its points): "
+    note = (f"measured within {called}'s footprint (the {cell:g} m cells holding its points): "
             f"{int(keep.sum()):,} of {len(keep):,} points")
     return Cloud(**{**kept, "notes": [*cloud.notes, note]})
 

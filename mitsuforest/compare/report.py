@@ -158,7 +158,7 @@ def compare_files(a, b, out_dir=None, within_a: bool = False) -> dict:
         check_output_folder(out_dir)
     cloud_a, cloud_b = load_cloud(a), load_cloud(b)
     if within_a:
-        cloud_b = within_footprint(cloud_b, cloud_a)
+        cloud_b = within_footprint(cloud_b, cloud_a, called=f"A ({cloud_a.name})")
     da, db = describe(cloud_a), describe(cloud_b)
     result = compare_descriptions(da, db)
     if out_dir is not None:
