@@ -102,6 +102,8 @@ class Field:
         return next(d for d in self.las if d.name == (self.read_from or self.las[0].name))
 
 
+CLASS_DESCRIPTION = "mitsuforest class"   # our class dimension's description begins so (readers tell it by this)
+
 FIELDS: tuple[Field, ...] = (
     Field("treeid", "<u2", "the tree's model number (archetypes from 1, then forest.models); deadwood "
           "classes.DEADWOOD_TREEID; else 0",
@@ -113,7 +115,7 @@ FIELDS: tuple[Field, ...] = (
     Field("z", "<f8", "m up (local frame; files add origin.offset)", pcd_local="<f4",
           las=(LasDimension("Z", "coordinate", COORDINATE_SCALE),)),
     Field("classification", "u1", "our class 1-8 (classes.CLASS_NAMES)",
-          las=(LasDimension("classification", "asprs"), extra("label", "u1", "mitsuforest class 1-8", 0)),
+          las=(LasDimension("classification", "asprs"), extra("label", "u1", f"{CLASS_DESCRIPTION} 1-8", 0)),
           read_from="label"),
     Field("instance", "<u4", "the placed object's instance id (0: the ground)",
           las=(extra("instance", "<u4", "object instance id", 2),)),

@@ -43,14 +43,7 @@ def read_scan(path) -> RealScan:
     cols, names, class_names = load_points(path)
     if len(cols["x"]) == 0:
         raise UserError(f"{path}: holds no points")
-    crs = file_crs(path)
-    if crs and (problem := units_problem(crs)):
-        raise UserError(f"{path}: {problem}; a twin is built in metres: reproject the file to a projected CRS "
-                        "in metres (such as its UTM zone) first")
-    unplaced = crs and projection_problem(crs)          # a local grid in metres: a twin, but not georeferenced
-    if unplaced:
-        unplaced = f"its CRS ({length_units(crs)[0]}) {unplaced}: the twin's scene has no origin.crs"
-        crs = None
+    crs, unplaced = _scene_crs(file_crs(path), path)
     cols, notes = usable_points(cols, foreign=class_names is not CLASS_NAMES)
     notes += [unplaced] if unplaced else []
     n = len(cols["x"])
@@ -73,14 +66,27 @@ def read_scan(path) -> RealScan:
         tree_id=next((np.asarray(cols[k]) for k in ("treeID", "treeid") if k in cols), None), notes=tuple(notes))
 
 
-def units_problem(wkt: str) -> str | None:
-    """Why a file in the CRS ``wkt`` cannot be twinned, or None: a twin's x, y and heights are the file's,
-    so they must be metres (a scene is simulated in metres)."""
+def _scene_crs(wkt: str | None, path) -> tuple[str | None, str | None]:
+    """The file's CRS ``wkt`` as the twin's ``origin.crs``, or None with the note that says why (a local grid
+    in metres: a twin, but not georeferenced).
+
+    :raises UserError: a CRS not in metres: a twin's x, y and heights are the file's, and a scene is
+        simulated in metres.
+    """
+    if wkt is None:
+        return None, None
     try:
         name, words, across, up = length_units(wkt)
     except ValueError as e:
-        return str(e)
-    return None if across == 1 and up == 1 else f"its CRS ({name}) is in {words}"
+        problem = str(e)
+    else:
+        problem = None if across == 1 and up == 1 else f"its CRS ({name}) is in {words}"
+    if problem:
+        raise UserError(f"{path}: {problem}; a twin is built in metres: reproject the file to a projected CRS "
+                        "in metres (such as its UTM zone) first")
+    if unplaced := projection_problem(wkt):
+        return None, f"its CRS ({name}) {unplaced}: the twin's scene has no origin.crs"
+    return wkt, None
 
 
 def _column(cols: dict, name: str, n: int, default: int) -> np.ndarray:

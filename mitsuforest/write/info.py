@@ -8,7 +8,7 @@ import numpy as np
 
 from ..classes import CLASS_NAMES
 from ..errors import UserError
-from ..fields import FIELD
+from ..fields import CLASS_DESCRIPTION, FIELD
 from .formats import format_of
 from .pcd import PointFileError, read_pcd
 
@@ -85,13 +85,10 @@ def _load_las(path: Path) -> tuple[dict, list[str], dict]:
     return cols, names, {k: f"{v} (ASPRS {k})" for k, v in ASPRS_NAMES.items()}
 
 
-OUR_CLASS_DESCRIPTION = "mitsuforest class"    # our class dimension's description: "mitsuforest class 1-8"
-
-
 def _described_as_ours(point_format, name: str) -> bool:
     """Whether the extra dimension ``name`` is our class, by its description (``mitsuforest class 1-8``,
     ``1-7`` in early files), not another tool's dimension of that name (a segmentation's ``label``)."""
-    return point_format.dimension_by_name(name).description.startswith(OUR_CLASS_DESCRIPTION)
+    return point_format.dimension_by_name(name).description.startswith(CLASS_DESCRIPTION)
 
 
 UNFINISHED = "an unfinished file (its writer stopped before closing it, as a killed render's does)"
