@@ -207,6 +207,8 @@ def _foreign_las(path, points, point_format=6, ground=True):
     las.classification = np.where(points["classification"] == 1, 2 if ground else 1, 5).astype(np.uint8)
     las.return_number, las.number_of_returns = points["return_number"], points["number_of_returns"]
     las.intensity = np.round(points["intensity"] * 40000).astype(np.uint16)
+    if "gps_time" in las.point_format.dimension_names:
+        las.gps_time = points["gps_time"]
     if point_format >= 6:
         las.scan_angle = np.round(points["scan_angle"] / 0.006).astype(np.int16)
     else:
@@ -334,13 +336,65 @@ def test_return_numbers_left_at_zero_are_said_and_stand_in_as_single_returns(tmp
 
 
 def test_numbers_of_returns_left_at_zero_are_said_as_such(tmp_path):
-    """A LAS whose return numbers are filled but whose numbers of returns are all 0: the note names the
-    field that is 0 (before, it said the return numbers were, which they are not)."""
+    """A LAS whose return numbers are filled but whose numbers of returns are all 0, without GPS times to
+    group a pulse's points: the note names the field that is 0 (before, it said the return numbers were,
+    which they are not)."""
     points = _forest()
     points["number_of_returns"] = 0
     cloud = load_cloud(_foreign_las(tmp_path / "nr0.las", points))
-    assert cloud.notes == ["numbers of returns are 0 everywhere: every point taken as a single-return pulse"]
+    assert cloud.notes == ["numbers of returns are 0 everywhere and no GPS time tells one pulse's points apart: "
+                           "every point taken as a single-return pulse"]
     assert len(cloud) == 2000 and not (cloud.return_number - 1).any()
+
+
+def _timed(points, per_stamp=1):
+    """``points`` (a :func:`_forest`) with GPS times: each pulse's points one time, ``per_stamp`` pulses a
+    stamp (the canopy-and-ground pulses' two points lie at one x, y)."""
+    key = np.round(points["x"] * 1000) * 100_000 + np.round(points["y"] * 1000)
+    _, pulse = np.unique(key, return_inverse=True)
+    points["gps_time"] = 1000.0 + (pulse // per_stamp) * 1e-5
+    return points
+
+
+def test_numbers_of_returns_left_at_zero_are_taken_from_the_points_sharing_a_gps_time(tmp_path):
+    """A LAS with return numbers and GPS times but numbers of returns 0 measures as the file that filled
+    them: 1,600 pulses, 75 % with one return, 25 % with two (before, every point was a single-return
+    pulse: 2,000 pulses, returns_tv 0.25 against the filled file)."""
+    filled = _foreign_las(tmp_path / "filled.las", _timed(_forest()))
+    points = _timed(_forest())
+    points["number_of_returns"] = 0
+    cloud = load_cloud(_foreign_las(tmp_path / "nr0.las", points))
+    assert cloud.notes == ["numbers of returns are 0 everywhere: taken from the return numbers of the points "
+                           "that share a GPS time"]
+    assert np.array_equal(cloud.number_of_returns, load_cloud(filled).number_of_returns)
+    r = compare_files(filled, tmp_path / "nr0.las")
+    assert r["b"]["pulses"] == 1600 and r["b"]["pulses_by_returns"] == {"1": 0.75, "2": 0.25}
+    assert r["distance"]["returns_tv"] == 0 and r["distance"]["density_ratio"] == 1
+
+
+def test_gps_times_coarser_than_the_pulses_do_not_stand_for_numbers_of_returns(tmp_path):
+    """Two pulses a GPS stamp: a stamp holds two first returns, so its points are not one pulse's."""
+    points = _timed(_forest(), per_stamp=2)
+    points["number_of_returns"] = 0
+    cloud = load_cloud(_foreign_las(tmp_path / "coarse.las", points))
+    assert cloud.notes[0].startswith("numbers of returns are 0 everywhere and no GPS time tells")
+    assert not (cloud.number_of_returns - 1).any()
+
+
+def test_numbers_of_returns_by_time_is_the_largest_return_number_of_each_pulse():
+    rn = np.array([1, 2, 3, 1, 1, 2])
+    t = np.array([5.0, 5.0, 5.0, 6.0, 7.0, 7.0])
+    assert m.numbers_of_returns_by_time(rn, t).tolist() == [3, 3, 3, 1, 2, 2]
+    source = np.array([1, 1, 1, 1, 1, 2])          # one time, two flight lines: two pulses
+    assert m.numbers_of_returns_by_time(np.array([1, 2, 3, 1, 1, 1]), t, source).tolist() == [3, 3, 3, 1, 1, 1]
+    assert m.numbers_of_returns_by_time(rn, t, np.ones(6, int)).tolist() == [3, 3, 3, 1, 2, 2]
+    assert m.numbers_of_returns_by_time(np.array([1, 1, 2, 1, 1, 2]), t) is None    # two first returns at 5.0
+
+
+def test_pulse_count_is_the_first_returns_or_the_shares_of_unnumbered_returns():
+    assert m.pulse_count(np.array([1, 2, 1, 1, 2, 3]), np.array([2, 2, 1, 3, 3, 3])) == 3
+    assert m.pulse_count(np.array([1, 2, 1, 1, 2, 3]), np.zeros(6)) == 3    # counts not filled: the first returns
+    assert m.pulse_count(np.ones(6), np.array([2, 2, 1, 3, 3, 3])) == pytest.approx(3)   # MixedConifer: all 1
 
 
 def test_an_output_folder_that_is_a_file_is_refused_first(tmp_path, capsys):

@@ -523,3 +523,33 @@ def test_a_file_on_a_local_grid_in_metres_gets_a_twin_without_a_crs(tmp_path, ca
     assert "twin: its CRS (site grid) is not a projected CRS: the twin's scene has no origin.crs\n" in r.stderr
     scene = yaml.safe_load((tmp_path / "out" / "clip.yaml").read_text())
     assert "crs" not in scene["origin"] and scene["origin"]["offset"][:2] == [500_000.0, 6_000_000.0]
+
+
+@pytest.mark.parametrize("filled", ["numbers of returns", "return numbers and GPS times", "return numbers alone"])
+def test_a_twin_counts_the_pulses_of_a_file_that_left_its_numbers_of_returns_0(tmp_path, filled):
+    """A flat 30 × 30 m clip, a pulse every 0.5 m (4 pulses/m²), half of them returning from 5 m shrubs
+    and then the ground. Whether the file counted each pulse's returns or left those counts 0, the twin
+    finds 4 pulses/m² (before, a file that left them 0 gave 5: each second return counted as half a
+    pulse), and with GPS times it takes each pulse's count from its points."""
+    from mitsuforest.twin import analyse
+    from mitsuforest.twin.points import read_scan
+    g = np.arange(0.25, 30.0, 0.5)
+    x, y = (v.ravel() for v in np.meshgrid(g, g, indexing="ij"))
+    two = x < 15
+    pulse = np.r_[np.arange(len(x)), np.flatnonzero(two)]
+    rn = np.r_[np.ones(len(x), int), np.full(two.sum(), 2)]
+    nr = np.r_[np.where(two, 2, 1), np.full(two.sum(), 2)]
+    z = 100.0 + np.r_[np.where(two, 5.0, 0.0), np.zeros(two.sum())]
+    las = laspy.create(point_format=6, file_version="1.4")
+    las.header.offsets, las.header.scales = [500_000, 6_000_000, 0], [0.001] * 3
+    las.x, las.y, las.z = x[pulse] + 500_000, y[pulse] + 6_000_000, z
+    las.classification = np.where(z == 100.0, 2, 1)
+    las.return_number = rn
+    las.number_of_returns = nr if filled == "numbers of returns" else np.zeros_like(nr)
+    if filled != "return numbers alone":
+        las.gps_time = 1000.0 + pulse * 1e-5
+    las.write(str(tmp_path / "clip.las"))
+    scan = read_scan(tmp_path / "clip.las")
+    assert analyse(scan)["pulse_density"] == pytest.approx(4.0)
+    if filled != "return numbers alone":
+        assert np.array_equal(scan.number_of_returns, nr)

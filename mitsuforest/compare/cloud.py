@@ -127,17 +127,7 @@ def cloud_from_columns(columns: dict, name: str, scheme: str) -> Cloud:
     n = len(columns["x"])
     if n == 0:
         raise UserError(f"{name}: no points other than {LEFT_OUT} ({'; '.join(notes)})")
-    rn = nr = None
-    if "return_number" in columns and "number_of_returns" in columns:
-        rn, nr = (np.asarray(columns[k], np.int16) for k in ("return_number", "number_of_returns"))
-        if not (rn.any() and nr.any()):     # LAS writers that do not know them leave 0
-            zero = "return numbers are" if not rn.any() else "numbers of returns are"
-            rn = nr = None
-            notes.append(f"{zero} 0 everywhere: every point taken as a single-return pulse")
-    else:
-        notes.append("no return numbers: every point taken as a single-return pulse")
-    if rn is None:
-        rn, nr = np.ones(n, np.int16), np.ones(n, np.int16)
+    rn, nr = return_numbers(columns, notes)
     intensity = _optional(columns, "intensity", np.float64, notes, "no intensity")
     if intensity is not None and not np.any(intensity):
         intensity = None
@@ -148,6 +138,8 @@ def cloud_from_columns(columns: dict, name: str, scheme: str) -> Cloud:
                  classification, scheme, notes)
 
 
+NUMBERS_FROM_TIMES = ("numbers of returns are 0 everywhere: taken from the return numbers of the points that "
+                      "share a GPS time")
 LEFT_OUT = "noise, withheld, repeated or isolated ones"     # what usable_points leaves out, for messages
 
 
@@ -187,6 +179,33 @@ def _left_out(columns: dict, drop: np.ndarray, what: str, notes: list) -> dict:
         return columns
     notes.append(f"{int(drop.sum()):,} {what} left out")
     return {k: np.asarray(v)[~drop] for k, v in columns.items()}
+
+
+def return_numbers(columns: dict, notes: list) -> tuple[np.ndarray, np.ndarray]:
+    """(n,) int16 return numbers and numbers of returns of a file's ``columns``, with a note in ``notes``
+    where they were not filled: numbers of returns left 0 are taken from the points sharing a GPS time
+    (:func:`~.metrics.numbers_of_returns_by_time`); without those, every point is a single-return pulse."""
+    from .metrics import numbers_of_returns_by_time
+    n = len(columns["x"])
+    single = np.ones(n, np.int16), np.ones(n, np.int16)
+    if "return_number" not in columns or "number_of_returns" not in columns:
+        notes.append("no return numbers: every point taken as a single-return pulse")
+        return single
+    rn, nr = (np.asarray(columns[k], np.int16) for k in ("return_number", "number_of_returns"))
+    if rn.any() and nr.any():
+        return rn, nr
+    if not rn.any():                      # LAS writers that do not know them leave 0
+        notes.append("return numbers are 0 everywhere: every point taken as a single-return pulse")
+        return single
+    times = columns.get("gps_time")
+    found = None if times is None or np.all(times == times[0]) else numbers_of_returns_by_time(
+        rn, times, columns.get("point_source_id"))
+    if found is None:
+        notes.append("numbers of returns are 0 everywhere and no GPS time tells one pulse's points apart: "
+                     "every point taken as a single-return pulse")
+        return single
+    notes.append(NUMBERS_FROM_TIMES)
+    return rn, found.astype(np.int16)
 
 
 def _optional(columns: dict, key: str, dtype, notes: list, missing: str):

@@ -105,6 +105,33 @@ def pulses_by_returns(return_number: np.ndarray, number_of_returns: np.ndarray) 
     return np.bincount(np.maximum(counts, 1), minlength=2)
 
 
+def pulse_count(return_number: np.ndarray, number_of_returns: np.ndarray) -> float:
+    """The pulses the (n,) points stand for: their first returns where the return numbers are filled
+    (some above 1), else the sum of one over each point's number of returns (a file that numbered none
+    of its returns but counted them, as lidR's MixedConifer.laz)."""
+    rn = np.asarray(return_number)
+    if np.any(rn > 1):
+        return float(np.count_nonzero(first_returns(rn)))
+    return float(np.sum(1.0 / np.maximum(np.asarray(number_of_returns, np.float64), 1.0)))
+
+
+def numbers_of_returns_by_time(return_number: np.ndarray, gps_time: np.ndarray,
+                               source: np.ndarray | None = None) -> np.ndarray | None:
+    """(n,) each point's number of returns, for a file that filled its return numbers but left its
+    numbers of returns 0: the largest return number among the points of its pulse, the points that share
+    its GPS time (and flight line ``source``). None where the times do not tell pulses apart: a time
+    holding two points of one return number (times stamped coarser than the pulse rate)."""
+    rn = np.asarray(return_number, np.int64)
+    keys = np.asarray(gps_time) if source is None else np.rec.fromarrays([gps_time, source])
+    _, pulse = np.unique(keys, return_inverse=True)
+    pulse = pulse.ravel()
+    if len(np.unique(pulse * (int(rn.max()) + 1) + rn)) < len(rn):
+        return None
+    most = np.zeros(int(pulse.max()) + 1, np.int64)
+    np.maximum.at(most, pulse, rn)
+    return most[pulse]
+
+
 def shares(counts: np.ndarray) -> np.ndarray:
     """(k,) ``counts`` over their sum (zeros when the sum is 0)."""
     counts = np.asarray(counts, np.float64)

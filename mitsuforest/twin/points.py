@@ -57,7 +57,7 @@ def read_scan(path) -> RealScan:
     if classes is not None and classes.any():
         ground = classes == (GROUND if class_names is CLASS_NAMES else 2)    # ours (PCD, LAS label) or ASPRS
     returns = np.maximum(_column(cols, "return_number", n, 1), 1)     # 0: a writer that did not fill it
-    counts = np.maximum(_column(cols, "number_of_returns", n, 1), returns)
+    counts = np.maximum(_numbers_of_returns(cols, returns, notes), returns)
     return RealScan(
         path=str(path), x=x, y=y, z=z, ground=ground, return_number=returns, number_of_returns=counts,
         gps_time=_varying(cols.get("gps_time")), scan_angle=_scan_angle(cols, names),
@@ -87,6 +87,22 @@ def _scene_crs(wkt: str | None, path) -> tuple[str | None, str | None]:
     if unplaced := projection_problem(wkt):
         return None, f"its CRS ({name}) {unplaced}: the twin's scene has no origin.crs"
     return wkt, None
+
+
+def _numbers_of_returns(cols: dict, returns: np.ndarray, notes: list) -> np.ndarray:
+    """The file's numbers of returns; where it left them 0 but numbered its returns, those of the points
+    that share a GPS time (and a note saying so), else 0."""
+    from ..compare.cloud import NUMBERS_FROM_TIMES
+    from ..compare.metrics import numbers_of_returns_by_time
+    counts = _column(cols, "number_of_returns", len(returns), 1)
+    times = _varying(cols.get("gps_time"))
+    if counts.any() or returns.max() < 2 or times is None:
+        return counts
+    found = numbers_of_returns_by_time(returns, times, cols.get("point_source_id"))
+    if found is None:
+        return counts
+    notes.append(NUMBERS_FROM_TIMES)
+    return found
 
 
 def _column(cols: dict, name: str, n: int, default: int) -> np.ndarray:
