@@ -87,6 +87,29 @@ def test_canopy_state_counts_gap_and_cover_of_a_constructed_cloud():
     assert not converged(state, {"gap_fraction": 0.25, "cover": 0.5})
 
 
+def test_a_scan_of_first_returns_only_and_its_twin_are_measured_on_their_first_returns():
+    """A 10 x 10 m plot under a 10 m canopy, a first return in each 0.5 m spot, every third pulse returning
+    again 4 m lower. A file of its first returns only (each with its pulse's count) and the whole scan
+    measured with the counts agree: echoes per pulse 4/3 (the counts' mean), the spread of the first
+    returns, 0 m. Without the counts the file of first returns gave 1 echo a pulse (the gap fraction
+    would set its leaf) and the whole scan a spread of 4 m, so a twin was calibrated against nothing."""
+    frame = TwinFrame((0.0, 0.0, 90.0), (10.0, 10.0))
+    dem = np.full((12, 12), 100.0)
+    x, y = (a.ravel() + 0.25 for a in np.mgrid[0:10:0.5, 0:10:0.5])
+    again = np.arange(len(x)) % 3 == 0
+    counts = np.where(again, 2, 1)
+    first_only = (x, y, np.full(len(x), 110.0), np.ones(len(x), int))
+    whole = (np.r_[x, x[again]], np.r_[y, y[again]], np.r_[np.full(len(x), 110.0), np.full(again.sum(), 106.0)],
+             np.r_[np.ones(len(x), int), np.full(again.sum(), 2)])
+    whole_counts = np.r_[counts, np.full(again.sum(), 2)]
+    measured = canopy_state(*first_only, dem, (-1.0, -1.0), frame, None, counts)
+    assert measured == canopy_state(*whole, dem, (-1.0, -1.0), frame, None, whole_counts)
+    assert measured["echoes_per_pulse"] == pytest.approx(again.sum() / len(x) + 1) == pytest.approx(4 / 3, abs=0.01)
+    assert measured["spread"] == 0.0 and measured["cover"] == 1.0
+    assert canopy_state(*first_only, dem, (-1.0, -1.0), frame)["echoes_per_pulse"] == 1.0
+    assert canopy_state(*whole, dem, (-1.0, -1.0), frame)["spread"] > 1.0
+
+
 def test_rescale_trees_widens_crowns_and_keeps_leaf_area_per_crown_area(tmp_path):
     f = tmp_path / "trees.csv"
     f.write_text("x,y,height,crown_radius,species,leaf_area\n1.000,2.000,20.000,2.000,pinus_radiata,50.27\n")
@@ -273,11 +296,11 @@ def test_the_loop_converges_on_a_stand_whose_measures_follow_power_laws(tmp_path
         return {"echoes_per_pulse": 1.0 + 1.2 * lai ** -0.7, "cover": min(1.0, 0.6 * (r[0] / 1.0) ** 1.5),
                 "spread": 5.0 + 14.0 * contrast, "gap_fraction": 0.2}
 
-    monkeypatch.setattr(c, "_render_state", lambda scene, variant, analysis, cells: measured(scene.parent))
+    monkeypatch.setattr(c, "_render_state", lambda scene, variant, analysis, cells, first_only: measured(scene.parent))
     monkeypatch.setattr(c, "footprint", lambda *args: None)
     real = {"echoes_per_pulse": 1.0 + 1.2 * 3.0 ** -0.7, "cover": 0.6 * 1.2 ** 1.5, "spread": 8.5, "gap_fraction": 0.1}
     monkeypatch.setattr(c, "canopy_state", lambda *args: real)
-    scan = SimpleNamespace(x=None, y=None, z=None, return_number=None)
+    scan = SimpleNamespace(x=None, y=None, z=None, return_number=None, number_of_returns=None, first_only=False)
     analysis = {"frame": None, "dem": None, "dem_origin": None, "crown_ratio": 0.4}
     record = c.calibrate(scan, analysis, tmp_path, "stand", 6, log=lambda *_: None)
     assert record["converged"] and record["leaf_from"] == "echoes"

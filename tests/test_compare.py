@@ -391,10 +391,34 @@ def test_numbers_of_returns_by_time_is_the_largest_return_number_of_each_pulse()
     assert m.numbers_of_returns_by_time(np.array([1, 1, 2, 1, 1, 2]), t) is None    # two first returns at 5.0
 
 
+def test_a_file_of_first_returns_only_is_compared_with_the_other_s_first_returns(tmp_path, capsys):
+    """The constructed forest's 1,600 first returns alone (each with its pulse's number of returns, every
+    return number 1, one GPS time a point) against the whole forest: at distance zero, the whole file
+    measured on its first returns and said so (before: density ratio 1.25, ground share 0.6 against 0.5,
+    the heights of 400 ground returns more)."""
+    whole = _timed(_forest())
+    first = whole[whole["return_number"] == 1]
+    a, b = _foreign_las(tmp_path / "first.las", first), _foreign_las(tmp_path / "whole.las", whole)
+    assert main(["compare", str(a), str(b), "-o", str(tmp_path / "o")]) == 0
+    err = capsys.readouterr().err
+    assert ("mitsuforest: first.las: first returns only: one point a pulse, each with its pulse's number of returns "
+            "(up to 2), every return number 1 and no two points at one GPS time") in err
+    assert ("mitsuforest: whole.las: measured on its first returns (1,600 of 2,000 points), as A (first.las) holds "
+            "first returns only") in err
+    saved = json.loads((tmp_path / "o" / "compare.json").read_text())
+    assert saved["distance"] == {**dict.fromkeys(DISTANCES, 0.0), "density_ratio": 1.0}
+    assert saved["a"]["pulses_by_returns"] == saved["b"]["pulses_by_returns"] == {"1": 0.75, "2": 0.25}
+    assert compare_files(b, a)["distance"] == saved["distance"]         # either way round
+    unnumbered = whole.copy()
+    unnumbered["return_number"] = 1          # every return kept but none numbered: two points at one time
+    assert not load_cloud(_foreign_las(tmp_path / "unnumbered.las", unnumbered)).first_only
+
+
 def test_pulse_count_is_the_first_returns_or_the_shares_of_unnumbered_returns():
     assert m.pulse_count(np.array([1, 2, 1, 1, 2, 3]), np.array([2, 2, 1, 3, 3, 3])) == 3
     assert m.pulse_count(np.array([1, 2, 1, 1, 2, 3]), np.zeros(6)) == 3    # counts not filled: the first returns
-    assert m.pulse_count(np.ones(6), np.array([2, 2, 1, 3, 3, 3])) == pytest.approx(3)   # MixedConifer: all 1
+    assert m.pulse_count(np.ones(6), np.array([2, 2, 1, 3, 3, 3])) == pytest.approx(3)   # returns left 1
+    assert m.pulse_count(np.ones(6), np.array([2, 2, 1, 3, 3, 3]), np.arange(6.0)) == 6     # first returns only
 
 
 def test_an_output_folder_that_is_a_file_is_refused_first(tmp_path, capsys):
@@ -457,7 +481,7 @@ def test_the_uas_clip_measures_as_its_readme_says(real_result):
     assert len(cloud) == 390_877 - 2 and cloud.notes == ["2 noise points (ASPRS classes 7, 18) left out"]
     by_points = np.bincount(cloud.number_of_returns)[1:]
     assert by_points.tolist() == pytest.approx([141_723, 143_458, 75_163, 24_411, 5_272, 850], abs=2)
-    s = real_result["a"]
+    s = describe(cloud).summary
     as_pulses = m.shares(by_points / np.arange(1, 7))    # each pulse once: its points over its returns
     assert s["pulses_by_returns"]["1"] == pytest.approx(0.577, abs=0.002)
     assert [s["pulses_by_returns"][str(k)] for k in range(1, 7)] == pytest.approx(as_pulses, abs=0.003)
@@ -475,6 +499,21 @@ def test_the_real_scans_compare_with_finite_distances(real_result):
     assert 0 < d["returns_tv"] < 1 and 0 < d["height_ks"] < 1 and d["height_emd_m"] > 0
     assert d["density_ratio"] == pytest.approx(real_result["b"]["density_per_m2"] / real_result["a"]["density_per_m2"])
     assert real_result["b"]["pulses_by_returns"]["1"] == pytest.approx(26_087 / 37_657)   # every point a first return
+
+
+@needs_real
+def test_mixedconifer_holds_first_returns_only_so_uas_clip_is_measured_on_its_first(real_result):
+    """MixedConifer keeps one point a pulse (37,657 points at 37,657 GPS times, every return number 1, its
+    points of pulses with 2-4 returns never ground): UAS_Clip beside it is measured on its 246,184 first
+    returns, with the same shares of pulses by returns as all its points give."""
+    a, b = real_result["a"], real_result["b"]
+    assert b["notes"] == ["first returns only: one point a pulse, each with its pulse's number of returns (up to 4), "
+                          "every return number 1 and no two points at one GPS time"]
+    assert a["points"] == a["pulses"] == 246_184 == int(np.count_nonzero(load_cloud(REAL / "UAS_Clip.laz").return_number == 1))
+    assert a["notes"][-1] == ("measured on its first returns (246,184 of 390,875 points), as B (MixedConifer.laz) "
+                              "holds first returns only")
+    assert a["pulses_by_returns"]["1"] == pytest.approx(0.577, abs=0.002)
+    assert b["points"] == b["pulses"] == 37_657
 
 
 @needs_real

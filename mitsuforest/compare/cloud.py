@@ -10,6 +10,7 @@ import numpy as np
 from ..classes import CLASS_NAMES, GROUND
 from ..errors import UserError
 from ..fields import FIELD, SCAN_ANGLE_UNIT
+from .metrics import first_returns, first_returns_only, numbers_of_returns_by_time
 
 ASPRS_GROUND = 2
 ASPRS_NOISE = (7, 18)         # low and high noise: left out of a comparison of another tool's file
@@ -21,6 +22,7 @@ class Cloud:
 
     :param scheme: ``"mitsuforest"`` (our classes, ground 1) or ``"ASPRS"`` (ground 2).
     :param notes: what was missing and what stands in for it, in words.
+    :param first_only: the file holds its pulses' first returns only (each with its pulse's count of returns).
     """
 
     name: str
@@ -34,6 +36,7 @@ class Cloud:
     classification: np.ndarray | None = None
     scheme: str = "ASPRS"
     notes: list[str] = field(default_factory=list)
+    first_only: bool = False                      # one point a pulse, its first (:func:`~.metrics.first_returns_only`)
 
     def __len__(self) -> int:
         return len(self.x)
@@ -106,6 +109,33 @@ def within_footprint(cloud: Cloud, of: Cloud, cell: float = 1.0, called: str | N
     return Cloud(**{**kept, "notes": [*cloud.notes, note]})
 
 
+def first_only_note(number_of_returns: np.ndarray) -> str:
+    """The note on a file of first returns only (:func:`~.metrics.first_returns_only`)."""
+    return (f"first returns only: one point a pulse, each with its pulse's number of returns (up to "
+            f"{int(np.max(number_of_returns))}), every return number 1 and no two points at one GPS time")
+
+
+def first_returns_of(cloud: Cloud, called: str) -> Cloud:
+    """``cloud``'s first returns, measured beside ``called``, a file of first returns only: the same
+    pulses and their counts of returns, no later return among the heights, ground and intensities."""
+    keep = first_returns(cloud.return_number)
+    kept = {f.name: (v[keep] if isinstance(v := getattr(cloud, f.name), np.ndarray) else v) for f in fields(cloud)}
+    note = (f"measured on its first returns ({int(keep.sum()):,} of {len(keep):,} points), as {called} holds "
+            "first returns only")
+    return Cloud(**{**kept, "notes": [*cloud.notes, note], "first_only": True})
+
+
+def like_for_like(a: Cloud, b: Cloud) -> tuple[Cloud, Cloud]:
+    """``a`` and ``b``, where one holds first returns only and the other every return, with the other's
+    first returns (:func:`first_returns_of`): a height profile, ground share or density of every return
+    against one of first returns alone measures the files' contents, not the scans."""
+    if a.first_only and not b.first_only:
+        return a, first_returns_of(b, f"A ({a.name})")
+    if b.first_only and not a.first_only:
+        return first_returns_of(a, f"B ({b.name})"), b
+    return a, b
+
+
 def as_cloud(value, name: str = "cloud") -> Cloud:
     """A :class:`Cloud` of ``value``: a Cloud, a path, or points in memory (a structured array such as
     ``render(...).points``, or a mapping of columns), whose classes are taken as ours."""
@@ -128,6 +158,9 @@ def cloud_from_columns(columns: dict, name: str, scheme: str) -> Cloud:
     if n == 0:
         raise UserError(f"{name}: no points other than {LEFT_OUT} ({'; '.join(notes)})")
     rn, nr = return_numbers(columns, notes)
+    first_only = first_returns_only(rn, nr, columns.get("gps_time"))
+    if first_only:
+        notes.append(first_only_note(nr))
     intensity = _optional(columns, "intensity", np.float64, notes, "no intensity")
     if intensity is not None and not np.any(intensity):
         intensity = None
@@ -135,7 +168,7 @@ def cloud_from_columns(columns: dict, name: str, scheme: str) -> Cloud:
     scan_angle = _optional(columns, "scan_angle", np.float32, notes, "no scan angle")
     classification = np.asarray(columns["classification"], np.int16) if "classification" in columns else None
     return Cloud(name, *(np.asarray(columns[a], np.float64) for a in "xyz"), rn, nr, intensity, scan_angle,
-                 classification, scheme, notes)
+                 classification, scheme, notes, first_only)
 
 
 NUMBERS_FROM_TIMES = ("numbers of returns are 0 everywhere: taken from the return numbers of the points that "
@@ -185,7 +218,6 @@ def return_numbers(columns: dict, notes: list) -> tuple[np.ndarray, np.ndarray]:
     """(n,) int16 return numbers and numbers of returns of a file's ``columns``, with a note in ``notes``
     where they were not filled: numbers of returns left 0 are taken from the points sharing a GPS time
     (:func:`~.metrics.numbers_of_returns_by_time`); without those, every point is a single-return pulse."""
-    from .metrics import numbers_of_returns_by_time
     n = len(columns["x"])
     single = np.ones(n, np.int16), np.ones(n, np.int16)
     if "return_number" not in columns or "number_of_returns" not in columns:

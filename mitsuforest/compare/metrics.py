@@ -105,12 +105,26 @@ def pulses_by_returns(return_number: np.ndarray, number_of_returns: np.ndarray) 
     return np.bincount(np.maximum(counts, 1), minlength=2)
 
 
-def pulse_count(return_number: np.ndarray, number_of_returns: np.ndarray) -> float:
+def first_returns_only(return_number: np.ndarray, number_of_returns: np.ndarray,
+                       gps_time: np.ndarray | None) -> bool:
+    """Whether the (n,) points are one point a pulse, its first return, with the pulse's count of returns
+    kept: every return number 1, some numbers of returns above 1, and no two points at one GPS time (a
+    pulse's returns share its time). lidR's MixedConifer.laz is such a file: its points with two or more
+    returns are never ground. Without GPS times this cannot be told from a file that left its return
+    numbers 1, and is not assumed."""
+    rn, nr = np.asarray(return_number), np.asarray(number_of_returns)
+    if gps_time is None or len(rn) < 2 or np.any(rn > 1) or not np.any(nr > 1):
+        return False
+    t = np.asarray(gps_time)
+    return bool(np.any(t != t[0]) and len(np.unique(t)) == len(t))
+
+
+def pulse_count(return_number: np.ndarray, number_of_returns: np.ndarray, gps_time: np.ndarray | None = None) -> float:
     """The pulses the (n,) points stand for: their first returns where the return numbers are filled
-    (some above 1), else the sum of one over each point's number of returns (a file that numbered none
-    of its returns but counted them, as lidR's MixedConifer.laz)."""
+    (some above 1) or the file holds first returns only (:func:`first_returns_only`), else the sum of one
+    over each point's number of returns (a file that numbered none of its returns but counted them)."""
     rn = np.asarray(return_number)
-    if np.any(rn > 1):
+    if np.any(rn > 1) or first_returns_only(rn, number_of_returns, gps_time):
         return float(np.count_nonzero(first_returns(rn)))
     return float(np.sum(1.0 / np.maximum(np.asarray(number_of_returns, np.float64), 1.0)))
 

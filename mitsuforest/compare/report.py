@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from . import metrics as m
-from .cloud import Cloud, as_cloud, load_cloud, within_footprint
+from .cloud import Cloud, as_cloud, like_for_like, load_cloud, within_footprint
 
 RETURN_NUMBERS = (1, 2, 3)   # intensity by return number; intensity_ks is the largest KS of these
 MIN_ECHOES = 20              # a return number with fewer echoes in either cloud is left out of intensity_ks
@@ -142,13 +142,15 @@ def compare_clouds(cloud_a, cloud_b) -> dict:
     """compare.json's dict for two clouds in memory: :class:`~.cloud.Cloud` objects, structured point
     arrays (``render(...).points``, our classes) or paths. Undefined values (a cloud without canopy,
     say) are None."""
-    return compare_descriptions(describe(as_cloud(cloud_a, "A")), describe(as_cloud(cloud_b, "B")))
+    a, b = like_for_like(as_cloud(cloud_a, "A"), as_cloud(cloud_b, "B"))
+    return compare_descriptions(describe(a), describe(b))
 
 
 def compare_files(a, b, out_dir=None, within_a: bool = False) -> dict:
     """Compare the point files ``a`` and ``b`` (PCD, LAS or LAZ); with ``out_dir``, write
     ``compare.json`` and ``compare.png`` there (each atomically). With ``within_a``, ``b`` is measured
-    only in the 1 m cells that hold a point of ``a`` (:func:`~.cloud.within_footprint`).
+    only in the 1 m cells that hold a point of ``a`` (:func:`~.cloud.within_footprint`). Where one file
+    holds first returns only, the other is measured on its first returns (:func:`~.cloud.like_for_like`).
 
     :returns: compare.json's dict ``{"a": {...}, "b": {...}, "distance": {...}}``.
     :raises UserError: a missing, damaged or empty file, or an output folder that cannot be written.
@@ -159,6 +161,7 @@ def compare_files(a, b, out_dir=None, within_a: bool = False) -> dict:
     cloud_a, cloud_b = load_cloud(a), load_cloud(b)
     if within_a:
         cloud_b = within_footprint(cloud_b, cloud_a, called=f"A ({cloud_a.name})")
+    cloud_a, cloud_b = like_for_like(cloud_a, cloud_b)
     da, db = describe(cloud_a), describe(cloud_b)
     result = compare_descriptions(da, db)
     if out_dir is not None:

@@ -208,13 +208,20 @@ def footprint(x, y, return_number, frame) -> np.ndarray:
     return cells
 
 
-def canopy_state(x, y, z, return_number, dem: np.ndarray, dem_origin, frame, cells: np.ndarray | None = None) -> dict:
+def canopy_state(x, y, z, return_number, dem: np.ndarray, dem_origin, frame, cells: np.ndarray | None = None,
+                 counts: np.ndarray | None = None) -> dict:
     """The echoes per pulse, crown gap fraction, canopy cover and canopy spread (:func:`canopy_spread`, of
     all returns) of a scan over the plot ``frame`` (a :class:`~.TwinFrame`), or over its ``cells`` (ny, nx)
     where given (the real scan's :func:`footprint`), heights over ``dem`` (1 m cells from ``dem_origin``).
+    With ``counts``, the pulses' numbers of returns, the first returns alone are measured, and the echoes
+    per pulse are the mean of their counts: a real scan of first returns only
+    (:func:`~mitsuforest.compare.metrics.first_returns_only`), and its twin's render beside it.
     Arrays of shape (n,)."""
     from . import DEM_CELL
     x, y, z = (np.asarray(a, float) for a in (x, y, z))
+    if counts is not None:
+        kept = np.asarray(return_number) == 1
+        x, y, z, return_number, counts = x[kept], y[kept], z[kept], np.ones(int(kept.sum())), np.asarray(counts)[kept]
     h = z - ground.ground_height(dem, dem_origin[0], dem_origin[1], DEM_CELL, x, y)
     first = np.asarray(return_number) == 1
     x0, y0, shape = _grid(frame)
@@ -227,7 +234,12 @@ def canopy_state(x, y, z, return_number, dem: np.ndarray, dem_origin, frame, cel
     gap = foliage.crown_gap_fraction(h[inside], chm[row, col] >= CANOPY_HEIGHT)
     cover = float(np.mean(chm[counted] >= CANOPY_HEIGHT)) if counted.any() else 0.0
     firsts = int(np.count_nonzero(inside))
-    echoes = int(np.count_nonzero(in_plot)) / firsts if firsts else None
+    if not firsts:
+        echoes = None
+    elif counts is not None:
+        echoes = float(np.mean(counts[inside]))
+    else:
+        echoes = int(np.count_nonzero(in_plot)) / firsts
     return {"gap_fraction": gap, "cover": cover, "spread": canopy_spread(h[in_plot]), "echoes_per_pulse": echoes}
 
 
@@ -296,7 +308,9 @@ def calibrate(real_scan, analysis: dict, folder: Path, name: str, iterations: in
     log = log or (lambda msg: print(msg, file=sys.stderr))
     frame, dem, origin = analysis["frame"], analysis["dem"], analysis["dem_origin"]
     cells = footprint(real_scan.x, real_scan.y, real_scan.return_number, frame)
-    real = canopy_state(real_scan.x, real_scan.y, real_scan.z, real_scan.return_number, dem, origin, frame, cells)
+    first_only = real_scan.first_only
+    real = canopy_state(real_scan.x, real_scan.y, real_scan.z, real_scan.return_number, dem, origin, frame, cells,
+                        real_scan.number_of_returns if first_only else None)
     record = {"real": real, "leaf_from": leaf_rule(real), "steps": [], "lai_factor": 1.0, "crown_factor": 1.0,
               "crown_contrast": 0.0, "converged": False}
     if real["gap_fraction"] is None:
@@ -308,7 +322,7 @@ def calibrate(real_scan, analysis: dict, folder: Path, name: str, iterations: in
         record["note"] = "no crown contrast: " + ("the real scan's canopy holds too few returns"
                                                   if basis is not None else "the trees have no crown ratio")
     for i in range(iterations):
-        twin = _render_state(folder / f"{name}.yaml", variant, analysis, cells)
+        twin = _render_state(folder / f"{name}.yaml", variant, analysis, cells, first_only)
         step = {"gap_fraction": twin["gap_fraction"], "cover": twin["cover"], "spread": twin["spread"],
                 "echoes_per_pulse": twin["echoes_per_pulse"], "crown_contrast": record["crown_contrast"]}
         if twin["gap_fraction"] is None or converged(real, twin, spread=with_contrast):
@@ -357,9 +371,10 @@ def _spread_slope(steps: list[dict], step: dict) -> float:
     return spread_slope((last["crown_contrast"], last["spread"]), (step["crown_contrast"], step["spread"]))
 
 
-def _render_state(scene_file: Path, variant: str | None, analysis: dict, cells: np.ndarray) -> dict:
+def _render_state(scene_file: Path, variant: str | None, analysis: dict, cells: np.ndarray, first_only: bool) -> dict:
     """Render the twin's scene into a scratch folder beside it and measure it within the real scan's
-    footprint ``cells`` (:func:`canopy_state`)."""
+    footprint ``cells`` (:func:`canopy_state`), on its first returns alone where the real scan holds only
+    those (``first_only``)."""
     from ..pipeline import render
     from .points import read_scan
     work = Path(tempfile.mkdtemp(prefix=".calibrate.", dir=scene_file.parent))
@@ -370,7 +385,8 @@ def _render_state(scene_file: Path, variant: str | None, analysis: dict, cells: 
     finally:
         shutil.rmtree(work, ignore_errors=True)
     return canopy_state(twin_scan.x, twin_scan.y, twin_scan.z, twin_scan.return_number, analysis["dem"],
-                        analysis["dem_origin"], analysis["frame"], cells)
+                        analysis["dem_origin"], analysis["frame"], cells,
+                        twin_scan.number_of_returns if first_only else None)
 
 
 def _measures(twin: dict, real: dict) -> str:

@@ -29,6 +29,7 @@ class RealScan:
     intensity: np.ndarray | None
     crs: str | None                     # WKT of the file's CRS
     tree_id: np.ndarray | None = None   # a reference segmentation (``treeID``, ``treeid``), for benchmarks
+    first_only: bool = False            # one point a pulse, its first (compare.metrics.first_returns_only)
     notes: tuple[str, ...] = ()         # the points left out, in words (noise, withheld, repeated, isolated)
 
     def __len__(self) -> int:
@@ -39,7 +40,8 @@ def read_scan(path) -> RealScan:
     """The columns of a LAS/LAZ (or our PCD) file; an empty, damaged or unreadable file is a one-line
     :class:`~mitsuforest.errors.UserError`."""
     from ..write.info import load_points
-    from ..compare.cloud import LEFT_OUT, usable_points
+    from ..compare.cloud import LEFT_OUT, first_only_note, usable_points
+    from ..compare.metrics import first_returns_only
     cols, names, class_names = load_points(path)
     if len(cols["x"]) == 0:
         raise UserError(f"{path}: holds no points")
@@ -56,14 +58,18 @@ def read_scan(path) -> RealScan:
     ground = None
     if classes is not None and classes.any():
         ground = classes == (GROUND if class_names is CLASS_NAMES else 2)    # ours (PCD, LAS label) or ASPRS
+    gps_time = _varying(cols.get("gps_time"))
     returns = np.maximum(_column(cols, "return_number", n, 1), 1)     # 0: a writer that did not fill it
-    counts = np.maximum(_numbers_of_returns(cols, returns, notes), returns)
+    counts = np.maximum(_numbers_of_returns(cols, returns, gps_time, notes), returns)
+    first_only = first_returns_only(returns, counts, gps_time)
+    notes += [first_only_note(counts)] if first_only else []
     return RealScan(
         path=str(path), x=x, y=y, z=z, ground=ground, return_number=returns, number_of_returns=counts,
-        gps_time=_varying(cols.get("gps_time")), scan_angle=_scan_angle(cols, names),
+        gps_time=gps_time, scan_angle=_scan_angle(cols, names),
         point_source_id=_varying(cols.get("point_source_id")), intensity=cols.get("intensity"),
         crs=crs,
-        tree_id=next((np.asarray(cols[k]) for k in ("treeID", "treeid") if k in cols), None), notes=tuple(notes))
+        tree_id=next((np.asarray(cols[k]) for k in ("treeID", "treeid") if k in cols), None), notes=tuple(notes),
+        first_only=first_only)
 
 
 def _scene_crs(wkt: str | None, path) -> tuple[str | None, str | None]:
@@ -89,13 +95,12 @@ def _scene_crs(wkt: str | None, path) -> tuple[str | None, str | None]:
     return wkt, None
 
 
-def _numbers_of_returns(cols: dict, returns: np.ndarray, notes: list) -> np.ndarray:
+def _numbers_of_returns(cols: dict, returns: np.ndarray, times: np.ndarray | None, notes: list) -> np.ndarray:
     """The file's numbers of returns; where it left them 0 but numbered its returns, those of the points
     that share a GPS time (and a note saying so), else 0."""
     from ..compare.cloud import NUMBERS_FROM_TIMES
     from ..compare.metrics import numbers_of_returns_by_time
     counts = _column(cols, "number_of_returns", len(returns), 1)
-    times = _varying(cols.get("gps_time"))
     if counts.any() or returns.max() < 2 or times is None:
         return counts
     found = numbers_of_returns_by_time(returns, times, cols.get("point_source_id"))
