@@ -240,6 +240,148 @@ def test_every_kind_of_file_reads_as_our_pcd(kind, tmp_path):
     assert d["height_ks"] == 0 and d["height_emd_m"] < 1e-3 and d["intensity_ks"] == 0
 
 
+# PDAL's writers.pcd names (its dimensions'), as another tool's PCD holds them: ASPRS classes, 16-bit
+# intensity, ScanAngleRank in degrees, georeferenced float64 coordinates, none of our label fields
+PDAL_FIELDS = [("X", "<f8"), ("Y", "<f8"), ("Z", "<f8"), ("Intensity", "<u2"), ("ReturnNumber", "u1"),
+               ("NumberOfReturns", "u1"), ("Classification", "u1"), ("GpsTime", "<f8"), ("ScanAngleRank", "<f4"),
+               ("PointSourceId", "<u2")]
+
+
+def _foreign_pcd(path, las_path, data="binary"):
+    """The points of a LAS as another tool's PCD (:data:`PDAL_FIELDS`), ``DATA binary`` or ``ascii``."""
+    from mitsuforest.write.pcd import pcd_header
+    las = laspy.read(str(las_path))
+    points = np.zeros(len(las.points), PDAL_FIELDS)
+    for name, value in zip(points.dtype.names, (las.x, las.y, las.z, las.intensity, las.return_number,
+                                                las.number_of_returns, las.classification, las.gps_time,
+                                                np.asarray(las.scan_angle) * 0.006, las.point_source_id)):
+        points[name] = value
+    header = pcd_header(points.dtype, len(points)).replace("DATA binary", f"DATA {data}").encode("ascii")
+    if data == "binary":
+        path.write_bytes(header + points.tobytes())
+    else:                       # as PCL writes ascii: shortest round-trip digits, integers as integers
+        rows = [" ".join(str(v) for v in point.tolist()) for point in points]
+        path.write_bytes(header + "\n".join(rows).encode("ascii") + b"\n")
+    return path
+
+
+def _noisy_las(path):
+    """The constructed plot as another tool's LAS, its first point (ground) classed noise (ASPRS 7)."""
+    las = laspy.read(str(_foreign_las(path, _forest())))
+    las.classification[:1] = 7
+    las.write(str(path))
+    return path
+
+
+def test_a_foreign_pcd_compares_as_the_same_points_in_a_foreign_las(tmp_path):
+    """Another tool's PCD (PDAL's field names, ASPRS classes: ground 2, a noise point 7) measures as the
+    same points in its LAS: ASPRS ground, the noise point left out, every summary and note the same, every
+    distance zero. Before, it was refused (no ``x``), and read as ours had it its names (ground 1, noise kept)."""
+    las = _noisy_las(tmp_path / "other.las")
+    pcd = _foreign_pcd(tmp_path / "other.pcd", las)
+    result = compare_files(pcd, las)
+    a, b = result["a"], result["b"]
+    assert a["file"] == "other.pcd" and {**a, "file": b["file"]} == b
+    assert a["classes"] == "ASPRS" and a["points"] == 1999 and a["ground"] == {"from": "class 2 (ASPRS ground)",
+                                                                                "points": 1199}
+    assert a["notes"] == ["1 noise points (ASPRS classes 7, 18) left out"]
+    assert a["scan_angle_deg"]["max_abs"] == pytest.approx(19.5) and a["canopy_height_m"]["p95"] == pytest.approx(10)
+    assert a["pulses_by_returns"] == pytest.approx({"1": 1199 / 1599, "2": 400 / 1599})
+    d = result["distance"]
+    assert d["returns_tv"] == 0 and d["ground_share"] == 0 and d["density_ratio"] == 1
+    assert d["height_ks"] == 0 and d["height_emd_m"] == 0 and d["intensity_ks"] == 0
+
+
+def test_the_twin_reads_a_foreign_pcd_as_its_las_and_our_pcd_s_angles_in_degrees(tmp_path):
+    """The twin's reader finds the same ground, returns, scan angles (degrees) and notes in another tool's
+    PCD as in its LAS; our PCD's scan angles are degrees as written (before, they were taken for LAS
+    counts: 19.5 degrees read as 0.117)."""
+    from mitsuforest.twin.points import read_scan
+    las = _noisy_las(tmp_path / "other.las")
+    a, b = read_scan(_foreign_pcd(tmp_path / "other.pcd", las)), read_scan(las)
+    assert a.notes == b.notes == ("1 noise points (ASPRS classes 7, 18) left out",)
+    assert a.ground.sum() == b.ground.sum() == 1199 and len(a) == len(b) == 1999
+    for column in ("x", "y", "z", "return_number", "number_of_returns", "intensity"):
+        assert np.array_equal(getattr(a, column), getattr(b, column)), column
+    assert a.scan_angle == pytest.approx(b.scan_angle, abs=1e-6) and np.max(np.abs(a.scan_angle)) == pytest.approx(19.5)
+    points = _forest()
+    ours = read_scan(_our_pcd(tmp_path / "ours.pcd", points))
+    assert np.array_equal(ours.scan_angle, points["scan_angle"]) and ours.ground.sum() == 1200
+
+
+def test_an_ascii_pcd_reads_as_the_binary_one(tmp_path):
+    """``DATA ascii`` (as PCL, Open3D, CloudCompare may write): the same columns, names and classes as the
+    same points ``DATA binary``; before, only binary was read."""
+    from mitsuforest.write.info import ASPRS_CLASSES, load_points
+    las = _noisy_las(tmp_path / "other.las")
+    binary = load_points(_foreign_pcd(tmp_path / "binary.pcd", las))
+    text = load_points(_foreign_pcd(tmp_path / "ascii.pcd", las, data="ascii"))
+    assert text[1] == binary[1] == ["x", "y", "z", "intensity", "return_number", "number_of_returns",
+                                    "classification", "gps_time", "scan_angle_rank", "point_source_id"]
+    assert text[2] is binary[2] is ASPRS_CLASSES and text[2][2] == "ground (ASPRS 2)"
+    for name in binary[1]:
+        assert text[0][name].dtype == binary[0][name].dtype and np.array_equal(text[0][name], binary[0][name]), name
+    assert len(text[0]["x"]) == 2000 and text[0]["x"].dtype == np.float64 and text[0]["classification"][0] == 7
+
+
+def test_our_own_pcd_keeps_our_classes_and_names(tmp_path):
+    """Our PCD (our label fields, ``classification`` with ``instance`` and ``object_id``): our classes and
+    fields as they are; without ``instance`` and ``object_id`` its ``classification`` is another tool's."""
+    from mitsuforest.classes import CLASS_NAMES
+    from mitsuforest.write.info import ASPRS_CLASSES, load_points
+    points = _forest()
+    columns, names, classes = load_points(_our_pcd(tmp_path / "ours.pcd", points))
+    assert classes is CLASS_NAMES and names == list(points.dtype.names)
+    assert np.array_equal(columns["classification"], points["classification"])
+    other = points[[n for n in points.dtype.names if n not in ("instance", "object_id")]]
+    assert load_points(_our_pcd(tmp_path / "other.pcd", np.array(other)))[2] is ASPRS_CLASSES
+
+
+def test_field_names_are_ours_where_they_differ_only_in_case_and_underscores():
+    """PDAL's and snake-case names become ours; ours and unknown names stay; two that would become one
+    name both stay as they are."""
+    from mitsuforest.write.pcd import our_names
+    assert our_names(["X", "Y", "Z", "GpsTime", "gpstime_", "ReturnNumber", "returnnumber", "NumberOfReturns",
+                      "ScanAngleRank", "scan_angle", "PointSourceId", "Withheld", "Red"]) == \
+        ["x", "y", "z", "GpsTime", "gpstime_", "ReturnNumber", "returnnumber", "number_of_returns",
+         "scan_angle_rank", "scan_angle", "point_source_id", "withheld", "Red"]
+    assert our_names(["x", "y", "z", "Intensity", "intensity"]) == ["x", "y", "z", "Intensity", "intensity"]
+
+
+PCD_REFUSED = {
+    "binary_compressed": ("DATA binary_compressed (LZF) is not supported: re-save the file as binary or ascii PCD "
+                          "(pcl_convert_pcd_ascii_binary IN OUT 1, CloudCompare, Open3D)"),
+    "ascii cut at a line": "truncated: the header promises 2,000 points, the file holds 1,000",
+    "ascii cut in a line": ("ragged: point 1,000 holds 2 values where FIELDS names 10 (a truncated or damaged "
+                            "file)"),
+    "ascii with a word": "a value does not read as its field's TYPE: could not convert string 'ground' to uint8",
+}
+
+
+@pytest.mark.parametrize("case", sorted(PCD_REFUSED))
+def test_a_pcd_that_cannot_be_read_is_refused_in_one_line(case, tmp_path, capsys):
+    """binary_compressed (no LZF decoder here) and a short, ragged or wordy ascii body: one line saying so."""
+    las = _noisy_las(tmp_path / "other.las")
+    path = _foreign_pcd(tmp_path / "bad.pcd", las, data="binary" if case == "binary_compressed" else "ascii")
+    raw = path.read_bytes()
+    if case == "binary_compressed":
+        raw = raw.replace(b"DATA binary", b"DATA binary_compressed")
+    else:
+        header, _, body = raw.partition(b"DATA ascii\n")
+        lines = body.splitlines()
+        if case == "ascii cut at a line":
+            lines = lines[:1000]
+        elif case == "ascii cut in a line":
+            lines = lines[:999] + [b" ".join(lines[999].split()[:2])]
+        else:
+            lines[5] = lines[5].replace(b" 2 ", b" ground ")
+        raw = header + b"DATA ascii\n" + b"\n".join(lines)
+    path.write_bytes(raw)
+    assert main(["compare", str(path), str(las), "-o", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith(f"mitsuforest: {path}: {PCD_REFUSED[case]}"), err
+
+
 def test_noise_and_withheld_points_are_left_out(tmp_path):
     points = _forest()
     path = _foreign_las(tmp_path / "a.las", points)

@@ -58,7 +58,7 @@ def load_cloud(path) -> Cloud:
         raise UserError(f"{path}: the file holds no points")
     wkt = file_crs(path)
     columns, unit_note = in_metres(columns, wkt, path) if wkt else (columns, None)
-    if "scan_angle" in columns and Path(path).suffix.lower() != ".pcd":   # LAS 1.4 counts; our PCD has degrees
+    if "scan_angle" in columns and Path(path).suffix.lower() != ".pcd":   # LAS 1.4 counts; a PCD has degrees
         columns = {**columns, "scan_angle": columns["scan_angle"] * SCAN_ANGLE_UNIT}
     elif "scan_angle_rank" in columns:                                     # LAS point formats 0-5: whole degrees
         columns = {**columns, "scan_angle": columns["scan_angle_rank"]}

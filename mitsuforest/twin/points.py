@@ -37,8 +37,9 @@ class RealScan:
 
 
 def read_scan(path) -> RealScan:
-    """The columns of a LAS/LAZ (or our PCD) file; an empty, damaged or unreadable file is a one-line
-    :class:`~mitsuforest.errors.UserError`."""
+    """The columns of a LAS/LAZ or PCD file (ours or another tool's); an empty, damaged or unreadable file
+    is a one-line :class:`~mitsuforest.errors.UserError`."""
+    from ..write.formats import format_of
     from ..write.info import load_points
     from ..compare.cloud import LEFT_OUT, first_only_note, usable_points
     from ..compare.metrics import first_returns_only
@@ -65,7 +66,7 @@ def read_scan(path) -> RealScan:
     notes += [first_only_note(counts)] if first_only else []
     return RealScan(
         path=str(path), x=x, y=y, z=z, ground=ground, return_number=returns, number_of_returns=counts,
-        gps_time=gps_time, scan_angle=_scan_angle(cols, names),
+        gps_time=gps_time, scan_angle=_scan_angle(cols, names, pcd=format_of(path) == "pcd"),
         point_source_id=_varying(cols.get("point_source_id")), intensity=cols.get("intensity"),
         crs=crs,
         tree_id=next((np.asarray(cols[k]) for k in ("treeID", "treeid") if k in cols), None), notes=tuple(notes),
@@ -122,11 +123,11 @@ def _varying(column) -> np.ndarray | None:
     return column if len(column) and np.any(column != column[0]) else None
 
 
-def _scan_angle(cols: dict, names: list[str]) -> np.ndarray | None:
-    if "scan_angle" in names:                  # LAS 1.4 formats 6-10: 0.006 degree units
+def _scan_angle(cols: dict, names: list[str], pcd: bool) -> np.ndarray | None:
+    """Scan angles in degrees: a PCD's as written (ours; PDAL's ``ScanAngleRank``), a LAS's by its format."""
+    if "scan_angle" in names and not pcd:      # LAS 1.4 formats 6-10: 0.006 degree units
         return _varying(np.asarray(cols["scan_angle"], np.float64) * SCAN_ANGLE_UNIT)
-    if "scan_angle_rank" in names:             # formats 0-5: whole degrees
-        return _varying(np.asarray(cols["scan_angle_rank"], np.float64))
-    if "scan_angle" in cols:                   # our PCD: degrees
-        return _varying(np.asarray(cols["scan_angle"], np.float64))
+    for name in ("scan_angle", "scan_angle_rank"):   # a PCD's; LAS formats 0-5: whole degrees
+        if name in cols:
+            return _varying(np.asarray(cols[name], np.float64))
     return None

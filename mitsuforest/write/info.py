@@ -10,18 +10,20 @@ from ..classes import CLASS_NAMES
 from ..errors import UserError
 from ..fields import CLASS_DESCRIPTION, FIELD
 from .formats import format_of
-from .pcd import PointFileError, read_pcd
+from .pcd import PointFileError, our_names, read_pcd
 
 # ASPRS LAS 1.4 classes, for files of other tools (ours carry our own classes in ``label``).
 ASPRS_NAMES = {0: "never classified", 1: "unclassified", 2: "ground", 3: "low vegetation", 4: "medium vegetation",
                5: "high vegetation", 6: "building", 7: "low point (noise)", 9: "water", 10: "rail",
                11: "road surface", 13: "wire guard", 14: "wire conductor", 15: "transmission tower",
                17: "bridge deck", 18: "high noise"}
+ASPRS_CLASSES = {k: f"{v} (ASPRS {k})" for k, v in ASPRS_NAMES.items()}   # another tool's file's class names
+OUR_PCD_LABELS = ("classification", "instance", "object_id")               # every PCD we write holds them
 
 
 def load_points(path) -> tuple[dict, list[str], dict]:
     """The file's columns by name, its field names, and the names of its class codes (ours where the
-    file carries our ``label``, else ASPRS's)."""
+    file is ours: a LAS with our ``label``, a PCD with our label fields; else ASPRS's)."""
     path = Path(path)
     if not path.is_file():
         raise UserError(_not_a_file(path))
@@ -54,8 +56,21 @@ def _not_a_file(path: Path) -> str:
 
 
 def _load_pcd(path: Path) -> tuple[dict, list[str], dict]:
+    """Our PCD's fields as they are, with our classes; another tool's by our names (:func:`~.pcd.our_names`:
+    ``X``, ``GpsTime`` as ``x``, ``gps_time``), with ASPRS classes."""
     pts = read_pcd(path)
-    return {n: pts[n] for n in pts.dtype.names}, list(pts.dtype.names), CLASS_NAMES
+    names = list(pts.dtype.names)
+    if _pcd_is_ours(names):
+        return {n: pts[n] for n in names}, names, CLASS_NAMES
+    renamed = our_names(names)
+    return {new: pts[old] for old, new in zip(names, renamed)}, renamed, ASPRS_CLASSES
+
+
+def _pcd_is_ours(names: list[str]) -> bool:
+    """Whether a PCD's fields are a render's: our label fields (:data:`OUR_PCD_LABELS`, by our exact names),
+    not another tool's ``classification`` alone (ASPRS classes, ground 2), as a LAS is ours by its ``label``
+    (:func:`_described_as_ours`)."""
+    return set(OUR_PCD_LABELS) <= set(names)
 
 
 def _load_las(path: Path) -> tuple[dict, list[str], dict]:
@@ -82,7 +97,7 @@ def _load_las(path: Path) -> tuple[dict, list[str], dict]:
     if ours in cols and _described_as_ours(las.point_format, ours):
         cols["classification"] = cols[ours]
         return cols, names, CLASS_NAMES
-    return cols, names, {k: f"{v} (ASPRS {k})" for k, v in ASPRS_NAMES.items()}
+    return cols, names, ASPRS_CLASSES
 
 
 def _described_as_ours(point_format, name: str) -> bool:

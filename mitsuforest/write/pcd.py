@@ -1,4 +1,5 @@
-"""PCD v0.7 binary point clouds (the Point Cloud Library's format), written and read with numpy."""
+"""PCD v0.7 point clouds (the Point Cloud Library's format): ours written binary, any read (binary or ascii)
+with numpy."""
 
 from __future__ import annotations
 
@@ -6,7 +7,7 @@ import os
 
 import numpy as np
 
-from ..fields import numpy_type, pcd_type
+from ..fields import FIELD, numpy_type, pcd_type
 
 
 COUNT_DIGITS = 20  # a streamed file's header is written first with its counts padded to this width
@@ -43,15 +44,19 @@ MAX_HEADER_LINES = 64
 
 
 def read_pcd(path) -> np.ndarray:
-    """Read a binary PCD (``DATA binary``), such as a render writes.
+    """Read a PCD: ``DATA binary`` (such as a render writes) or ``DATA ascii`` (as other tools may write);
+    its fields keep the file's names (:func:`our_names` gives ours).
 
-    :raises PointFileError: a damaged or foreign header, or fewer points than the header promises
-        (a truncated file, or one a render left when it was killed).
+    :raises PointFileError: a damaged or foreign header, ``DATA binary_compressed``, fewer points than the
+        header promises (a truncated file, or one a render left when it was killed), or an ascii body whose
+        lines do not hold one value a field.
     """
     with open(path, "rb") as f:
         header = _pcd_header(f)
         dtype = _pcd_dtype(header)
         count = _pcd_count(header)
+        if header["DATA"] == ["ascii"]:
+            return _ascii_points(f.read(), dtype, count)
         held = (os.fstat(f.fileno()).st_size - f.tell()) // dtype.itemsize
         if held < count:
             raise PointFileError(f"truncated: the header promises {count:,} points, the file holds {held:,}")
@@ -60,6 +65,38 @@ def read_pcd(path) -> np.ndarray:
                                  "(a render stopped before it wrote its counts)")
         data = f.read(count * dtype.itemsize)
     return np.frombuffer(data, dtype, count)
+
+
+def _ascii_points(body: bytes, dtype: np.dtype, count: int) -> np.ndarray:
+    """The points of a ``DATA ascii`` body: a line a point, its values in FIELDS order, read as the header's
+    types (the first ``count``, as a binary body's)."""
+    try:
+        lines = body.decode("ascii").splitlines()
+    except UnicodeDecodeError:
+        raise PointFileError("DATA ascii, but its points are not text") from None
+    if not any(line.strip() for line in lines):
+        points = np.zeros(0, dtype)
+    else:
+        try:
+            points = np.loadtxt(lines, dtype=dtype, ndmin=1)
+        except ValueError as e:
+            raise PointFileError(_ascii_problem(lines, len(dtype.names), e)) from None
+    if len(points) < count:
+        raise PointFileError(f"truncated: the header promises {count:,} points, the file holds {len(points):,}")
+    if count == 0 and len(points):
+        raise PointFileError(f"the header counts 0 points but {len(points):,} follow")
+    return points[:count]
+
+
+def _ascii_problem(lines: list[str], width: int, error: ValueError) -> str:
+    """Why an ascii body does not read: its first line of other than ``width`` values (ragged: a truncated
+    or damaged file), else numpy's words for a value that is no number of its field's TYPE."""
+    points = (line.split() for line in lines if line.strip())
+    for i, values in enumerate(points, 1):
+        if len(values) != width:
+            return (f"ragged: point {i:,} holds {len(values)} values where FIELDS names {width} "
+                    "(a truncated or damaged file)")
+    return f"a value does not read as its field's TYPE: {error}"
 
 
 def _pcd_header(f) -> dict:
@@ -77,8 +114,11 @@ def _pcd_header(f) -> dict:
         key, *values = text.split()
         header[key] = values
         if key == "DATA":
-            if values != ["binary"]:
-                raise PointFileError(f"only DATA binary is supported, got DATA {' '.join(values)}")
+            if values == ["binary_compressed"]:
+                raise PointFileError("DATA binary_compressed (LZF) is not supported: re-save the file as binary or "
+                                     "ascii PCD (pcl_convert_pcd_ascii_binary IN OUT 1, CloudCompare, Open3D)")
+            if values not in (["binary"], ["ascii"]):
+                raise PointFileError(f"only DATA binary or ascii is supported, got DATA {' '.join(values)}")
             return header
     raise PointFileError("not a PCD file: no DATA line in its header")
 
@@ -96,7 +136,7 @@ def _pcd_dtype(header: dict) -> np.dtype:
     for name, size, kind in zip(names, sizes, types):
         if kind not in _SIZES or not size.isdigit() or int(size) not in _SIZES[kind]:
             raise PointFileError(f"field {name!r}: unsupported TYPE {kind} SIZE {size}")
-    if not {"x", "y", "z"} <= set(names):
+    if not {"x", "y", "z"} <= set(our_names(names)):
         raise PointFileError("no x, y, z fields: not a point cloud this tool can read")
     if len(set(names)) != len(names):
         raise PointFileError("a field name appears twice in FIELDS")
@@ -108,3 +148,24 @@ def _pcd_count(header: dict) -> int:
     if not value.isdigit():
         raise PointFileError(f"POINTS must be a count, got {value!r}")
     return int(value)
+
+
+# LAS dimensions that compare and twin read besides our fields, by the names they read them by
+LAS_NAMES = ("scan_angle_rank", "withheld")
+
+
+def _squashed(name: str) -> str:
+    return name.lower().replace("_", "")
+
+
+_OURS = {_squashed(n): n for n in (*FIELD, *LAS_NAMES)}
+
+
+def our_names(names) -> list[str]:
+    """A PCD's field ``names`` with each that differs from one of ours (:data:`~mitsuforest.fields.FIELD`,
+    :data:`LAS_NAMES`) only in case and underscores given ours: another tool's (PDAL's ``X``, ``Intensity``,
+    ``ReturnNumber``, ``GpsTime``, ``ScanAngleRank``; ``gpstime``) as compare and twin read them. Two names
+    that would become one (``Intensity`` beside ``intensity``) both stay as they are."""
+    names = list(names)
+    renamed = [_OURS.get(_squashed(n), n) for n in names]
+    return [new if renamed.count(new) == 1 else old for old, new in zip(names, renamed)]
