@@ -29,7 +29,7 @@ class RealScan:
     intensity: np.ndarray | None
     crs: str | None                     # WKT of the file's CRS
     tree_id: np.ndarray | None = None   # a reference segmentation (``treeID``, ``treeid``), for benchmarks
-    notes: tuple[str, ...] = ()         # the points left out, in words (noise, withheld, repeated, isolated)
+    notes: tuple[str, ...] = ()         # the points left out, in words (noise, withheld, repeated, isolated, stray)
 
     def __len__(self) -> int:
         return len(self.x)
