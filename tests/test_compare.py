@@ -697,6 +697,87 @@ def test_a_bird_a_multipath_echo_a_stray_point_and_copies_are_left_out(tmp_path,
     assert clean["distance"]["height_ks"] == 0 and clean["distance"]["density_ratio"] == 1
 
 
+STRAY_NOTE = ("20 points in 2 stray clusters (fewer than 20 points, apart from the scan's 5 m cubes, above or below it "
+              "within 20 m or away from it: flocks, multipath, stray coordinates) left out")
+
+
+def test_a_flock_above_the_canopy_and_multipath_under_the_ground_are_left_out(tmp_path, capsys):
+    """Another tool's file of the plot (ground and a 10 m canopy), a flock of 12 birds 60 m over the canopy
+    and a cluster of 8 multipath echoes 30 m under the ground, each within 3 m: too many to be isolated
+    (11 and 7 others around each point), so before they stayed: the height profile spanned -20 to 72 m
+    and the canopy's 99th percentile was 71.5 m, not 10. Now exactly those 20 points are left out, said,
+    and the file measures as the plot does."""
+    points = _forest()
+    rng = np.random.default_rng(7)
+    extra = points[np.r_[:12, :8]].copy()
+    extra["x"], extra["y"] = 5.0 + rng.uniform(0, 3, 20), 5.0 + rng.uniform(0, 3, 20)
+    extra["z"] = np.r_[70.0 + rng.uniform(0, 3, 12), -30.0 - rng.uniform(0, 3, 8)]
+    extra["classification"] = 3          # unclassified in a LAS: not ground
+    messy = np.concatenate([points, extra])
+    cluster = m.stray_clusters(messy["x"], messy["y"], messy["z"])
+    assert np.flatnonzero(cluster >= 0).tolist() == list(range(2000, 2020))
+    assert sorted(np.bincount(cluster[cluster >= 0]).tolist()) == [8, 12]
+    assert not m.isolated_points(messy["x"], messy["y"], messy["z"]).any()      # not for the old rule
+    result = compare_files(_foreign_las(tmp_path / "clean.las", points), _foreign_las(tmp_path / "messy.las", messy))
+    assert capsys.readouterr().err == ""
+    a, b = result["a"], result["b"]
+    assert b["notes"] == [STRAY_NOTE] and b["points"] == a["points"] == 2000
+    assert b["height_m"] == a["height_m"] and b["canopy_height_m"] == a["canopy_height_m"]
+    assert b["height_profile"] == a["height_profile"] and result["distance"]["height_ks"] == 0
+
+
+def _sparse_stand(tall_tree=True):
+    """A 60 × 60 m flat plot sampled as a sparse airborne scan (≈ 4 points/m², a jittered 0.5 m grid), with
+    a lone crown (a dome 2 m in radius, 14 to 16 m up, no stem seen: a gap of 14 m over the ground)
+    at (15, 15), a small crown (1 m in radius, 12 to 12.5 m up) at (45, 30) and, with ``tall_tree``, a 20 m
+    cone of crown 3 m in radius down to the ground at (45, 45), 15 m from the small crown (11 m between
+    their edges: apart in 5 m cubes).
+
+    Returns x, y, z (n,) and the (n,) bool points of the lone crown and of the small crown."""
+    rng = np.random.default_rng(3)
+    g = np.arange(0.25, 60.0, 0.5)
+    gx, gy = (v.ravel() + rng.uniform(-0.2, 0.2, v.size) for v in np.meshgrid(g, g, indexing="ij"))
+    r_lone, r_small, r_tall = np.hypot(gx - 15, gy - 15), np.hypot(gx - 45, gy - 30), np.hypot(gx - 45, gy - 45)
+    lone, small, tall = r_lone < 2, r_small < 1, (r_tall < 3) & tall_tree
+    x = np.r_[gx, gx[lone], gx[small], gx[tall]]
+    y = np.r_[gy, gy[lone], gy[small], gy[tall]]
+    z = np.r_[np.zeros(gx.size), 16 - r_lone[lone] ** 2 / 2, 12.5 - r_small[small] / 2, 20 - r_tall[tall] * 20 / 3]
+    part = np.repeat([0, 1, 2, 3], [gx.size, lone.sum(), small.sum(), tall.sum()])
+    return x, y, z, part == 1, part == 2
+
+
+def test_a_sparse_scans_lone_crowns_above_a_gap_are_kept():
+    """At ≈ 4 points/m², a lone crown 14 m over the ground (51 points) and a small one 12 m over it (13
+    points, as few as a flock) are parts of their own, yet no point is stray: the lone crown has 20 points
+    or more, and the small one is not above the top of the scan within 20 m (the tall tree 15 m away). The
+    rule's limit: without the tall tree, the small crown over open ground is taken for a flock."""
+    x, y, z, lone, small = _sparse_stand()
+    part, sizes = m.cube_components(x, y, z)
+    assert len(sizes) == 3 and lone.sum() == 51 and small.sum() == 13
+    assert sorted(sizes.tolist())[:2] == [13, 51] and len(np.unique(part[lone])) == len(np.unique(part[small])) == 1
+    assert not m.isolated_points(x, y, z).any()
+    assert (m.stray_clusters(x, y, z) == -1).all()
+    x, y, z, lone, small = _sparse_stand(tall_tree=False)
+    assert np.flatnonzero(m.stray_clusters(x, y, z) >= 0).tolist() == np.flatnonzero(small).tolist()
+
+
+@needs_real
+@pytest.mark.parametrize("name, points, kept", [("UAS_Clip", 390_877, 390_875), ("MixedConifer", 37_657, 37_657)])
+def test_the_real_scans_are_one_part_and_lose_no_point_as_isolated_or_stray(name, points, kept):
+    """Both real scans are one connected part in 5 m cubes (UAS_Clip in 224 cubes, MixedConifer, the sparse
+    airborne scan, in 1,495), so no cluster is stray and no point isolated: only UAS_Clip's 2 ASPRS noise
+    points are left out."""
+    from mitsuforest.compare.cloud import usable_points
+    from mitsuforest.write.info import load_points
+    columns, _, _ = load_points(REAL / f"{name}.laz")
+    x, y, z = (np.asarray(columns[a], np.float64) for a in "xyz")
+    assert len(x) == points and m.cube_components(x, y, z)[1].tolist() == [points]
+    assert (m.stray_clusters(x, y, z) == -1).all() and not m.isolated_points(x, y, z).any()
+    usable, notes = usable_points(columns)
+    assert len(usable["x"]) == kept
+    assert notes == ([] if kept == points else ["2 noise points (ASPRS classes 7, 18) left out"])
+
+
 def test_a_file_in_feet_is_measured_in_metres_and_one_in_degrees_is_refused(tmp_path, capsys):
     """A state plane in feet (NAD83 / Arizona Central (ft), no vertical CRS: heights in feet too) measures
     as the same plot in metres, said in the notes (before: a 10 m canopy measured 32.8 "m" tall and the

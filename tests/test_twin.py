@@ -434,18 +434,20 @@ def test_an_oscillating_sensor_gets_half_the_scans_lines_per_second(tmp_path):
         assert ("oscillating" in report["sensor"]["source"]) == (hz == 40.0)
 
 
-def test_a_twin_leaves_out_noise_withheld_repeated_and_isolated_points(tmp_path, capsys):
+def test_a_twin_leaves_out_noise_withheld_repeated_isolated_and_stray_points(tmp_path, capsys):
     """A flat clip with one 15 m dome crown, and a bird 500 m up (class 1), a high-noise point 300 m up
-    (ASPRS 18), a withheld point 400 m up and every point written twice: each is left out and said, and
-    the twin's one tree is the dome, 15 m tall (before, the bird, the noise point and the withheld point
-    stood beside it as trees 500, 300 and 400 m tall)."""
+    (ASPRS 18), a withheld point 400 m up, a flock of 12 birds 60 m over the dome (class 1, within 2 m:
+    too many to be isolated) and every point written twice: each is left out and said, and the twin's one
+    tree is the dome, 15 m tall (before, the bird, the noise point, the withheld point and the flock stood
+    beside it as trees 500, 300, 400 and 77 m tall)."""
     g = np.arange(0.25, 30.0, 0.5)
     x, y = (v.ravel() for v in np.meshgrid(g, g, indexing="ij"))
     r = np.hypot(x - 15, y - 15)
     crown = r < 3
-    x, y = np.r_[x, x[crown], 5.0, 25.0, 25.0], np.r_[y, y[crown], 5.0, 5.0, 25.0]
-    z = np.r_[np.zeros(len(r)), 15 - r[crown] ** 2 / 3, 500.0, 300.0, 400.0] + 100.0
-    classes = np.r_[np.full(len(r), 2), np.full(crown.sum(), 5), 1, 18, 1]
+    flock = np.random.default_rng(5).uniform(0, 2, (3, 12)) + [[20.0], [10.0], [75.0]]
+    x, y = np.r_[x, x[crown], flock[0], 5.0, 25.0, 25.0], np.r_[y, y[crown], flock[1], 5.0, 5.0, 25.0]
+    z = np.r_[np.zeros(len(r)), 15 - r[crown] ** 2 / 3, flock[2], 500.0, 300.0, 400.0] + 100.0
+    classes = np.r_[np.full(len(r), 2), np.full(crown.sum(), 5), np.full(12, 1), 1, 18, 1]
     las = laspy.create(point_format=6, file_version="1.4")
     las.header.offsets, las.header.scales = [500_000, 6_000_000, 0], [0.001] * 3
     twice = np.r_[np.arange(len(x)), np.arange(len(x))]
@@ -456,12 +458,13 @@ def test_a_twin_leaves_out_noise_withheld_repeated_and_isolated_points(tmp_path,
     run = _run(capsys, "twin", tmp_path / "clip.laz", "-o", tmp_path / "out")
     assert run.returncode == 0, run.stderr
     for said in ("2 noise points (ASPRS classes 7, 18) left out", "2 withheld points left out",   # both copies
-                 f"{len(x) - 2:,} repeated points (exact copies) left out", "1 isolated points (fewer than 6 others"):
+                 f"{len(x) - 2:,} repeated points (exact copies) left out", "1 isolated points (fewer than 6 others",
+                 "12 points in 1 stray cluster (fewer than 20 points"):
         assert f"twin: {said}" in run.stderr, run.stderr
     rows = np.genfromtxt(tmp_path / "out" / "trees.csv", delimiter=",", names=True, dtype=None, encoding=None)
     assert np.atleast_1d(rows["height"]).tolist() == pytest.approx([15.0], abs=0.2)
     report = json.loads((tmp_path / "out" / "twin.json").read_text())
-    assert report["points"] == len(x) - 3 and report["notes"][0] == "2 noise points (ASPRS classes 7, 18) left out"
+    assert report["points"] == len(x) - 3 - 12 and report["notes"][0] == "2 noise points (ASPRS classes 7, 18) left out"
 
 
 @pytest.mark.parametrize("epsg, words", [

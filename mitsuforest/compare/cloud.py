@@ -173,16 +173,19 @@ def cloud_from_columns(columns: dict, name: str, scheme: str) -> Cloud:
 
 NUMBERS_FROM_TIMES = ("numbers of returns are 0 everywhere: taken from the return numbers of the points that "
                       "share a GPS time")
-LEFT_OUT = "noise, withheld, repeated or isolated ones"     # what usable_points leaves out, for messages
+LEFT_OUT = "noise, withheld, repeated, isolated or stray ones"     # what usable_points leaves out, for messages
 
 
 def usable_points(columns: dict, foreign: bool = True) -> tuple[dict, list[str]]:
     """A file's columns less the points a measure of the scan must not see, and what was left out, in
     words: points flagged withheld and, in another tool's file (``foreign``), its ASPRS noise (classes
-    7, 18), exact copies of a point (every field the same: a tile merged twice) and isolated points
-    (:func:`~.metrics.isolated_points`: a bird, a multipath echo, a stray coordinate), whose height
-    or place would stretch a grid or a canopy. Our own files have none of these but withheld points."""
-    from .metrics import ISOLATION_CELL_M, ISOLATION_OTHERS, isolated_points
+    7, 18), exact copies of a point (every field the same: a tile merged twice), isolated points
+    (:func:`~.metrics.isolated_points`: a bird, a multipath echo, a stray coordinate) and then small
+    clusters apart from the scan (:func:`~.metrics.stray_clusters`: a flock of birds above the canopy,
+    multipath under the ground, a group of stray coordinates), whose height or place would stretch a
+    grid or a canopy. Our own files have none of these but withheld points."""
+    from .metrics import (ISOLATION_CELL_M, ISOLATION_OTHERS, STRAY_POINTS, STRAY_REACH_M, isolated_points,
+                          stray_clusters)
     notes = []
     if foreign and "classification" in columns:
         columns = _left_out(columns, np.isin(columns["classification"], ASPRS_NOISE),
@@ -194,6 +197,13 @@ def usable_points(columns: dict, foreign: bool = True) -> tuple[dict, list[str]]
         xyz = (np.asarray(columns[a], np.float64) for a in "xyz")
         columns = _left_out(columns, isolated_points(*xyz), f"isolated points (fewer than {ISOLATION_OTHERS} "
                             f"others in the {ISOLATION_CELL_M:g} m cubes around them: birds, multipath, stray "
+                            "coordinates)", notes)
+    if foreign and len(columns["x"]):
+        cluster = stray_clusters(*(np.asarray(columns[a], np.float64) for a in "xyz"))
+        k = int(cluster.max()) + 1
+        columns = _left_out(columns, cluster >= 0, f"points in {k:,} stray cluster{'' if k == 1 else 's'} (fewer "
+                            f"than {STRAY_POINTS} points, apart from the scan's {ISOLATION_CELL_M:g} m cubes, above or "
+                            f"below it within {STRAY_REACH_M:g} m or away from it: flocks, multipath, stray "
                             "coordinates)", notes)
     return columns, notes
 

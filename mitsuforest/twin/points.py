@@ -30,7 +30,7 @@ class RealScan:
     crs: str | None                     # WKT of the file's CRS
     tree_id: np.ndarray | None = None   # a reference segmentation (``treeID``, ``treeid``), for benchmarks
     first_only: bool = False            # one point a pulse, its first (compare.metrics.first_returns_only)
-    notes: tuple[str, ...] = ()         # the points left out, in words (noise, withheld, repeated, isolated)
+    notes: tuple[str, ...] = ()         # the points left out, in words (noise, withheld, repeated, isolated, stray)
 
     def __len__(self) -> int:
         return len(self.x)
