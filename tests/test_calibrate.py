@@ -139,6 +139,20 @@ def test_a_secant_step_hits_a_power_law_the_first_step_missed():
     assert response_exponent(0.5, 0.7, 1.0, 2.0) == 2.0     # no step: the default
 
 
+def test_a_measure_that_moved_against_its_step_keeps_the_default_exponent():
+    """MixedConifer's twin, second step: leaf area per crown area × 1.058 (with crowns × 1.158) and its
+    excess echoes rose 0.432 -> 0.467, against the rule that they fall as leaf rises. That step says nothing
+    of the exponent: the default 1 stands, and the next step asks 0.467 / 0.345 = × 1.35 leaf (before: the
+    exponent clipped to 0.1 and × 4 leaf, the most a step may ask)."""
+    from mitsuforest.twin.calibrate import echo_scale, leaf_exponent, response_exponent
+    real, last, twin = {"echoes_per_pulse": 1.345}, {"echoes_per_pulse": 1.432}, {"echoes_per_pulse": 1.467}
+    exponent = leaf_exponent(real, last, twin, 1.058)
+    assert exponent == 1.0
+    assert echo_scale(1.345, 1.467, exponent) == pytest.approx(0.467 / 0.345)
+    assert response_exponent(0.7, 0.6, 1.2, 2.0) == 2.0     # cover fell as crowns widened: the default
+    assert response_exponent(0.6, 0.7, 1.2, 2.0) == pytest.approx(math.log(0.7 / 0.6) / math.log(1.2))
+
+
 def test_crown_ratio_recovers_a_cone_s_length_from_the_foliage_profile_of_its_returns():
     """Layers of a cone's crown of uniform leaf density (crown ratio 0.42: the foliage within relative
     depth s of the top goes as F (s / 0.42)^2.8, F = 2): a pulse stops at the first leaf, so the depth it

@@ -131,10 +131,13 @@ def crown_scale(cover_real: float, cover_twin: float, exponent: float = 2.0) -> 
 def response_exponent(before: float, after: float, factor: float, default: float) -> float:
     """How a measure answered a step: ``ln(after / before) / ln(factor)``, the exponent of a power law
     through the two renders (a secant step), within [0.1, 4 · default]; ``default`` where the step or
-    a measure was nil."""
+    a measure was nil, or where the measure moved against the step: the other factors, stepped at the
+    same time, moved it more (MixedConifer's twin: leaf area × 1.06 with crowns × 1.16 raised its echoes
+    per pulse, and an exponent of 0.1 then asked for × 4 the leaf)."""
     if before <= 0 or after <= 0 or abs(math.log(factor)) < 1e-3:
         return default
-    return float(min(max(math.log(after / before) / math.log(factor), 0.1), 4.0 * default))
+    exponent = math.log(after / before) / math.log(factor)
+    return default if exponent <= 0 else float(min(max(exponent, 0.1), 4.0 * default))
 
 
 def canopy_spread(h) -> float | None:
