@@ -556,6 +556,19 @@ def test_a_file_of_first_returns_only_is_compared_with_the_other_s_first_returns
     assert not load_cloud(_foreign_las(tmp_path / "unnumbered.las", unnumbered)).first_only
 
 
+def test_a_file_without_first_returns_beside_one_of_first_returns_only_is_refused_in_one_line(tmp_path, capsys):
+    """The forest's first returns only against a file of its later returns alone (return numbers 2): there
+    are no first returns to measure like for like, said in one line (before, an empty cloud and a traceback
+    from numpy, "zero-size array to reduction operation minimum")."""
+    whole = _timed(_forest())
+    a = _foreign_las(tmp_path / "first.las", whole[whole["return_number"] == 1])
+    b = _foreign_las(tmp_path / "later.las", whole[whole["return_number"] == 2])
+    assert main(["compare", str(a), str(b)]) == 2
+    err = capsys.readouterr().err
+    assert err == ("mitsuforest: later.las: none of its 400 points is a first return (return number 1) to measure "
+                   "beside A (first.las), which holds first returns only\n")
+
+
 def test_pulse_count_is_the_first_returns_or_the_shares_of_unnumbered_returns():
     assert m.pulse_count(np.array([1, 2, 1, 1, 2, 3]), np.array([2, 2, 1, 3, 3, 3])) == 3
     assert m.pulse_count(np.array([1, 2, 1, 1, 2, 3]), np.zeros(6)) == 3    # counts not filled: the first returns

@@ -117,8 +117,14 @@ def first_only_note(number_of_returns: np.ndarray) -> str:
 
 def first_returns_of(cloud: Cloud, called: str) -> Cloud:
     """``cloud``'s first returns, measured beside ``called``, a file of first returns only: the same
-    pulses and their counts of returns, no later return among the heights, ground and intensities."""
+    pulses and their counts of returns, no later return among the heights, ground and intensities.
+
+    :raises UserError: ``cloud`` holds no first return (a file of later returns alone).
+    """
     keep = first_returns(cloud.return_number)
+    if not keep.any():
+        raise UserError(f"{cloud.name}: none of its {len(keep):,} points is a first return (return number 1) to "
+                        f"measure beside {called}, which holds first returns only")
     kept = {f.name: (v[keep] if isinstance(v := getattr(cloud, f.name), np.ndarray) else v) for f in fields(cloud)}
     note = (f"measured on its first returns ({int(keep.sum()):,} of {len(keep):,} points), as {called} holds "
             "first returns only")
