@@ -523,6 +523,24 @@ def test_gps_times_coarser_than_the_pulses_do_not_stand_for_numbers_of_returns(t
     assert not (cloud.number_of_returns - 1).any()
 
 
+def test_gps_times_that_are_not_numbers_do_not_stand_for_numbers_of_returns(tmp_path):
+    """GPS times left NaN (every point's, or some): NaN tells no pulse apart, so a file that left its numbers
+    of returns 0 has each point a single-return pulse, in compare and the twin (before, with a
+    point_source_id, as every LAS has, each NaN point was a pulse of its own: a first return counted as
+    a single-return pulse, its second return as a pulse of two, and the notes said the GPS times told them)."""
+    from mitsuforest.twin.points import read_scan
+    points = _timed(_forest())
+    points["number_of_returns"] = 0
+    points["gps_time"] = np.nan
+    path = _foreign_las(tmp_path / "nan.las", points)
+    cloud = load_cloud(path)
+    assert cloud.notes[0].startswith("numbers of returns are 0 everywhere and no GPS time tells")
+    assert not (cloud.number_of_returns - 1).any()
+    assert not any(note.startswith("numbers of returns are 0") for note in read_scan(path).notes)
+    rn, t = np.array([1, 2, 1, 2, 1]), np.array([np.nan, np.nan, 6.0, 6.0, 7.0])
+    assert m.numbers_of_returns_by_time(rn, t) is None and m.numbers_of_returns_by_time(rn, t, np.ones(5, int)) is None
+
+
 def test_numbers_of_returns_by_time_is_the_largest_return_number_of_each_pulse():
     rn = np.array([1, 2, 3, 1, 1, 2])
     t = np.array([5.0, 5.0, 5.0, 6.0, 7.0, 7.0])

@@ -238,7 +238,10 @@ def numbers_of_returns_by_time(return_number: np.ndarray, gps_time: np.ndarray,
     """(n,) each point's number of returns, for a file that filled its return numbers but left its
     numbers of returns 0: the largest return number among the points of its pulse, the points that share
     its GPS time (and flight line ``source``). None where the times do not tell pulses apart: a time
-    holding two points of one return number (times stamped coarser than the pulse rate)."""
+    holding two points of one return number (times stamped coarser than the pulse rate), or a time that
+    is not a number (NaN, which is no pulse's time)."""
+    if np.isnan(np.asarray(gps_time, np.float64)).any():
+        return None
     rn = np.asarray(return_number, np.int64)
     keys = np.asarray(gps_time) if source is None else np.rec.fromarrays([gps_time, source])
     _, pulse = np.unique(keys, return_inverse=True)
