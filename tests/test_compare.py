@@ -866,3 +866,24 @@ def test_a_file_spanning_kilometres_says_its_ground_model_is_coarse(tmp_path):
     assert cloud.summary["notes"] == ["the points span 5,010 m: the ground model's cells are 2.5 m, not 1 m (at most "
                                       "4,000,000 cells), and heights follow the ground less closely; clip the file "
                                       "to its plot"]
+
+
+def test_points_without_coordinates_are_left_out_and_said(tmp_path, capsys):
+    """A PCD whose empty cells hold NaN (PCL's organized clouds) compares as the same points without them,
+    in compare and the twin (before: compare stopped with numpy's "negative dimensions are not allowed",
+    the twin refused the file)."""
+    from mitsuforest.twin.points import read_scan
+    points = _forest()
+    bare = np.zeros(len(points) + 3, [("x", "<f4"), ("y", "<f4"), ("z", "<f4")])
+    for axis in "xyz":
+        bare[axis][:len(points)] = points[axis]
+    bare["x"][-3:], bare["y"][-2:], bare["z"][-1:] = np.nan, np.nan, np.inf
+    clean = _our_pcd(tmp_path / "clean.pcd", bare[:len(points)])
+    holed = _our_pcd(tmp_path / "holed.pcd", bare)
+    assert main(["compare", str(clean), str(holed), "-o", str(tmp_path / "o")]) == 0
+    assert ("mitsuforest: holed.pcd: 3 points without coordinates (NaN or infinite: an organized cloud's empty "
+            "cells) left out") in capsys.readouterr().err
+    saved = json.loads((tmp_path / "o" / "compare.json").read_text())
+    assert saved["distance"] == {**dict.fromkeys(DISTANCES, 0.0), "density_ratio": 1.0, "intensity_ks": None}
+    scan = read_scan(holed)
+    assert len(scan) == len(points) and scan.notes[0].startswith("3 points without coordinates")

@@ -179,12 +179,13 @@ def cloud_from_columns(columns: dict, name: str, scheme: str) -> Cloud:
 
 NUMBERS_FROM_TIMES = ("numbers of returns are 0 everywhere: taken from the return numbers of the points that "
                       "share a GPS time")
-LEFT_OUT = "noise, withheld, repeated, isolated or stray ones"     # what usable_points leaves out, for messages
+LEFT_OUT = "non-finite, noise, withheld, repeated, isolated or stray ones"     # what usable_points leaves out, for messages
 
 
 def usable_points(columns: dict, foreign: bool = True) -> tuple[dict, list[str]]:
     """A file's columns less the points a measure of the scan must not see, and what was left out, in
-    words: points flagged withheld and, in another tool's file (``foreign``), its ASPRS noise (classes
+    words: points without finite coordinates (PCL's organized clouds keep NaN in their empty cells), points
+    flagged withheld and, in another tool's file (``foreign``), its ASPRS noise (classes
     7, 18), exact copies of a point (every field the same: a tile merged twice), isolated points
     (:func:`~.metrics.isolated_points`: a bird, a multipath echo, a stray coordinate) and then small
     clusters apart from the scan (:func:`~.metrics.stray_clusters`: a flock of birds above the canopy,
@@ -193,6 +194,8 @@ def usable_points(columns: dict, foreign: bool = True) -> tuple[dict, list[str]]
     from .metrics import (ISOLATION_CELL_M, ISOLATION_OTHERS, STRAY_POINTS, STRAY_REACH_M, isolated_points,
                           stray_clusters)
     notes = []
+    columns = _left_out(columns, ~np.all([np.isfinite(np.asarray(columns[a], np.float64)) for a in "xyz"], axis=0),
+                        "points without coordinates (NaN or infinite: an organized cloud's empty cells)", notes)
     if foreign and "classification" in columns:
         columns = _left_out(columns, np.isin(columns["classification"], ASPRS_NOISE),
                             "noise points (ASPRS classes 7, 18)", notes)

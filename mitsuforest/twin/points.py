@@ -53,8 +53,6 @@ def read_scan(path) -> RealScan:
     if n == 0:
         raise UserError(f"{path}: holds no points other than {LEFT_OUT} ({'; '.join(notes)})")
     x, y, z = (np.asarray(cols[k], np.float64) for k in ("x", "y", "z"))
-    if not (np.isfinite(x).all() and np.isfinite(y).all() and np.isfinite(z).all()):
-        raise UserError(f"{path}: holds non-finite coordinates")
     classes = np.asarray(cols["classification"]) if "classification" in cols else None
     ground = None
     if classes is not None and classes.any():
