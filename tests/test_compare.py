@@ -587,6 +587,23 @@ def test_a_file_without_first_returns_beside_one_of_first_returns_only_is_refuse
                    "beside A (first.las), which holds first returns only\n")
 
 
+def test_a_file_of_first_returns_that_left_its_return_numbers_0_is_read_as_the_twin_reads_it(tmp_path):
+    """The forest's first returns, one GPS time each, return numbers 0 and numbers of returns kept: compare
+    takes them as first returns with their counts, as the twin does (before, compare made every point a
+    single-return pulse, returns_tv 0.25 against the file that numbered them, while the twin read it as
+    first returns only)."""
+    from mitsuforest.twin.points import read_scan
+    whole = _timed(_forest())
+    first = whole[whole["return_number"] == 1]
+    numbered = _foreign_las(tmp_path / "numbered.las", first)
+    first["return_number"] = 0
+    zero = _foreign_las(tmp_path / "zero.las", first)
+    cloud = load_cloud(zero)
+    assert cloud.first_only and cloud.notes[0] == "return numbers are 0 everywhere: taken as 1, the file's first returns"
+    assert compare_files(numbered, zero)["distance"]["returns_tv"] == 0
+    assert read_scan(zero).first_only and read_scan(zero).number_of_returns.tolist() == cloud.number_of_returns.tolist()
+
+
 def test_pulse_count_is_the_first_returns_or_the_shares_of_unnumbered_returns():
     assert m.pulse_count(np.array([1, 2, 1, 1, 2, 3]), np.array([2, 2, 1, 3, 3, 3])) == 3
     assert m.pulse_count(np.array([1, 2, 1, 1, 2, 3]), np.zeros(6)) == 3    # counts not filled: the first returns

@@ -245,10 +245,13 @@ def return_numbers(columns: dict, notes: list) -> tuple[np.ndarray, np.ndarray]:
     rn, nr = (np.asarray(columns[k], np.int16) for k in ("return_number", "number_of_returns"))
     if rn.any() and nr.any():
         return rn, nr
+    times = columns.get("gps_time")
     if not rn.any():                      # LAS writers that do not know them leave 0
+        if first_returns_only(single[0], nr, times):
+            notes.append("return numbers are 0 everywhere: taken as 1, the file's first returns")
+            return single[0], nr
         notes.append("return numbers are 0 everywhere: every point taken as a single-return pulse")
         return single
-    times = columns.get("gps_time")
     found = None if times is None or np.all(times == times[0]) else numbers_of_returns_by_time(
         rn, times, columns.get("point_source_id"))
     if found is None:
