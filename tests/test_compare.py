@@ -608,7 +608,7 @@ def test_pulse_count_is_the_first_returns_or_the_shares_of_unnumbered_returns():
     assert m.pulse_count(np.array([1, 2, 1, 1, 2, 3]), np.array([2, 2, 1, 3, 3, 3])) == 3
     assert m.pulse_count(np.array([1, 2, 1, 1, 2, 3]), np.zeros(6)) == 3    # counts not filled: the first returns
     assert m.pulse_count(np.ones(6), np.array([2, 2, 1, 3, 3, 3])) == pytest.approx(3)   # returns left 1
-    assert m.pulse_count(np.ones(6), np.array([2, 2, 1, 3, 3, 3]), np.arange(6.0)) == 6     # first returns only
+    assert m.pulse_count(np.ones(6), np.array([2, 2, 1, 3, 3, 3]), first_only=True) == 6    # first returns only
 
 
 def test_an_output_folder_that_is_a_file_is_refused_first(tmp_path, capsys):

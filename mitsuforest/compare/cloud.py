@@ -10,7 +10,8 @@ import numpy as np
 from ..classes import CLASS_NAMES, GROUND
 from ..errors import UserError
 from ..fields import FIELD, SCAN_ANGLE_UNIT
-from .metrics import first_returns, first_returns_only, numbers_of_returns_by_time
+from .metrics import (ISOLATION_CELL_M, ISOLATION_OTHERS, STRAY_POINTS, STRAY_REACH_M, cell_keys, first_returns,
+                      first_returns_only, isolated_points, numbers_of_returns_by_time, stray_clusters)
 
 ASPRS_GROUND = 2
 ASPRS_NOISE = (7, 18)         # low and high noise: left out of a comparison of another tool's file
@@ -58,16 +59,26 @@ def load_cloud(path) -> Cloud:
         raise UserError(f"{path}: the file holds no points")
     wkt = file_crs(path)
     columns, unit_note = in_metres(columns, wkt, path) if wkt else (columns, None)
-    if "scan_angle" in columns and Path(path).suffix.lower() != ".pcd":   # LAS 1.4 counts; a PCD has degrees
-        columns = {**columns, "scan_angle": columns["scan_angle"] * SCAN_ANGLE_UNIT}
-    elif "scan_angle_rank" in columns:                                     # LAS point formats 0-5: whole degrees
-        columns = {**columns, "scan_angle": columns["scan_angle_rank"]}
+    from ..write.formats import format_of
+    if (angle := scan_angle_degrees(columns, pcd=format_of(path) == "pcd")) is not None:
+        columns = {**columns, "scan_angle": angle}
     amplitude = FIELD["intensity"].read_from              # our LAS: the exact amplitude, as our PCD's
     if amplitude in columns and class_names is CLASS_NAMES:   # intensity (16-bit intensity may clip)
         columns = {**columns, "intensity": columns[amplitude]}
     cloud = cloud_from_columns(columns, Path(path).name, "mitsuforest" if class_names is CLASS_NAMES else "ASPRS")
     cloud.notes[:0] = [unit_note] if unit_note else []
     return cloud
+
+
+def scan_angle_degrees(columns: dict, pcd: bool) -> np.ndarray | None:
+    """(n,) float64 scan angles in degrees of a file's ``columns``, or None where it has none: LAS 1.4's
+    ``scan_angle`` in 0.006° counts, a PCD's ``scan_angle`` as written (ours, degrees), else LAS 0-5's (or
+    PDAL's) ``scan_angle_rank`` in whole degrees."""
+    if "scan_angle" in columns:
+        return np.asarray(columns["scan_angle"], np.float64) * (1.0 if pcd else SCAN_ANGLE_UNIT)
+    if "scan_angle_rank" in columns:
+        return np.asarray(columns["scan_angle_rank"], np.float64)
+    return None
 
 
 def in_metres(columns: dict, wkt: str, path) -> tuple[dict, str | None]:
@@ -96,7 +107,6 @@ def within_footprint(cloud: Cloud, of: Cloud, cell: float = 1.0, called: str | N
 
     :raises UserError: no point of ``cloud`` within the footprint.
     """
-    from .metrics import cell_keys
     called = called or of.name
     origin = (float(np.floor(min(np.min(cloud.x), np.min(of.x)))), float(np.floor(min(np.min(cloud.y), np.min(of.y)))))
     keep = np.isin(cell_keys(cloud.x, cloud.y, cell, origin), cell_keys(of.x, of.y, cell, origin))
@@ -191,8 +201,6 @@ def usable_points(columns: dict, foreign: bool = True) -> tuple[dict, list[str]]
     clusters apart from the scan (:func:`~.metrics.stray_clusters`: a flock of birds above the canopy,
     multipath under the ground, a group of stray coordinates), whose height or place would stretch a
     grid or a canopy. Our own files have none of these but withheld points."""
-    from .metrics import (ISOLATION_CELL_M, ISOLATION_OTHERS, STRAY_POINTS, STRAY_REACH_M, isolated_points,
-                          stray_clusters)
     notes = []
     columns = _left_out(columns, ~np.all([np.isfinite(np.asarray(columns[a], np.float64)) for a in "xyz"], axis=0),
                         "points without coordinates (NaN or infinite: an organized cloud's empty cells)", notes)

@@ -63,6 +63,9 @@ def _found(keys: np.ndarray, wanted: np.ndarray) -> tuple[np.ndarray, np.ndarray
     return at, keys[at] == wanted
 
 
+NEIGHBOURS = np.array(np.meshgrid([-1, 0, 1], [-1, 0, 1], [-1, 0, 1])).reshape(3, -1).T   # (27, 3) cube steps
+
+
 def isolated_points(x: np.ndarray, y: np.ndarray, z: np.ndarray, cell: float = ISOLATION_CELL_M,
                     others: int = ISOLATION_OTHERS) -> np.ndarray:
     """(n,) bool: points alone in space, a bird, a multipath echo far below the ground, a stray
@@ -73,7 +76,7 @@ def isolated_points(x: np.ndarray, y: np.ndarray, z: np.ndarray, cell: float = I
     such points is not alone: see :func:`stray_clusters`."""
     cubes, keys, inverse, count = _cube_grid(x, y, z, cell)
     around = np.zeros(len(keys), np.int64)
-    for step in np.array(np.meshgrid([-1, 0, 1], [-1, 0, 1], [-1, 0, 1])).reshape(3, -1).T:
+    for step in NEIGHBOURS:
         at, hit = _found(keys, _cube_key(cubes + step))
         around += np.where(hit, count[at], 0)
     return (around - 1 < others)[inverse]
@@ -96,7 +99,7 @@ def _cube_parts(x: np.ndarray, y: np.ndarray, z: np.ndarray, cell: float):
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
     cubes, keys, inverse, count = _cube_grid(x, y, z, cell)
-    steps = np.array(np.meshgrid([-1, 0, 1], [-1, 0, 1], [-1, 0, 1])).reshape(3, -1).T[14:]   # 13: one of each pair
+    steps = NEIGHBOURS[14:]           # 13: one of each pair of opposite steps (13 is the cube itself)
     pairs = [(np.flatnonzero(hit), at[hit]) for at, hit in (_found(keys, _cube_key(cubes + s)) for s in steps)]
     i = np.concatenate([p[0] for p in pairs])
     j = np.concatenate([p[1] for p in pairs])
@@ -223,12 +226,13 @@ def first_returns_only(return_number: np.ndarray, number_of_returns: np.ndarray,
     return bool(np.any(t != t[0]) and len(np.unique(t)) == len(t))
 
 
-def pulse_count(return_number: np.ndarray, number_of_returns: np.ndarray, gps_time: np.ndarray | None = None) -> float:
+def pulse_count(return_number: np.ndarray, number_of_returns: np.ndarray, first_only: bool = False) -> float:
     """The pulses the (n,) points stand for: their first returns where the return numbers are filled
-    (some above 1) or the file holds first returns only (:func:`first_returns_only`), else the sum of one
-    over each point's number of returns (a file that numbered none of its returns but counted them)."""
+    (some above 1) or the file holds first returns only (``first_only``, :func:`first_returns_only`), else
+    the sum of one over each point's number of returns (a file that numbered none of its returns but
+    counted them)."""
     rn = np.asarray(return_number)
-    if np.any(rn > 1) or first_returns_only(rn, number_of_returns, gps_time):
+    if first_only or np.any(rn > 1):
         return float(np.count_nonzero(first_returns(rn)))
     return float(np.sum(1.0 / np.maximum(np.asarray(number_of_returns, np.float64), 1.0)))
 

@@ -83,7 +83,7 @@ def analyse(scan, settings: detection.DetectionSettings | None = None) -> dict:
                                    (int(frame.size[1] / understory.CELL), int(frame.size[0] / understory.CELL)))
     estimate = survey.estimate(scan, float(np.mean(dem)))
     from ..compare.metrics import pulse_count
-    pulses = pulse_count(scan.return_number, scan.number_of_returns, scan.gps_time)
+    pulses = pulse_count(scan.return_number, scan.number_of_returns, scan.first_only)
     return {"frame": frame, "dem": dem, "dem_origin": (x0, y0), "ground_source": ground_source, "trees": trees,
             "crown_gap_fraction": gap, "scan_angle": angle, "crown_lai": lai, "crown_ratio": ratio, "tree_crown_ratios": tree_ratios,
             "bushes": understory.bush_count(cells), "shrub_area_m2": float(cells.sum() * understory.CELL ** 2),

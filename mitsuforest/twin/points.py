@@ -9,7 +9,6 @@ import numpy as np
 from ..classes import CLASS_NAMES, GROUND
 from ..crs import file_crs, length_units, projection_problem
 from ..errors import UserError
-from ..fields import SCAN_ANGLE_UNIT
 
 
 @dataclass(frozen=True)
@@ -41,9 +40,9 @@ def read_scan(path) -> RealScan:
     is a one-line :class:`~mitsuforest.errors.UserError`."""
     from ..write.formats import format_of
     from ..write.info import load_points
-    from ..compare.cloud import LEFT_OUT, first_only_note, usable_points
+    from ..compare.cloud import LEFT_OUT, first_only_note, scan_angle_degrees, usable_points
     from ..compare.metrics import first_returns_only
-    cols, names, class_names = load_points(path)
+    cols, _, class_names = load_points(path)
     if len(cols["x"]) == 0:
         raise UserError(f"{path}: holds no points")
     crs, unplaced = _scene_crs(file_crs(path), path)
@@ -64,7 +63,7 @@ def read_scan(path) -> RealScan:
     notes += [first_only_note(counts)] if first_only else []
     return RealScan(
         path=str(path), x=x, y=y, z=z, ground=ground, return_number=returns, number_of_returns=counts,
-        gps_time=gps_time, scan_angle=_scan_angle(cols, names, pcd=format_of(path) == "pcd"),
+        gps_time=gps_time, scan_angle=_varying(scan_angle_degrees(cols, pcd=format_of(path) == "pcd")),
         point_source_id=_varying(cols.get("point_source_id")), intensity=cols.get("intensity"),
         crs=crs,
         tree_id=next((np.asarray(cols[k]) for k in ("treeID", "treeid") if k in cols), None), notes=tuple(notes),
@@ -119,13 +118,3 @@ def _varying(column) -> np.ndarray | None:
         return None
     column = np.asarray(column)
     return column if len(column) and np.any(column != column[0]) else None
-
-
-def _scan_angle(cols: dict, names: list[str], pcd: bool) -> np.ndarray | None:
-    """Scan angles in degrees: a PCD's as written (ours; PDAL's ``ScanAngleRank``), a LAS's by its format."""
-    if "scan_angle" in names and not pcd:      # LAS 1.4 formats 6-10: 0.006 degree units
-        return _varying(np.asarray(cols["scan_angle"], np.float64) * SCAN_ANGLE_UNIT)
-    for name in ("scan_angle", "scan_angle_rank"):   # a PCD's; LAS formats 0-5: whole degrees
-        if name in cols:
-            return _varying(np.asarray(cols[name], np.float64))
-    return None
