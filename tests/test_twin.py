@@ -343,6 +343,34 @@ def test_tree_detection_on_mixedconifer_against_its_labels():
     assert scores["f1"] >= 0.8, scores
 
 
+@pytest.mark.skipif(not (REAL / "UAS_Clip.laz").is_file() or not (REAL / "MixedConifer.laz").is_file(),
+                    reason=f"the real scans are not beside the project ({REAL})")
+def test_the_sweeps_of_the_real_scans_say_where_their_sensors_flew():
+    """UAS_Clip's lines 103 and 104, whose beams fit tracks within 0.08 m, have sweeps that put the sensor
+    within 2 m of those tracks' heights (2401.1 and 2417.1 m) and its nadir within 2 m of them across the
+    flight; all its sweeps run one way (a rotating mirror). MixedConifer keeps first returns only: no
+    track, so its four lines are placed by their sweeps, 817 m over its ground, their mirror sweeping
+    both ways 127 times a second."""
+    from mitsuforest.twin import survey
+    from mitsuforest.twin.points import read_scan
+    uas = read_scan(REAL / "UAS_Clip.laz")
+    est = survey.estimate(uas, 0.0)
+    assert est.deflector == "rotating" and est.line_sources.count("track") == 2
+    for source, track in zip((103, 104), [tr for tr in est.tracks if tr.residual < 0.1]):
+        g = uas.point_source_id == source
+        line, parts = survey.nadir_line(uas.x[g], uas.y[g], uas.z[g], uas.gps_time[g], uas.scan_angle[g])
+        assert line.sensor_z == pytest.approx(track.position[2], abs=2.0)
+        placed = survey.place_nadir_line(line, parts, uas.x[g], uas.y[g], uas.z[g], uas.scan_angle[g], line.sensor_z)
+        heading = np.radians(line.heading)
+        across = np.array([np.cos(heading), -np.sin(heading)])
+        assert (np.array(placed.position) - track.position[:2]) @ across == pytest.approx(0.0, abs=2.0)
+    mixed = read_scan(REAL / "MixedConifer.laz")
+    est = survey.estimate(mixed, 0.0)
+    assert est.tracks == () and est.line_sources == ("scan lines",) * 4
+    assert est.altitude == pytest.approx(817.1, abs=0.5) and est.deflector == "oscillating"
+    assert est.scan_frequency == pytest.approx(127.2, abs=0.1) and est.speed == pytest.approx(61.4, abs=0.1)
+
+
 def test_crown_lai_inverts_beer_lambert():
     from mitsuforest.twin.foliage import G, crown_gap_fraction, effective_lai
     for lai, angle in ((1.0, 0.0), (4.0, 30.0), (2.5, 60.0)):

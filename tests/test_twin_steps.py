@@ -242,6 +242,79 @@ def test_the_survey_of_a_straight_climbing_line_and_a_short_one():
     assert est.line_positions[1][0] == pytest.approx(60.0, abs=0.01)
 
 
+def _first_returns_of_an_airborne_line(heading, nadir, oscillating=True, height=800.0, speed=60.0, seed=0):
+    """First returns only (one point a pulse, no two at one time) in a 90 x 90 m plot at the origin, from a
+    sensor ``height`` m over flat ground (z = 0) flying ``heading`` (deg) at ``speed`` m/s along a line
+    through ``nadir`` (x, y) at t = 10 s: 50 kHz, ±20° swept 60 times a second, there and back or one way,
+    each pulse's return at a random height of 0-20 m (a canopy), scan angles rounded to whole degrees (LAS
+    1.2, positive to the right of the flight) and GPS times to the microsecond."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(0.0, 20.0, 1 / 50_000)
+    phase = (t * 60.0) % 1.0
+    theta = np.radians((4 * np.abs(phase - 0.5) - 1) * 20.0 if oscillating else (phase - 0.5) * 40.0)
+    h = np.radians(heading)
+    along, right = np.array([np.sin(h), np.cos(h)]), np.array([np.cos(h), -np.sin(h)])
+    z = rng.uniform(0.0, 20.0, len(t))
+    xy = np.asarray(nadir) + np.outer(speed * (t - 10.0), along) + np.outer((height - z) * np.tan(theta), right)
+    keep = (np.abs(xy[:, 0]) <= 45) & (np.abs(xy[:, 1]) <= 45)
+    n = int(keep.sum())
+    ones = np.ones(n, np.int16)
+    return RealScan("synthetic", xy[keep, 0], xy[keep, 1], z[keep], None, ones, ones.copy(),
+                    np.round(t[keep] + 1e5, 6), np.round(np.degrees(theta[keep])), None, None, None, first_only=True)
+
+
+@pytest.mark.parametrize("oscillating", [True, False])
+def test_a_first_return_file_s_flight_line_from_its_scan_angles(oscillating):
+    """An airborne line of first returns only (no beam to fit a track to) over a plot off its nadir: its
+    sweeps' positions against their whole-degree scan angles give the sensor's height (800 m), the flight
+    square to them its heading (72°) and speed (60 m/s), its nadir line (100 m to the plot's right of the
+    line through the origin), and their senses the mirror (there and back: 60 cycles, 120 scan lines a
+    second; one way: 60 turns). Rounding the angles to whole degrees moves a point up to 7 m."""
+    heading, nadir = 72.0, (-100 * math.cos(math.radians(72.0)), 100 * math.sin(math.radians(72.0)))
+    est = survey.estimate(_first_returns_of_an_airborne_line(heading, nadir, oscillating), 0.0)
+    assert est.tracks == () and est.line_sources == ("scan lines",)
+    assert est.altitude == pytest.approx(800.0, abs=4.0)
+    assert est.line_headings[0] == pytest.approx(heading, abs=0.5)
+    assert est.speed == pytest.approx(60.0, rel=0.01)
+    assert np.asarray(est.line_positions[0]) @ [math.cos(math.radians(72.0)), -math.sin(math.radians(72.0))] \
+        == pytest.approx(-100.0, abs=2.0)
+    assert est.deflector == ("oscillating" if oscillating else "rotating")
+    assert est.scan_frequency == pytest.approx(120.0 if oscillating else 60.0, rel=0.01)
+    assert "altitude" not in est.missing
+
+
+def test_a_file_without_beams_or_sweeps_says_why_its_line_is_not_placed():
+    """The same line with every scan angle 0 (no sweep spans 2°): no altitude, speed or lines, and the
+    reason names both what a track and what a nadir line needs."""
+    scan = _first_returns_of_an_airborne_line(90.0, (0.0, 0.0))
+    flat = RealScan(**{**scan.__dict__, "scan_angle": None})
+    est = survey.estimate(flat, 0.0)
+    assert est.altitude is None and est.line_positions == () and est.deflector is None
+    assert "scan angles" in est.missing["altitude"] and "first and a last return" in est.missing["altitude"]
+
+
+def test_the_twin_sensor_reads_bare_ground_at_its_ground_counts_and_reaches_twice_its_slant_range():
+    """The intensity mapping puts a flat ground's echo at the file's median scan angle (the Lambertian
+    radiometry of the scan) at GROUND_COUNTS, for a 127 m UAV survey and an 800 m airborne one; a survey
+    within half the VUX-1UAV22's 1000 m keeps its range and threshold (0.2 / 1000²), an 800 m one at ±20°
+    reaches twice its 851 m slant range, its threshold a 20 % target's there."""
+    from mitsuforest.classes import GROUND
+    from mitsuforest.config.types import IntensityMapping
+    from mitsuforest.scan import radiometry
+    from mitsuforest.twin import scene
+    rho = radiometry.reflectance_table(1550e-9)[GROUND]
+    for altitude, angle in ((127.0, 56.0), (800.0, 7.0)):
+        cos = math.cos(math.radians(angle))
+        amplitude = radiometry.received_power(1.0, rho, cos, altitude / cos)
+        mapping = IntensityMapping(**scene.intensity_scale(altitude, angle))
+        assert int(radiometry.intensity_counts(np.array([amplitude]), np.array([0.0]), mapping)[0]) == \
+            pytest.approx(scene.GROUND_COUNTS, abs=2)
+    assert scene.sensor_reach(127.0, 140.0) == {"range_max": 1000.0, "detection_threshold": 2e-7}
+    far = scene.sensor_reach(800.0, 40.0)
+    assert far["range_max"] == 10 * math.ceil(2 * 800 / math.cos(math.radians(20)) / 10) == 1710
+    assert far["detection_threshold"] == pytest.approx(0.2 / 1710 ** 2, rel=1e-3)
+
+
 def test_the_heading_is_the_axial_mean_of_lines_flown_either_way():
     """Tracks heading 28° and 212° (flown back along 32°), clockwise from +y: the lines' axis is 30°."""
     def track(deg, rays):

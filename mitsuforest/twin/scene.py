@@ -30,6 +30,12 @@ DEFAULT_SENSOR = {"name": "twin sensor (RIEGL VUX-1UAV22 optics)", "deflector": 
                   "beam_divergence": 0.5e-3, "pulse_length": 4.0e-9, "wavelength": 1550e-9, "range_min": 3.0,
                   "range_max": 1000.0, "range_precision": 0.005, "range_accuracy": 0.010, "max_returns": 15,
                   "detection_threshold": 2.0e-7}
+# The twin's sensor writes intensity as its amplitude scaled so that bare ground (the twin's ground reflectance)
+# filling the beam at the survey's altitude and the file's median scan angle reads this many counts: fine steps
+# (a 1e6 gain put a 127 m survey's ground at 16 counts, an 800 m one's at 0; here an echo of 1 % of the ground's
+# reads 41) under 12 dB of headroom (a leaf-filled beam nearer than the ground, wood brighter: 2-3 times the
+# ground at most). compare normalises intensity by the ground's median: the scale is the twin's own, not the file's.
+GROUND_COUNTS = 4096
 DEFAULTS = {"altitude": 30.0, "speed": 2.0, "scan_frequency": 50.0, "field_of_view": 360.0, "line_spacing": 12.0,
             "heading": 0.0}
 MARGIN = 10.0   # m: legs run this far beyond the plot
@@ -67,9 +73,10 @@ def survey_plan(analysis: dict, sensor=None) -> tuple[dict, dict | str, dict]:
     altitude = pick("altitude", est.altitude)
     speed = pick("speed", est.speed)
     fov_seen = None if est.field_of_view is None else min(360.0, 5 * math.ceil(est.field_of_view / 5))
+    deflector = est.deflector or DEFAULT_SENSOR["deflector"]
+    fired = (fov_seen or DEFAULTS["field_of_view"]) / 360.0 if deflector == "rotating" else 1.0   # pulses in the FOV
     if est.speed is None and est.pulse_frequency is not None:   # fly as fast as the file's pulse density asks
-        speed = est.pulse_frequency * (fov_seen or DEFAULTS["field_of_view"]) / 360.0 / (
-            analysis["pulse_density"] * DEFAULTS["line_spacing"])
+        speed = est.pulse_frequency * fired / (analysis["pulse_density"] * DEFAULTS["line_spacing"])
         report["speed"] = {"value": speed, "source": f"matched to the file's {analysis['pulse_density']:.2f} pulses/m² "
                            f"at the estimated pulse rate, {DEFAULTS['line_spacing']:g} m line spacing "
                            f"({est.missing.get('speed', 'not estimated')})"}
@@ -77,26 +84,59 @@ def survey_plan(analysis: dict, sensor=None) -> tuple[dict, dict | str, dict]:
     fov = pick("field_of_view", fov_seen)
     out = {"altitude": round(altitude, 2), "speed": round(speed, 3), "margin": MARGIN}
     spacing = _flight_lines(est, analysis["frame"], out, report)
-    prf = _pulse_rate(est, analysis["pulse_density"], speed, spacing or DEFAULTS["line_spacing"], fov, report)
+    prf = _pulse_rate(est, analysis["pulse_density"], speed, spacing or DEFAULTS["line_spacing"], fired, report)
     if sensor is not None:
         return out | _rates_of(sensor, prf, scan_frequency, report), str(Path(sensor).resolve()), report
-    sensor_map = {**DEFAULT_SENSOR, "field_of_view": fov, "pulse_frequencies": [prf],
-                  "scan_frequency_range": [min(10.0, scan_frequency), max(200.0, scan_frequency)]}
-    out["pulse_frequency"], out["scan_frequency"] = prf, scan_frequency
-    report["sensor"] = {"value": sensor_map["name"], "source": "estimated rates and field of view, the VUX-1UAV22's optics"}
+    mirror = round(scan_frequency / (2 if deflector == "oscillating" else 1), 3)   # turns, or cycles there and back
+    reach = sensor_reach(altitude, fov)
+    sensor_map = {**DEFAULT_SENSOR, **reach, "deflector": deflector, "field_of_view": fov, "pulse_frequencies": [prf],
+                  "scan_frequency_range": [min(10.0, mirror), max(200.0, mirror)],
+                  "intensity": intensity_scale(altitude, analysis["scan_angle"])}
+    out["pulse_frequency"], out["scan_frequency"] = prf, mirror
+    longer = f", its reach {reach['range_max']:g} m for a {altitude:.0f} m survey" \
+        if reach["range_max"] > DEFAULT_SENSOR["range_max"] else ""
+    swept = (f"an oscillating mirror (sweeps both ways: {mirror:g} cycles a second)" if deflector == "oscillating"
+             else "a rotating mirror" + ("" if est.deflector else " (default)"))
+    report["sensor"] = {"value": sensor_map["name"], "source": f"estimated rates and field of view, {swept}, the "
+                        f"VUX-1UAV22's optics{longer}; amplitude x {sensor_map['intensity']['gain']:.4g} as intensity"}
     return out, sensor_map, report
+
+
+def sensor_reach(altitude: float, field_of_view: float) -> dict:
+    """The twin sensor's ``range_max`` and ``detection_threshold``: the VUX-1UAV22's (a 20 % target detected
+    at 1000 m), or for a survey whose longest slant range (at the half ``field_of_view``, at most
+    :data:`SURROUND_ANGLE`) is more than half that, twice that range, with the threshold of a 20 % target
+    there: an airborne scanner flown at 800 m reaches well beyond it, and a UAV scanner's threshold there
+    would drop every echo under half a leaf-filled beam."""
+    slant = altitude / math.cos(math.radians(min(field_of_view / 2, SURROUND_ANGLE)))
+    reach = max(DEFAULT_SENSOR["range_max"], 10.0 * math.ceil(2 * slant / 10))
+    return {"range_max": reach, "detection_threshold": float(f"{0.2 / reach ** 2:.4g}")}
+
+
+def intensity_scale(altitude: float, scan_angle: float) -> dict:
+    """The twin sensor's ``intensity`` mapping: amplitude times the gain that puts bare ground at
+    :data:`GROUND_COUNTS` (reflectance ρ at 1550 nm, ``ρ cos³ a / altitude²`` at scan angle ``a`` deg)."""
+    from ..classes import GROUND
+    from ..scan.radiometry import reflectance_table
+    rho = float(reflectance_table(DEFAULT_SENSOR["wavelength"])[GROUND])
+    cos = math.cos(math.radians(scan_angle))
+    ground = rho * cos ** 3 / max(altitude, 1.0) ** 2
+    return {"source": "amplitude", "gain": float(f"{GROUND_COUNTS / ground:.4g}"), "offset": 0, "saturation": 65535}
 
 
 def _flight_lines(est: survey_estimation.SurveyEstimate, frame, out: dict, report: dict) -> float | None:
     """The scan's own lines into ``out["lines"]`` where they were placed, else a lawnmower's spacing and
     heading; returns that spacing (m), or ``None`` for the scan's lines."""
     if est.line_positions and est.heading is not None:
-        local = [survey_estimation.leg_ends(p, est.heading, frame.bounds, MARGIN) for p in est.line_positions]
+        local = [survey_estimation.leg_ends(p, h, frame.bounds, MARGIN) for p, h in zip(est.line_positions, est.line_headings)]
         out["lines"] = [[[round(a - frame.offset[0], 2), round(b - frame.offset[1], 2)] for a, b in leg] for leg in local]
-        placed = {k: est.line_sources.count(k) for k in ("track", "scan angle", "not placed")}
-        report["lines"] = {"value": len(local), "source": f"estimated: of the file's {est.lines} lines, "
-                           f"{placed['track']} on their tracks, {placed['scan angle']} by scan angle and beam side, "
-                           f"{placed['not placed']} not placed (too few pulses with two returns)"}
+        placed = {k: est.line_sources.count(k) for k in ("track", "scan angle", "scan lines", "not placed")}
+        how = (f"{placed['scan lines']} where their scan lines' nadirs lie (no pulse with two returns)"
+               if placed["scan lines"] else f"{placed['track']} on their tracks, {placed['scan angle']} by scan angle "
+               "and beam side")
+        why = "too few scan lines" if placed["scan lines"] else "too few pulses with two returns"
+        report["lines"] = {"value": len(local), "source": f"estimated: of the file's {est.lines} lines, {how}, "
+                           f"{placed['not placed']} not placed ({why})"}
         return None
     spacing = DEFAULTS["line_spacing"]
     out.update(line_spacing=spacing, heading=DEFAULTS["heading"])
@@ -106,14 +146,15 @@ def _flight_lines(est: survey_estimation.SurveyEstimate, frame, out: dict, repor
 
 
 def _pulse_rate(est: survey_estimation.SurveyEstimate, pulse_density: float, speed: float, spacing: float,
-                fov: float, report: dict) -> float:
+                fired: float, report: dict) -> float:
     """The estimated pulse rate (Hz), or the one that gives the file's pulses per m² over parallel lines
-    ``spacing`` m apart, rounded to 100 Hz from 1 kHz up."""
+    ``spacing`` m apart when the share ``fired`` of the pulses fire (a rotating mirror's FOV / 360), rounded
+    to 100 Hz from 1 kHz up."""
     if est.pulse_frequency is not None:
         prf = est.pulse_frequency
         report["pulse_frequency"] = {"value": prf, "source": "estimated"}
-    else:   # pulses per m² of parallel lines: PRF · (FOV / 360) / (speed · spacing)
-        prf = pulse_density * speed * spacing * 360.0 / fov
+    else:   # pulses per m² of parallel lines: PRF · fired / (speed · spacing)
+        prf = pulse_density * speed * spacing / fired
         report["pulse_frequency"] = {"value": prf, "source": f"matched to the file's {pulse_density:.2f} "
                                      f"pulses/m² ({est.missing.get('pulse_frequency', 'not estimated')})"}
     return float(round(prf, -2)) if prf >= 1000 else float(round(prf))

@@ -6,8 +6,16 @@
   returns points at the scanner (Gatziolis & McGaughey 2019; lidR's ``track_sensor``). Each line's
   track is the straight, constant-speed path ``p(t) = p0 + v (t - t_mid)`` nearest all its pulses' beam
   lines (linear least squares): altitude above the ground, speed and heading follow.
+* Nadir lines, where no line has such a track (a file of first returns only, or of single returns): a
+  scan line's points lie along the sweep at ``(h - z) tan(angle)`` from the nadir, so their positions
+  along it and their scan angles give the sensor's height ``h`` (least squares in the angles, which a
+  file rounds); the flight runs square to the sweeps, its speed the sweeps' progress over time, and each
+  line lies where its sweeps' nadirs do at the flight lines' median height (:func:`nadir_line`).
 * Scan rate: a rotating or oscillating mirror crosses the plot once per scan line, so the returns come
   in bursts one scan period apart: the period is the median spacing of burst starts.
+* Deflector: a rotating mirror sweeps every scan line one way, an oscillating one there and back; where a
+  quarter of the sweeps or more run against the others, the mirror oscillates, its scan lines half the
+  spacing of sweeps that run the same way (:func:`deflector_of`).
 * Pulse rate: one over the median spacing of first returns in a burst; where GPS times are too coarse
   to tell pulses apart, they are stamps a fixed step apart, and a stamp inside a burst holds every pulse
   fired in it: the fullest stamps hold the pulse rate times the step (:func:`stamped_pulse_rate`).
@@ -19,6 +27,7 @@ and named in ``missing`` with the reason.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -28,6 +37,10 @@ MIN_BEAM_LENGTH = 1.0   # m between a pulse's first and last returns for its bea
 MIN_RAYS = 20           # pulses with two returns a line needs for its track
 GOOD_TRACK = 0.5        # m: RMS miss of the beams below which a track is trusted
 BURST_GAP = 0.5e-3      # s: returns further apart than this (and 20 median spacings) start a new burst
+SWEEP_POINTS = 10       # returns a burst needs to count as a sweep for a nadir line
+SWEEP_ANGLES = 2.0      # deg of scan angle a sweep must span (LAS 1.2 stores whole degrees)
+NADIR_SWEEPS = 20       # sweeps a flight line needs for its sensor height from scan angles
+SWEEP_ITERATIONS = 4    # Gauss-Newton steps of a sweep's fit (:func:`sweep`)
 
 
 @dataclass(frozen=True)
@@ -49,11 +62,13 @@ class SurveyEstimate:
     lines: int
     tracks: tuple[Track, ...] = ()
     line_positions: tuple[tuple[float, float], ...] = ()   # a point each placed line passes through (file frame)
-    line_sources: tuple[str, ...] = ()         # per file line: track, scan angle or not placed
+    line_sources: tuple[str, ...] = ()         # per file line: track, scan angle, scan lines or not placed
+    line_headings: tuple[float, ...] = ()      # deg clockwise from +y, per placed line: its direction of flight
     altitude: float | None = None              # m above the mean ground
     speed: float | None = None                 # m/s
     heading: float | None = None               # deg clockwise from +y, of the line axis (0-180)
-    scan_frequency: float | None = None        # Hz
+    scan_frequency: float | None = None        # scan lines a second (a rotating mirror's turns, twice an oscillating one's cycles)
+    deflector: str | None = None               # rotating | oscillating, from the sweeps' senses
     pulse_frequency: float | None = None       # Hz
     field_of_view: float | None = None         # deg, a lower bound
     missing: dict = field(default_factory=dict)   # quantity: reason
@@ -106,13 +121,19 @@ def fit_track(anchors, directions, times) -> Track:
 
 def bursts(t) -> list[np.ndarray]:
     """Sorted times split into the bursts of one scan line each."""
-    t = np.sort(np.asarray(t, np.float64))
-    gaps = np.diff(t)
+    t = np.asarray(t, np.float64)
+    return [t[b] for b in burst_indices(t)]
+
+
+def burst_indices(t) -> list[np.ndarray]:
+    """Indices of the (n,) times ``t`` in each burst, in time order (:func:`bursts`)."""
+    order = np.argsort(t, kind="stable")
+    gaps = np.diff(t[order])
     if len(gaps) == 0:
-        return [t]
+        return [order]
     step = np.median(gaps[gaps > 0]) if (gaps > 0).any() else 0.0
     cuts = np.nonzero(gaps > max(BURST_GAP, 20 * step))[0] + 1
-    return np.split(t, cuts)
+    return np.split(order, cuts)
 
 
 def scan_period(groups: list[np.ndarray]) -> float | None:
@@ -167,6 +188,120 @@ def stamped_pulse_rate(bursts_: list[np.ndarray]) -> float | None:
     return float(np.mean(full) / step)
 
 
+def sweep_parts(t, angle) -> list[np.ndarray]:
+    """Indices of the bursts of a flight line's (n,) returns that are sweeps: :data:`SWEEP_POINTS` returns
+    or more, over :data:`SWEEP_ANGLES` of scan angle or more, not all in one GPS stamp."""
+    return [b for b in burst_indices(t)
+            if len(b) >= SWEEP_POINTS and np.ptp(angle[b]) >= SWEEP_ANGLES and np.ptp(t[b]) > 0]
+
+
+def sweep_senses(t, angle) -> list[tuple[float, int]]:
+    """(start time, sense) of each sweep (:func:`sweep_parts`) among a flight line's (n,) returns: +1 where
+    its scan angle grows with time, -1 where it falls."""
+    slopes = [(float(t[b].min()), np.polyfit(t[b] - t[b].mean(), angle[b], 1)[0]) for b in sweep_parts(t, angle)]
+    return [(start, 1 if slope > 0 else -1) for start, slope in slopes]
+
+
+def deflector_of(senses: list[list[tuple[float, int]]]) -> tuple[str | None, list[float]]:
+    """The deflector that the flight lines' sweeps (:func:`sweep_senses`, one list a line) say, and for an
+    oscillating one each line's scan-line period (s): half the period of its sweeps that run one way
+    (:func:`scan_period` of their starts). ``None`` and no periods with fewer than 6 sweeps."""
+    flat = [sense for line in senses for _, sense in line]
+    if len(flat) < 6:
+        return None, []
+    if min(flat.count(1), flat.count(-1)) < 0.25 * len(flat):
+        return "rotating", []
+    periods = []
+    for line in senses:
+        for way in (1, -1):
+            starts = [np.array([start]) for start, sense in line if sense == way]
+            if (p := scan_period(starts)) is not None:
+                periods.append(p / 2)
+    return "oscillating", periods
+
+
+@dataclass(frozen=True)
+class Sweep:
+    """One scan line's points seen from above: their centroid (x, y), the unit direction of the sweep
+    towards larger scan angles, and the height (file z) of the sensor that their positions and angles say."""
+
+    centroid: np.ndarray
+    direction: np.ndarray
+    sensor_z: float
+
+
+def sweep(x, y, z, angle) -> Sweep:
+    """The :class:`Sweep` of one scan line's (k,) points with scan angles ``angle`` (deg). Along the
+    sweep's principal direction a point lies at ``s = s0 + (h - z) tan(angle)``. The positions are exact
+    and the angles rounded (LAS 1.2: whole degrees), so ``tan(angle) = (s - s0) / (h - z)`` is fitted in
+    ``s0`` and ``h`` (Gauss-Newton from the fit of ``s``, whose slope the rounding flattens: 2.7 % low
+    over a 6° sweep of whole degrees)."""
+    p = np.column_stack([x, y])
+    centroid = p.mean(axis=0)
+    q = p - centroid
+    direction = np.linalg.eigh(q.T @ q)[1][:, 1]
+    tan = np.tan(np.deg2rad(angle))
+    s = q @ direction
+    if np.dot(tan - tan.mean(), s) < 0:
+        direction, s = -direction, -s
+    (s0, height), *_ = np.linalg.lstsq(np.column_stack([np.ones_like(tan), tan]), s + z * tan, rcond=None)
+    for _ in range(SWEEP_ITERATIONS):
+        depth = np.maximum(height - z, 1e-3)
+        jacobian = np.column_stack([-1 / depth, -(s - s0) / depth ** 2])
+        step, *_ = np.linalg.lstsq(jacobian, tan - (s - s0) / depth, rcond=None)
+        s0, height = s0 + step[0], height + step[1]
+    return Sweep(centroid, direction, float(height))
+
+
+def nadir_offset(sw: Sweep, x, y, z, angle, sensor_z: float) -> np.ndarray:
+    """The nadir point (x, y) of the sweep ``sw`` for a sensor at ``sensor_z``: the median over its points of
+    where ``s - (sensor_z - z) tan(angle)`` puts it on the sweep's line."""
+    s = (np.column_stack([x, y]) - sw.centroid) @ sw.direction
+    s0 = np.median(s - (sensor_z - z) * np.tan(np.deg2rad(angle)))
+    return sw.centroid + s0 * sw.direction
+
+
+@dataclass(frozen=True)
+class NadirLine:
+    """A flight line found from its sweeps (see the module docstring)."""
+
+    sweeps: int
+    sensor_z: float                      # median over its sweeps (file z)
+    heading: float                       # deg clockwise from +y: the direction of flight
+    speed: float                         # m/s over the ground
+    position: tuple[float, float] = (np.nan, np.nan)   # its nadir track at the middle sweep, at the lines' height
+
+
+def nadir_line(x, y, z, t, angle) -> tuple[NadirLine, list] | None:
+    """The flight line of (n,) points with GPS times ``t`` and scan angles ``angle`` (deg), and its sweeps'
+    point indices and :class:`Sweep`; ``None`` with fewer than three sweeps (:func:`sweep_parts`). The flight is square to the sweeps' mean direction; its sense and speed are
+    the sweeps' centroids' progress along it over time (a least-squares slope)."""
+    parts = sweep_parts(t, angle)
+    if len(parts) < 3:
+        return None
+    sweeps = [sweep(x[b], y[b], z[b], angle[b]) for b in parts]
+    across = np.sum([sw.direction * len(b) for sw, b in zip(sweeps, parts)], axis=0)
+    across /= np.linalg.norm(across)
+    along = np.array([-across[1], across[0]])
+    times = np.array([np.mean(t[b]) for b in parts])
+    progress = np.polyfit(times - times.mean(), np.array([sw.centroid for sw in sweeps]) @ along, 1)[0]
+    along = along if progress >= 0 else -along
+    line = NadirLine(len(sweeps), float(np.median([sw.sensor_z for sw in sweeps])),
+                     float(np.rad2deg(np.arctan2(along[0], along[1])) % 360), float(abs(progress)))
+    return line, list(zip(parts, sweeps))
+
+
+def place_nadir_line(line: NadirLine, parts: list, x, y, z, angle, sensor_z: float) -> NadirLine:
+    """``line`` with its position: across the flight, the median of its sweeps' nadirs for a sensor at
+    ``sensor_z``; along it, its middle sweep's centroid."""
+    h = np.deg2rad(line.heading)
+    along, across = np.array([np.sin(h), np.cos(h)]), np.array([np.cos(h), -np.sin(h)])
+    nadirs = np.array([nadir_offset(sw, x[b], y[b], z[b], angle[b], sensor_z) for b, sw in parts])
+    centroids = np.array([sw.centroid for _, sw in parts])
+    point = np.median(centroids @ along) * along + np.median(nadirs @ across) * across
+    return dataclasses.replace(line, position=(float(point[0]), float(point[1])))
+
+
 @dataclass(frozen=True)
 class _Line:
     """What one flight line's points say: its track (if any), the mean horizontal direction of its beams
@@ -196,7 +331,8 @@ def estimate(scan, ground_height: float) -> SurveyEstimate:
 
     A line whose own track fits its beams well (within ``GOOD_TRACK``) is placed on it. Another line
     with beams is placed parallel to the good tracks, on the side its beams point to, as far across as
-    its median scan angle says at the sensor's height: ``(z_sensor - z_points) · tan(angle)``.
+    its median scan angle says at the sensor's height: ``(z_sensor - z_points) · tan(angle)``. Where no line
+    has a track, each line with sweeps is placed on its nadir line (:func:`nadir_line`), flown its own way.
     """
     missing = {}
     t = scan.gps_time
@@ -211,12 +347,18 @@ def estimate(scan, ground_height: float) -> SurveyEstimate:
             periods.append(p)
         if (r := pulse_rate(bursts(t[g][scan.return_number[g] == 1]))) is not None:
             rates.append(r)
+    senses = [sweep_senses(t[g], scan.scan_angle[g]) for g in groups] if scan.scan_angle is not None else []
+    deflector, line_periods = deflector_of(senses)
+    periods = line_periods or periods
     lines = [_line(scan, g, xyz) for g in groups]
     tracks = [ln.track for ln in lines if ln.track is not None]
     good = [tr for tr in tracks if tr.residual <= GOOD_TRACK] or tracks
-    if t is not None and not tracks:
+    nadir = _nadir_lines(scan, groups) if t is not None and not tracks and scan.scan_angle is not None else None
+    if t is not None and not tracks and nadir is None:
         why = (f"no flight line has {MIN_RAYS} pulses with a first and a last return {MIN_BEAM_LENGTH:g} m apart "
-               "(return numbers and GPS times of one pulse are needed)")
+               "(return numbers and GPS times of one pulse are needed), nor "
+               + (f"{NADIR_SWEEPS} scan lines of {SWEEP_POINTS} returns over {SWEEP_ANGLES:g}° of scan angle"
+                  if scan.scan_angle is not None else "scan angles"))
         missing.update({k: why for k in ("lines", "altitude", "speed")})
     if t is not None and not periods:
         missing["scan_frequency"] = "too few scan-line bursts in the GPS times"
@@ -227,17 +369,40 @@ def estimate(scan, ground_height: float) -> SurveyEstimate:
         fov = float(2 * np.max(np.abs(scan.scan_angle)))
     else:
         missing["field_of_view"] = "the file has no scan angle"
+    common = dict(lines=len(groups), tracks=tuple(tracks), field_of_view=fov, missing=missing, deflector=deflector,
+                  scan_frequency=1.0 / float(np.median(periods)) if periods else None,
+                  pulse_frequency=float(np.median(rates)) if rates else None)
+    if nadir is not None:
+        placed, sensor_z = nadir
+        strong = [ln for ln in placed if ln is not None and ln.sweeps >= NADIR_SWEEPS]
+        return SurveyEstimate(
+            **common, line_positions=tuple(ln.position for ln in placed if ln is not None),
+            line_sources=tuple("scan lines" if ln is not None else "not placed" for ln in placed),
+            line_headings=tuple(ln.heading for ln in placed if ln is not None),
+            altitude=sensor_z - ground_height, speed=float(np.median([ln.speed for ln in strong])),
+            heading=_axis([ln.heading for ln in strong], [ln.sweeps for ln in strong]))
     heading = _heading(good) if good else None
     sensor_z = float(np.median([tr.position[2] for tr in good])) if good else None
     positions, sources = _line_positions(lines, good, heading, sensor_z)
     return SurveyEstimate(
-        lines=len(groups), tracks=tuple(tracks), line_positions=positions, line_sources=sources,
+        **common, line_positions=positions, line_sources=sources, line_headings=(heading,) * len(positions),
         altitude=sensor_z - ground_height if good else None,
         speed=float(np.median([np.hypot(*tr.velocity[:2]) for tr in good])) if good else None,
-        heading=heading,
-        scan_frequency=1.0 / float(np.median(periods)) if periods else None,
-        pulse_frequency=float(np.median(rates)) if rates else None,
-        field_of_view=fov, missing=missing)
+        heading=heading)
+
+
+def _nadir_lines(scan, groups: list[np.ndarray]) -> tuple[list, float] | None:
+    """Each flight line placed from its sweeps (``None`` where it has too few), and the sensor's height
+    (file z): the median of the lines with :data:`NADIR_SWEEPS` sweeps; ``None`` without such a line."""
+    cols = (scan.x, scan.y, scan.z, scan.gps_time, scan.scan_angle)
+    found = [nadir_line(*(c[g] for c in cols)) for g in groups]
+    strong = [f[0] for f in found if f is not None and f[0].sweeps >= NADIR_SWEEPS]
+    if not strong:
+        return None
+    sensor_z = float(np.median([ln.sensor_z for ln in strong]))
+    placed = [None if f is None else place_nadir_line(*f, scan.x[g], scan.y[g], scan.z[g], scan.scan_angle[g], sensor_z)
+              for f, g in zip(found, groups)]
+    return placed, sensor_z
 
 
 def _line_positions(lines: list[_Line], good: list[Track], heading, sensor_z) -> tuple[tuple, tuple]:
@@ -262,9 +427,12 @@ def _line_positions(lines: list[_Line], good: list[Track], heading, sensor_z) ->
 
 def _heading(tracks) -> float:
     """The flight lines' common axis (deg clockwise from +y, 0-180), the ray-weighted mean of the tracks'."""
-    angles = np.array([np.arctan2(tr.velocity[0], tr.velocity[1]) for tr in tracks])
-    weights = np.array([tr.rays for tr in tracks], float)
-    doubled = np.angle(np.sum(weights * np.exp(2j * angles))) / 2       # axial mean: a line flown either way
+    return _axis([np.rad2deg(np.arctan2(tr.velocity[0], tr.velocity[1])) for tr in tracks], [tr.rays for tr in tracks])
+
+
+def _axis(headings, weights) -> float:
+    """The weighted axial mean (deg, 0-180) of ``headings`` (deg): a line flown either way counts alike."""
+    doubled = np.angle(np.sum(np.asarray(weights, float) * np.exp(2j * np.deg2rad(headings)))) / 2
     return float(np.rad2deg(doubled) % 180)
 
 
