@@ -298,6 +298,24 @@ def test_every_class_has_its_asprs_code_and_extra_dimensions_carry_no_partial_st
     assert len(structs) == 8 and all(s.options == 0 for s in structs)   # label, treeid, instance, object_id, amplitude, species, reflectance, height_above_ground
 
 
+def test_riegl_reflectance_in_db_maps_minus_25_to_5_db_onto_16_bits():
+    """source reflectance_db with PDAL readers.rxp's map: a white Lambertian plate filling the beam face-on
+    reads 0 dB at any range, 54,612.5 counts (rounded to the even 54,612); a 0.33 plate at 60° reads
+    10 log10(0.165) = -7.83 dB, (25 - 7.83) · 65535 / 30 = 37,518 counts; -25 dB and below read 0 (a zero
+    amplitude too), +5 dB and above 65535."""
+    from mitsuforest.config.types import IntensityMapping
+    from mitsuforest.scan.radiometry import RIEGL_DB_MAP, intensity_counts, received_power, reflectance_db
+    mapping = IntensityMapping(**RIEGL_DB_MAP)
+    range_m = np.array([12.0, 80.0, 40.0, 40.0, 40.0, 40.0, 40.0])
+    amplitude = received_power(1.0, np.array([1.0, 1.0, 0.33, 10 ** -2.5, 10 ** -2.6, 10 ** 0.6, 0.0]),
+                               np.array([1.0, 1.0, 0.5, 1.0, 1.0, 1.0, 1.0]), range_m)
+    reflectance = reflectance_db(amplitude, range_m)
+    assert reflectance[:3] == pytest.approx([0.0, 0.0, 10 * np.log10(0.165)], abs=1e-9)
+    counts = intensity_counts(amplitude, reflectance, mapping).tolist()
+    assert counts == [54612, 54612, round((25 + 10 * np.log10(0.165)) * 65535 / 30), 0, 0, 65535, 0]
+    assert counts[2] == 37518
+
+
 def test_intensity_mapping_is_monotone_clips_at_saturation_and_reaches_the_las(tmp_path):
     """LAS intensity = clip(round(gain·q + offset), 0, saturation), q the amplitude or the linear
     reflectance: non-decreasing in q, strong returns at the saturation level, weak ones at 0; the LAS

@@ -34,7 +34,7 @@ from ..specs.sources import MeshTree, QsmTree
 FOREST_BANDS = {"woodland": (0.20, 0.50), "open": (0.50, 0.80), "closed": (0.80, 1.00)}
 BEAM_PATTERNS = ("stratified", "fixed")   # see scan/beam.py
 POINT_POSITIONS = ("beam_axis", "surface")  # see scan/tracer.py
-INTENSITY_SOURCES = ("amplitude", "reflectance")   # see scan/radiometry.py
+INTENSITY_SOURCES = ("amplitude", "reflectance", "reflectance_db")   # see scan/radiometry.py
 OUTPUT_PROFILES = ("ours", "for-instance", "forestformer3d", "treelearn")   # write/output_profiles.py PROFILES, and ours
 SPEED_OF_LIGHT = 299_792_458.0
 
@@ -55,7 +55,7 @@ class IntensityMapping:
     """How a sensor writes an echo's strength as 16-bit LAS intensity (scan/radiometry.py,
     :func:`~mitsuforest.scan.radiometry.intensity_counts`)."""
 
-    source: str = "amplitude"                 # amplitude | reflectance (linear, 1 = white Lambertian)
+    source: str = "amplitude"                 # amplitude | reflectance (linear, 1 = white Lambertian) | reflectance_db
     gain: float = 1.0e6                       # counts per unit of the source
     offset: float = 0.0                       # counts added
     saturation: int = 65535                   # counts: stronger returns clip here

@@ -8,8 +8,10 @@ at incidence ``θ`` and range ``R``. The unit of P (and of point intensity) is t
 Sensor units. :func:`reflectance_db` is the RIEGL-style reflectance: the amplitude relative to that
 of a white Lambertian target filling the beam at normal incidence at the same range, ``1/R²`` in our
 unit, in dB: ``10·log10(A·R²)`` (0 dB white, −5.2 dB a 30 % target face-on; a tilted or partly hit
-target reads lower). :func:`intensity_counts` is a sensor's 16-bit LAS intensity: the amplitude or
-the linear reflectance times ``gain`` plus ``offset``, rounded and clipped to ``[0, saturation]``.
+target reads lower). :func:`intensity_counts` is a sensor's 16-bit LAS intensity: the amplitude, the
+linear reflectance or the reflectance in dB times ``gain`` plus ``offset``, rounded and clipped to
+``[0, saturation]``. The last is how RIEGL's reflectance reaches a LAS file: PDAL's ``readers.rxp``
+maps -25 to +5 dB onto 0-65535 (:data:`RIEGL_DB_MAP`).
 
 Reflectances per class at the sensor wavelength (dimensionless, diffuse). Values are rounded from
 published spectra: green Eucalyptus leaves ~0.45 in the NIR plateau and ~0.25 at 1550 nm (water
@@ -28,6 +30,9 @@ from ..classes import BUSH, CLASS_NAMES, DEADWOOD, GROUND, GROUND_VEGETATION, RO
 
 if TYPE_CHECKING:
     from ..config.types import IntensityMapping
+
+# PDAL readers.rxp's reflectance_as_intensity defaults: -25 dB at 0 counts, +5 dB at 65535.
+RIEGL_DB_MAP = {"source": "reflectance_db", "gain": 65535 / 30, "offset": 25 * 65535 / 30, "saturation": 65535}
 
 REFLECTANCE = {
     #                 905-1064 nm   1550 nm
@@ -69,14 +74,16 @@ def reflectance_db(amplitude: ArrayLike, range_m: ArrayLike) -> np.ndarray:
 
 def intensity_counts(amplitude: np.ndarray, reflectance: np.ndarray, mapping: IntensityMapping) -> np.ndarray:
     """16-bit intensity of echoes (uint16): ``clip(round(gain·q + offset), 0, saturation)``, with ``q``
-    the amplitude or, for ``mapping.source == "reflectance"``, the linear reflectance
-    ``10^(reflectance/10) = A·R²``.
+    the amplitude or, for ``mapping.source`` ``"reflectance"``, the linear reflectance
+    ``10^(reflectance/10) = A·R²``, for ``"reflectance_db"`` the reflectance in dB.
 
     :param amplitude: (E,) echo amplitudes; ``reflectance``: (E,) their :func:`reflectance_db`.
     :param mapping: a :class:`~mitsuforest.config.types.IntensityMapping`.
     """
     if mapping.source == "reflectance":
         q = np.power(10.0, np.asarray(reflectance, np.float64) / 10)
+    elif mapping.source == "reflectance_db":
+        q = np.maximum(np.asarray(reflectance, np.float64), -1e3)      # a zero amplitude's -inf dB reads 0
     else:
         q = np.asarray(amplitude, np.float64)
     counts = np.round(mapping.gain * q + mapping.offset)

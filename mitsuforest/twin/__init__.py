@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import detection, foliage, ground, survey, understory
+from . import detection, foliage, ground, intensity, survey, understory
 from .points import read_scan
 
 __all__ = ["make_twin", "TwinFrame", "DEM_CELL"]
@@ -82,12 +82,13 @@ def analyse(scan, settings: detection.DetectionSettings | None = None) -> dict:
     cells = understory.shrub_cells(scan.x, scan.y, h, cx, cy,
                                    (int(frame.size[1] / understory.CELL), int(frame.size[0] / understory.CELL)))
     estimate = survey.estimate(scan, float(np.mean(dem)))
+    unit = intensity.intensity_unit(scan, None if estimate.altitude is None else estimate.altitude + float(np.mean(dem)))
     from ..compare.metrics import pulse_count
     pulses = pulse_count(scan.return_number, scan.number_of_returns, scan.first_only)
     return {"frame": frame, "dem": dem, "dem_origin": (x0, y0), "ground_source": ground_source, "trees": trees,
             "crown_gap_fraction": gap, "scan_angle": angle, "crown_lai": lai, "crown_ratio": ratio, "tree_crown_ratios": tree_ratios,
             "bushes": understory.bush_count(cells), "shrub_area_m2": float(cells.sum() * understory.CELL ** 2),
-            "survey": estimate, "pulse_density": pulses / (frame.size[0] * frame.size[1]), "notes": notes,
+            "survey": estimate, "intensity_unit": unit, "pulse_density": pulses / (frame.size[0] * frame.size[1]), "notes": notes,
             "settings": settings}
 
 

@@ -36,6 +36,7 @@ DEFAULT_SENSOR = {"name": "twin sensor (RIEGL VUX-1UAV22 optics)", "deflector": 
 # reads 41) under 12 dB of headroom (a leaf-filled beam nearer than the ground, wood brighter: 2-3 times the
 # ground at most). compare normalises intensity by the ground's median: the scale is the twin's own, not the file's.
 GROUND_COUNTS = 4096
+GROUND_THRESHOLD = 0.01   # the twin sensor detects echoes down to this share of bare ground's at nadir (sensor_reach)
 DEFAULTS = {"altitude": 30.0, "speed": 2.0, "scan_frequency": 50.0, "field_of_view": 360.0, "line_spacing": 12.0,
             "heading": 0.0}
 MARGIN = 10.0   # m: legs run this far beyond the plot
@@ -91,36 +92,50 @@ def survey_plan(analysis: dict, sensor=None) -> tuple[dict, dict | str, dict]:
     reach = sensor_reach(altitude, fov)
     sensor_map = {**DEFAULT_SENSOR, **reach, "deflector": deflector, "field_of_view": fov, "pulse_frequencies": [prf],
                   "scan_frequency_range": [min(10.0, mirror), max(200.0, mirror)],
-                  "intensity": intensity_scale(altitude, analysis["scan_angle"])}
+                  "intensity": intensity_scale(altitude, analysis["scan_angle"], analysis["intensity_unit"][0])}
     out["pulse_frequency"], out["scan_frequency"] = prf, mirror
     longer = f", its reach {reach['range_max']:g} m for a {altitude:.0f} m survey" \
         if reach["range_max"] > DEFAULT_SENSOR["range_max"] else ""
     swept = (f"an oscillating mirror (sweeps both ways: {mirror:g} cycles a second)" if deflector == "oscillating"
              else "a rotating mirror" + ("" if est.deflector else " (default)"))
+    unit, why = analysis["intensity_unit"]
+    written = ("intensity: the reflectance in dB, -25 to +5 dB onto 0-65535 (PDAL's map of RIEGL's reflectance), as "
+               if unit == "reflectance" else f"intensity: amplitude x {sensor_map['intensity']['gain']:.4g}, as ")
     report["sensor"] = {"value": sensor_map["name"], "source": f"estimated rates and field of view, {swept}, the "
-                        f"VUX-1UAV22's optics{longer}; amplitude x {sensor_map['intensity']['gain']:.4g} as intensity"}
+                        f"VUX-1UAV22's optics{longer}; {written}{why}"}
     return out, sensor_map, report
 
 
 def sensor_reach(altitude: float, field_of_view: float) -> dict:
-    """The twin sensor's ``range_max`` and ``detection_threshold``: the VUX-1UAV22's (a 20 % target detected
-    at 1000 m), or for a survey whose longest slant range (at the half ``field_of_view``, at most
-    :data:`SURROUND_ANGLE`) is more than half that, twice that range, with the threshold of a 20 % target
-    there: an airborne scanner flown at 800 m reaches well beyond it, and a UAV scanner's threshold there
-    would drop every echo under half a leaf-filled beam."""
+    """The twin sensor's ``range_max`` and ``detection_threshold``. The VUX-1UAV22's (a 20 % target detected
+    at 1000 m) where they serve; a survey whose longest slant range (at the half ``field_of_view``, at most
+    :data:`SURROUND_ANGLE`) is more than half that reaches twice that range, and where the data sheet's
+    threshold is more than :data:`GROUND_THRESHOLD` of bare ground's echo at nadir from ``altitude``, the
+    threshold is that: the data sheet's own share at 128 m. An airborne scanner flown at 800 m detects
+    such echoes (MixedConifer's weakest first returns, its 1st percentile, read 0.7 % of its ground's median
+    intensity), where the data sheet's threshold would drop every leaf echo under a fifth of the beam."""
     slant = altitude / math.cos(math.radians(min(field_of_view / 2, SURROUND_ANGLE)))
     reach = max(DEFAULT_SENSOR["range_max"], 10.0 * math.ceil(2 * slant / 10))
-    return {"range_max": reach, "detection_threshold": float(f"{0.2 / reach ** 2:.4g}")}
+    threshold = min(DEFAULT_SENSOR["detection_threshold"], GROUND_THRESHOLD * _ground_reflectance() / max(altitude, 1.0) ** 2)
+    return {"range_max": reach, "detection_threshold": float(f"{threshold:.4g}")}
 
 
-def intensity_scale(altitude: float, scan_angle: float) -> dict:
-    """The twin sensor's ``intensity`` mapping: amplitude times the gain that puts bare ground at
-    :data:`GROUND_COUNTS` (reflectance ρ at 1550 nm, ``ρ cos³ a / altitude²`` at scan angle ``a`` deg)."""
+def _ground_reflectance() -> float:
     from ..classes import GROUND
     from ..scan.radiometry import reflectance_table
-    rho = float(reflectance_table(DEFAULT_SENSOR["wavelength"])[GROUND])
+    return float(reflectance_table(DEFAULT_SENSOR["wavelength"])[GROUND])
+
+
+def intensity_scale(altitude: float, scan_angle: float, unit: str = "amplitude") -> dict:
+    """The twin sensor's ``intensity`` mapping. For a file whose intensity is a ``reflectance``
+    (:func:`~.intensity.intensity_unit`), RIEGL's reflectance in dB as PDAL maps it
+    (:data:`~mitsuforest.scan.radiometry.RIEGL_DB_MAP`); else the amplitude times the gain that puts bare
+    ground at :data:`GROUND_COUNTS` (reflectance ρ at 1550 nm, ``ρ cos³ a / altitude²`` at scan angle ``a`` deg)."""
+    if unit == "reflectance":
+        from ..scan.radiometry import RIEGL_DB_MAP
+        return dict(RIEGL_DB_MAP)
     cos = math.cos(math.radians(scan_angle))
-    ground = rho * cos ** 3 / max(altitude, 1.0) ** 2
+    ground = _ground_reflectance() * cos ** 3 / max(altitude, 1.0) ** 2
     return {"source": "amplitude", "gain": float(f"{GROUND_COUNTS / ground:.4g}"), "offset": 0, "saturation": 65535}
 
 
