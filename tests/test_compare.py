@@ -240,6 +240,24 @@ def test_every_kind_of_file_reads_as_our_pcd(kind, tmp_path):
     assert d["height_ks"] == 0 and d["height_emd_m"] < 1e-3 and d["intensity_ks"] == 0
 
 
+def test_our_las_is_measured_in_its_sensor_s_units(tmp_path):
+    """A LAS whose sensor writes RIEGL's reflectance in dB (PDAL's -25..+5 dB map) is read at
+    (dB + 25) · 65535 / 30 of each echo's exact reflectance, unrounded and unclipped, as the counts of a
+    real RIEGL file; one written with the default mapping (amplitude x 1e6) at its amplitude times 1e6."""
+    from mitsuforest.compare.cloud import load_cloud
+    from mitsuforest.config.types import IntensityMapping
+    from mitsuforest.scan.radiometry import RIEGL_DB_MAP
+    from mitsuforest.write.las import write_las
+    points = _forest()
+    points["range"] = 40.0
+    points["reflectance"] = 10 * np.log10(points["intensity"] * 40.0 ** 2)
+    write_las(tmp_path / "db.las", points, offset=[0, 0, 0], intensity=IntensityMapping(**RIEGL_DB_MAP))
+    write_las(tmp_path / "amp.las", points, offset=[0, 0, 0])
+    expected = (points["reflectance"].astype(np.float64) + 25) * 65535 / 30
+    assert load_cloud(tmp_path / "db.las").intensity == pytest.approx(expected, rel=1e-6)
+    assert load_cloud(tmp_path / "amp.las").intensity == pytest.approx(points["intensity"] * 1e6, rel=1e-6)
+
+
 # PDAL's writers.pcd names (its dimensions'), as another tool's PCD holds them: ASPRS classes, 16-bit
 # intensity, ScanAngleRank in degrees, georeferenced float64 coordinates, none of our label fields
 PDAL_FIELDS = [("X", "<f8"), ("Y", "<f8"), ("Z", "<f8"), ("Intensity", "<u2"), ("ReturnNumber", "u1"),

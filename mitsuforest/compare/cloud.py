@@ -62,12 +62,26 @@ def load_cloud(path) -> Cloud:
     from ..write.formats import format_of
     if (angle := scan_angle_degrees(columns, pcd=format_of(path) == "pcd")) is not None:
         columns = {**columns, "scan_angle": angle}
-    amplitude = FIELD["intensity"].read_from              # our LAS: the exact amplitude, as our PCD's
-    if amplitude in columns and class_names is CLASS_NAMES:   # intensity (16-bit intensity may clip)
-        columns = {**columns, "intensity": columns[amplitude]}
+    amplitude = FIELD["intensity"].read_from     # our LAS: from the exact amplitude (16-bit intensity rounds and clips)
+    if amplitude in columns and class_names is CLASS_NAMES:
+        columns = {**columns, "intensity": _in_sensor_units(columns, columns[amplitude], path)}
     cloud = cloud_from_columns(columns, Path(path).name, "mitsuforest" if class_names is CLASS_NAMES else "ASPRS")
     cloud.notes[:0] = [unit_note] if unit_note else []
     return cloud
+
+
+def _in_sensor_units(columns: dict, amplitude: np.ndarray, path) -> np.ndarray:
+    """Our LAS file's intensity in its sensor's units before rounding and clipping
+    (:func:`~mitsuforest.scan.radiometry.sensor_units` of the exact amplitude and reflectance, by the
+    mapping in its VLR): a twin of a RIEGL file writes the reflectance in dB, and the real file's counts
+    compare with those, not with the amplitude. The amplitude where the file keeps no mapping (our PCD)."""
+    from ..config.types import IntensityMapping
+    from ..scan.radiometry import sensor_units
+    from ..write.info import intensity_mapping
+    mapping = intensity_mapping(path)
+    if mapping is None or "reflectance" not in columns:
+        return amplitude
+    return sensor_units(amplitude, columns["reflectance"], IntensityMapping(**mapping))
 
 
 def scan_angle_degrees(columns: dict, pcd: bool) -> np.ndarray | None:

@@ -73,9 +73,15 @@ def reflectance_db(amplitude: ArrayLike, range_m: ArrayLike) -> np.ndarray:
 
 
 def intensity_counts(amplitude: np.ndarray, reflectance: np.ndarray, mapping: IntensityMapping) -> np.ndarray:
-    """16-bit intensity of echoes (uint16): ``clip(round(gain·q + offset), 0, saturation)``, with ``q``
-    the amplitude or, for ``mapping.source`` ``"reflectance"``, the linear reflectance
-    ``10^(reflectance/10) = A·R²``, for ``"reflectance_db"`` the reflectance in dB.
+    """16-bit intensity of echoes (uint16): :func:`sensor_units` rounded and clipped to ``[0, saturation]``."""
+    counts = np.round(sensor_units(amplitude, reflectance, mapping))
+    return np.clip(np.nan_to_num(counts, nan=0.0), 0, mapping.saturation).astype(np.uint16)
+
+
+def sensor_units(amplitude: np.ndarray, reflectance: np.ndarray, mapping: IntensityMapping) -> np.ndarray:
+    """Echoes' intensity in a sensor's units before rounding and clipping (float64): ``gain·q + offset``,
+    with ``q`` the amplitude or, for ``mapping.source`` ``"reflectance"``, the linear
+    reflectance ``10^(reflectance/10) = A·R²``, for ``"reflectance_db"`` the reflectance in dB.
 
     :param amplitude: (E,) echo amplitudes; ``reflectance``: (E,) their :func:`reflectance_db`.
     :param mapping: a :class:`~mitsuforest.config.types.IntensityMapping`.
@@ -86,5 +92,4 @@ def intensity_counts(amplitude: np.ndarray, reflectance: np.ndarray, mapping: In
         q = np.maximum(np.asarray(reflectance, np.float64), -1e3)      # a zero amplitude's -inf dB reads 0
     else:
         q = np.asarray(amplitude, np.float64)
-    counts = np.round(mapping.gain * q + mapping.offset)
-    return np.clip(np.nan_to_num(counts, nan=0.0), 0, mapping.saturation).astype(np.uint16)
+    return mapping.gain * q + mapping.offset

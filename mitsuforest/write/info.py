@@ -40,6 +40,21 @@ def load_points(path) -> tuple[dict, list[str], dict]:
     raise UserError(f"{path}: unknown point file type {path.suffix.lower()!r} (expected .pcd, .las or .laz)")
 
 
+def intensity_mapping(path) -> dict | None:
+    """The sensor's ``intensity`` mapping that our LAS or LAZ file keeps in its ``mitsuforest`` VLR
+    (:func:`~.las.las_header`), or None: a PCD, another tool's file, an unreadable one."""
+    import json
+    import laspy
+    if format_of(path) in (None, "pcd"):
+        return None
+    try:
+        with laspy.open(str(path)) as reader:
+            note = next((v for v in reader.header.vlrs if v.user_id == "mitsuforest"), None)
+            return json.loads(note.record_data).get("intensity") if note is not None else None
+    except Exception:     # a damaged header: load_points says what is wrong with the file
+        return None
+
+
 def _not_a_file(path: Path) -> str:
     """What is wrong with a path that is no regular file; for a folder, a point file in it to give."""
     if not path.exists():
