@@ -166,7 +166,7 @@ def test_errors_inside_a_sensor_file_name_that_file(tmp_path, monkeypatch, capsy
     ("range_precision_per_metre: x", "range_precision_per_metre: must be a number, got 'x'"),
     ("intensity: {saturation: 70000}", "intensity.saturation: must be <= 65535, got 70000"),
     ("intensity: {gain: 0}", "intensity.gain: must be > 0, got 0"),
-    ("intensity: {source: counts}", "intensity.source: must be one of amplitude, reflectance, got 'counts'"),
+    ("intensity: {source: counts}", "intensity.source: must be one of amplitude, reflectance, reflectance_db, got 'counts'"),
     ("intensity: {scale: 2}", "intensity.scale: unknown key"),
     ("wavelength: 905", "wavelength: must be <= 2e-05, got 905 (metres: 905 nm is 905e-9)"),
     ("wavelength: 1e-9", "wavelength: must be >= 2e-07, got 1e-09"),
