@@ -242,20 +242,26 @@ def test_every_kind_of_file_reads_as_our_pcd(kind, tmp_path):
 
 def test_our_las_is_measured_in_its_sensor_s_units(tmp_path):
     """A LAS whose sensor writes RIEGL's reflectance in dB (PDAL's -25..+5 dB map) is read at
-    (dB + 25) · 65535 / 30 of each echo's exact reflectance, unrounded and unclipped, as the counts of a
-    real RIEGL file; one written with the default mapping (amplitude x 1e6) at its amplitude times 1e6."""
+    (dB + 25) · 65535 / 30 of each echo's exact reflectance, unrounded and not clipped at the saturation
+    (our PCD's amplitude is not), but at least 0 as counts are (an echo under -25 dB), and says so in its
+    notes; one written with the default mapping (amplitude x 1e6) at its amplitude times 1e6, without a note."""
     from mitsuforest.compare.cloud import load_cloud
     from mitsuforest.config.types import IntensityMapping
     from mitsuforest.scan.radiometry import RIEGL_DB_MAP
     from mitsuforest.write.las import write_las
     points = _forest()
     points["range"] = 40.0
+    points["intensity"][:10] = 1e-9                                 # -28 dB at 40 m
     points["reflectance"] = 10 * np.log10(points["intensity"] * 40.0 ** 2)
     write_las(tmp_path / "db.las", points, offset=[0, 0, 0], intensity=IntensityMapping(**RIEGL_DB_MAP))
     write_las(tmp_path / "amp.las", points, offset=[0, 0, 0])
-    expected = (points["reflectance"].astype(np.float64) + 25) * 65535 / 30
-    assert load_cloud(tmp_path / "db.las").intensity == pytest.approx(expected, rel=1e-6)
-    assert load_cloud(tmp_path / "amp.las").intensity == pytest.approx(points["intensity"] * 1e6, rel=1e-6)
+    expected = np.maximum((points["reflectance"].astype(np.float64) + 25) * 65535 / 30, 0)
+    db, amp = load_cloud(tmp_path / "db.las"), load_cloud(tmp_path / "amp.las")
+    assert expected[:10].tolist() == [0.0] * 10 and expected.max() > 65535
+    assert db.intensity == pytest.approx(expected, rel=1e-6)
+    assert "intensity in its sensor's units (reflectance_db x 2184.5 + 54612.5" in db.notes[0]
+    assert amp.intensity == pytest.approx(points["intensity"] * 1e6, rel=1e-6)
+    assert not any("sensor's units" in n for n in amp.notes)
 
 
 # PDAL's writers.pcd names (its dimensions'), as another tool's PCD holds them: ASPRS classes, 16-bit

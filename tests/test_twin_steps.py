@@ -245,13 +245,16 @@ def test_the_survey_of_a_straight_climbing_line_and_a_short_one():
 def _first_returns_of_an_airborne_line(heading, nadir, oscillating=True, height=800.0, speed=60.0, seed=0):
     """First returns only (one point a pulse, no two at one time) in a 90 x 90 m plot at the origin, from a
     sensor ``height`` m over flat ground (z = 0) flying ``heading`` (deg) at ``speed`` m/s along a line
-    through ``nadir`` (x, y) at t = 10 s: 50 kHz, ±20° swept 60 times a second, there and back or one way,
-    each pulse's return at a random height of 0-20 m (a canopy), scan angles rounded to whole degrees (LAS
-    1.2, positive to the right of the flight) and GPS times to the microsecond."""
+    through ``nadir`` (x, y) at t = 10 s, sweeping ±20° 60 times a second: an oscillating mirror there and
+    back at 50 kHz, or a rotating one firing over 40° of each turn at 450 kHz. Each pulse's return is at a
+    random height of 0-20 m (a canopy); scan angles are rounded to whole degrees (LAS 1.2, positive to the
+    right of the flight) and GPS times to the microsecond."""
     rng = np.random.default_rng(seed)
-    t = np.arange(0.0, 20.0, 1 / 50_000)
+    t = np.arange(0.0, 20.0, 1 / (50_000 if oscillating else 450_000))
     phase = (t * 60.0) % 1.0
-    theta = np.radians((4 * np.abs(phase - 0.5) - 1) * 20.0 if oscillating else (phase - 0.5) * 40.0)
+    theta = np.radians((4 * np.abs(phase - 0.5) - 1) * 20.0 if oscillating else (phase - 0.5) * 360.0)
+    fired = np.abs(theta) <= np.radians(20.0) + 1e-12
+    t, theta = t[fired], theta[fired]
     h = np.radians(heading)
     along, right = np.array([np.sin(h), np.cos(h)]), np.array([np.cos(h), -np.sin(h)])
     z = rng.uniform(0.0, 20.0, len(t))
@@ -283,12 +286,42 @@ def test_a_first_return_file_s_flight_line_from_its_scan_angles(oscillating):
     assert "altitude" not in est.missing
 
 
-def test_a_file_without_beams_or_sweeps_says_why_its_line_is_not_placed():
-    """The same line with every scan angle 0 (no sweep spans 2°): no altitude, speed or lines, and the
-    reason names both what a track and what a nadir line needs."""
+def test_an_oscillating_mirror_that_turns_inside_the_plot_still_gives_its_line():
+    """A UAV at 60 m sweeping ±20° (±22 m) over the middle of the plot, 8 m/s heading 30°: the mirror turns
+    inside the plot, so there is no pause between one sweep and the next. Cut where the angles turn back,
+    its 1,829 sweeps (120 a second over the 11 s it takes to cross the plot) give 60 m, 30°, 8 m/s and a
+    mirror there and back at 120 scan lines a second; uncut, its bursts held 263 sweeps (those the plot's
+    corners cut apart), and before a sweep's fit was checked, a burst of many ran the line 311° at 0.1 m/s."""
+    scan = _first_returns_of_an_airborne_line(30.0, (0.0, 0.0), height=60.0, speed=8.0)
+    line, _ = survey.nadir_line(scan.x, scan.y, scan.z, scan.gps_time, scan.scan_angle)
+    assert line.sweeps >= 1800
+    est = survey.estimate(scan, 0.0)
+    assert est.line_sources == ("scan lines",) and est.deflector == "oscillating"
+    assert est.altitude == pytest.approx(60.0, abs=1.0)
+    assert est.line_headings[0] == pytest.approx(30.0, abs=1.0) and est.speed == pytest.approx(8.0, rel=0.02)
+    assert est.scan_frequency == pytest.approx(120.0, rel=0.01)
+    assert np.hypot(*est.line_positions[0]) < 1.0
+
+
+def test_a_sweep_that_its_angles_do_not_fit_is_not_used():
+    """The same airborne line with its scan angles shuffled among its points (a file whose angles are not
+    the beams'): no sweep fits within 1°, so no line is placed and the reason says what a sweep needs;
+    with every angle 0 or 1° no burst is a sweep either."""
+    line = _first_returns_of_an_airborne_line(72.0, (0.0, 100.0))
+    shuffled = RealScan(**{**line.__dict__, "scan_angle": np.random.default_rng(1).permutation(line.scan_angle)})
+    flat = RealScan(**{**line.__dict__, "scan_angle": (line.scan_angle > 0).astype(float)})
+    for scan in (shuffled, flat):
+        est = survey.estimate(scan, 0.0)
+        assert est.altitude is None and est.line_positions == ()
+        assert ("sweeps (bursts of 10 returns or more over 2° of scan angle or more, fitted within 1°)"
+                in est.missing["altitude"])
+
+
+def test_a_file_without_beams_or_scan_angles_says_why_its_line_is_not_placed():
+    """The same line without scan angles: no altitude, speed or lines, and the reason names both what a
+    track and what a nadir line needs."""
     scan = _first_returns_of_an_airborne_line(90.0, (0.0, 0.0))
-    flat = RealScan(**{**scan.__dict__, "scan_angle": None})
-    est = survey.estimate(flat, 0.0)
+    est = survey.estimate(RealScan(**{**scan.__dict__, "scan_angle": None}), 0.0)
     assert est.altitude is None and est.line_positions == () and est.deflector is None
     assert "scan angles" in est.missing["altitude"] and "first and a last return" in est.missing["altitude"]
 
@@ -318,34 +351,39 @@ def test_the_twin_sensor_reads_bare_ground_at_its_ground_counts_and_detects_a_hu
     assert 0.0099 * ground < far["detection_threshold"] < 0.0101 * ground
 
 
-def _returns_seen_from(sensor_z, angles, intensity_of_range):
+def _returns_seen_from(sensor_z, angles, intensity_of_range, scatter=0.3):
     """First returns at heights 0-20 m seen from ``sensor_z`` at ``angles`` (deg), each with the intensity
-    ``intensity_of_range(range)`` times a lognormal scatter of 30 %."""
+    ``intensity_of_range(range)`` times a lognormal scatter (``scatter``: its sigma)."""
     rng = np.random.default_rng(5)
     z = rng.uniform(0.0, 20.0, len(angles))
     r = (sensor_z - z) / np.cos(np.radians(angles))
-    counts = np.round(intensity_of_range(r) * rng.lognormal(0.0, 0.3, len(r)))
+    counts = np.round(intensity_of_range(r) * rng.lognormal(0.0, scatter, len(r)))
     ones = np.ones(len(r), np.int16)
     return RealScan("synthetic", np.zeros(len(r)), np.zeros(len(r)), z, None, ones, ones.copy(), None, angles,
                     None, counts, None)
 
 
-def test_an_intensity_that_does_not_fall_with_range_is_a_reflectance():
+def test_an_intensity_that_does_not_fall_with_range_is_a_reflectance_in_db_where_its_band_is_narrow():
     """A UAV at 130 m seeing its returns at 20-70° (ranges 110-380 m): counts going as 1/R² are an
-    amplitude, counts that keep their level (a reflectance) are not; from 800 m at 0-18° the ranges span
-    5 %, too alike to tell, so the twin keeps the amplitude and says why, as it does without intensity."""
+    amplitude; counts that keep their level are a reflectance, in dB where their 5th to 95th percentiles
+    span under 10 times (a lognormal scatter of sigma 0.3: 2.7 times), linear where they span more (sigma
+    1: 27 times). From 800 m at 5-18° the ranges span 8 %, too alike to tell, so the twin keeps the
+    amplitude and says why, as it does for a file without a varying intensity."""
     from mitsuforest.twin import intensity
     angles = np.random.default_rng(6).uniform(20.0, 70.0, 5000)
     amplitude = _returns_seen_from(130.0, angles, lambda r: 4e8 / r ** 2)
-    reflectance = _returns_seen_from(130.0, angles, lambda r: np.full(len(r), 40_000.0))
+    level = _returns_seen_from(130.0, angles, lambda r: np.full(len(r), 40_000.0))
+    linear = _returns_seen_from(130.0, angles, lambda r: np.full(len(r), 4_000.0), scatter=1.0)
     assert intensity.range_slope(amplitude.intensity, intensity.first_return_ranges(amplitude.z, angles, 130.0)) \
         == pytest.approx(-2.0, abs=0.05)
     assert intensity.intensity_unit(amplitude, 130.0)[0] == "amplitude"
-    assert intensity.intensity_unit(reflectance, 130.0)[0] == "reflectance"
+    assert intensity.intensity_unit(level, 130.0)[0] == "reflectance_db"
+    assert intensity.intensity_unit(linear, 130.0)[0] == "reflectance"
     narrow = _returns_seen_from(800.0, angles * 18 / 70, lambda r: 4e8 / r ** 2)
     assert intensity.intensity_unit(narrow, 800.0) == ("amplitude", "its first returns' ranges are too alike "
                                                        "(within 1.5 times) to tell")
-    assert "no intensity" in intensity.intensity_unit(RealScan(**{**reflectance.__dict__, "intensity": None}), 130.0)[1]
+    assert intensity.intensity_unit(RealScan(**{**level.__dict__, "intensity": None}), 130.0) == \
+        ("amplitude", "the file's intensity cannot be set against range (it has no intensity that varies)")
 
 
 def test_the_heading_is_the_axial_mean_of_lines_flown_either_way():

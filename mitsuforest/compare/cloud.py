@@ -62,26 +62,36 @@ def load_cloud(path) -> Cloud:
     from ..write.formats import format_of
     if (angle := scan_angle_degrees(columns, pcd=format_of(path) == "pcd")) is not None:
         columns = {**columns, "scan_angle": angle}
-    amplitude = FIELD["intensity"].read_from     # our LAS: from the exact amplitude (16-bit intensity rounds and clips)
+    amplitude = FIELD["intensity"].read_from     # our LAS: from the exact amplitude (16-bit intensity rounds)
+    unit_notes = []
     if amplitude in columns and class_names is CLASS_NAMES:
-        columns = {**columns, "intensity": _in_sensor_units(columns, columns[amplitude], path)}
+        intensity, unit = _in_sensor_units(columns, columns[amplitude], path)
+        columns = {**columns, "intensity": intensity}
+        unit_notes += [unit] if unit else []
     cloud = cloud_from_columns(columns, Path(path).name, "mitsuforest" if class_names is CLASS_NAMES else "ASPRS")
-    cloud.notes[:0] = [unit_note] if unit_note else []
+    cloud.notes[:0] = ([unit_note] if unit_note else []) + unit_notes
     return cloud
 
 
-def _in_sensor_units(columns: dict, amplitude: np.ndarray, path) -> np.ndarray:
-    """Our LAS file's intensity in its sensor's units before rounding and clipping
-    (:func:`~mitsuforest.scan.radiometry.sensor_units` of the exact amplitude and reflectance, by the
-    mapping in its VLR): a twin of a RIEGL file writes the reflectance in dB, and the real file's counts
-    compare with those, not with the amplitude. The amplitude where the file keeps no mapping (our PCD)."""
+def _in_sensor_units(columns: dict, amplitude: np.ndarray, path) -> tuple[np.ndarray, str | None]:
+    """Our LAS file's intensity in its sensor's units, unrounded (:func:`~mitsuforest.scan.radiometry.
+    sensor_units` of the exact amplitude and reflectance by the mapping in its VLR, at least 0 as counts
+    are: below -25 dB PDAL's map of RIEGL's reflectance reads 0; not clipped at the saturation, as our
+    PCD's amplitude is not), and a note where that is not the amplitude times a gain:
+    a twin of a RIEGL file writes the reflectance in dB, and the real file's counts compare with those, not
+    with the amplitude. The amplitude where the file keeps no mapping (our PCD)."""
     from ..config.types import IntensityMapping
     from ..scan.radiometry import sensor_units
     from ..write.info import intensity_mapping
-    mapping = intensity_mapping(path)
-    if mapping is None or "reflectance" not in columns:
-        return amplitude
-    return sensor_units(amplitude, columns["reflectance"], IntensityMapping(**mapping))
+    found = intensity_mapping(path)
+    if found is None or "reflectance" not in columns:
+        return amplitude, None
+    mapping = IntensityMapping(**found)
+    units = np.maximum(sensor_units(amplitude, columns["reflectance"], mapping), 0.0)
+    if mapping.source == "amplitude" and mapping.offset == 0:
+        return units, None
+    return units, (f"intensity in its sensor's units ({mapping.source} x {mapping.gain:g} + {mapping.offset:g}, "
+                   "its LAS's mapping), not the amplitude of our PCD")
 
 
 def scan_angle_degrees(columns: dict, pcd: bool) -> np.ndarray | None:

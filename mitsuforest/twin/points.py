@@ -64,7 +64,7 @@ def read_scan(path) -> RealScan:
     return RealScan(
         path=str(path), x=x, y=y, z=z, ground=ground, return_number=returns, number_of_returns=counts,
         gps_time=gps_time, scan_angle=_varying(scan_angle_degrees(cols, pcd=format_of(path) == "pcd")),
-        point_source_id=_varying(cols.get("point_source_id")), intensity=cols.get("intensity"),
+        point_source_id=_varying(cols.get("point_source_id")), intensity=_varying(cols.get("intensity")),
         crs=crs,
         tree_id=next((np.asarray(cols[k]) for k in ("treeID", "treeid") if k in cols), None), notes=tuple(notes),
         first_only=first_only)

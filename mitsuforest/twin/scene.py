@@ -25,8 +25,8 @@ DEFAULT_SPECIES = "pinus_radiata"   # both real plots we twin are conifers
 # The sensor a twin gets when the file does not say and --sensor is not given: the RIEGL VUX-1UAV22's
 # optics (sensors/riegl_vux-1uav22.yaml), with the pulse and scan rates and field of view the survey needs.
 DEFAULT_SENSOR = {"name": "twin sensor (RIEGL VUX-1UAV22 optics)", "deflector": "rotating",
-                  "source": "mitsuforest twin: rates and field of view estimated from the scan, the rest the "
-                            "RIEGL VUX-1UAV22 data sheet (2023)",
+                  "source": "mitsuforest twin: rates, field of view and mirror estimated from the scan, reach and "
+                            "intensity set for the survey (twin.json), the optics the RIEGL VUX-1UAV22 data sheet (2023)",
                   "beam_divergence": 0.5e-3, "pulse_length": 4.0e-9, "wavelength": 1550e-9, "range_min": 3.0,
                   "range_max": 1000.0, "range_precision": 0.005, "range_accuracy": 0.010, "max_returns": 15,
                   "detection_threshold": 2.0e-7}
@@ -94,15 +94,19 @@ def survey_plan(analysis: dict, sensor=None) -> tuple[dict, dict | str, dict]:
                   "scan_frequency_range": [min(10.0, mirror), max(200.0, mirror)],
                   "intensity": intensity_scale(altitude, analysis["scan_angle"], analysis["intensity_unit"][0])}
     out["pulse_frequency"], out["scan_frequency"] = prf, mirror
+    if deflector == "oscillating" and est.scan_frequency is not None:
+        report["scan_frequency"] = {"value": mirror, "source": f"estimated: {scan_frequency:g} scan lines a second, "
+                                    "swept there and back"}
     longer = f", its reach {reach['range_max']:g} m for a {altitude:.0f} m survey" \
         if reach["range_max"] > DEFAULT_SENSOR["range_max"] else ""
     swept = (f"an oscillating mirror (sweeps both ways: {mirror:g} cycles a second)" if deflector == "oscillating"
              else "a rotating mirror" + ("" if est.deflector else " (default)"))
     unit, why = analysis["intensity_unit"]
-    written = ("intensity: the reflectance in dB, -25 to +5 dB onto 0-65535 (PDAL's map of RIEGL's reflectance), as "
-               if unit == "reflectance" else f"intensity: amplitude x {sensor_map['intensity']['gain']:.4g}, as ")
+    written = {"reflectance_db": "the reflectance in dB, -25 to +5 dB onto 0-65535 (PDAL's map of RIEGL's reflectance)",
+               "reflectance": f"the linear reflectance x {sensor_map['intensity']['gain']:.4g}",
+               "amplitude": f"the amplitude x {sensor_map['intensity']['gain']:.4g}"}[unit]
     report["sensor"] = {"value": sensor_map["name"], "source": f"estimated rates and field of view, {swept}, the "
-                        f"VUX-1UAV22's optics{longer}; {written}{why}"}
+                        f"VUX-1UAV22's optics{longer}; intensity: {written}, as {why}"}
     return out, sensor_map, report
 
 
@@ -113,7 +117,7 @@ def sensor_reach(altitude: float, field_of_view: float) -> dict:
     threshold is more than :data:`GROUND_THRESHOLD` of bare ground's echo at nadir from ``altitude``, the
     threshold is that: the data sheet's own share at 128 m. An airborne scanner flown at 800 m detects
     such echoes (MixedConifer's weakest first returns, its 1st percentile, read 0.7 % of its ground's median
-    intensity), where the data sheet's threshold would drop every leaf echo under a fifth of the beam."""
+    intensity), where the data sheet's threshold would drop every leaf echo that fills less than half the beam."""
     slant = altitude / math.cos(math.radians(min(field_of_view / 2, SURROUND_ANGLE)))
     reach = max(DEFAULT_SENSOR["range_max"], 10.0 * math.ceil(2 * slant / 10))
     threshold = min(DEFAULT_SENSOR["detection_threshold"], GROUND_THRESHOLD * _ground_reflectance() / max(altitude, 1.0) ** 2)
@@ -127,23 +131,24 @@ def _ground_reflectance() -> float:
 
 
 def intensity_scale(altitude: float, scan_angle: float, unit: str = "amplitude") -> dict:
-    """The twin sensor's ``intensity`` mapping. For a file whose intensity is a ``reflectance``
-    (:func:`~.intensity.intensity_unit`), RIEGL's reflectance in dB as PDAL maps it
-    (:data:`~mitsuforest.scan.radiometry.RIEGL_DB_MAP`); else the amplitude times the gain that puts bare
-    ground at :data:`GROUND_COUNTS` (reflectance ρ at 1550 nm, ``ρ cos³ a / altitude²`` at scan angle ``a`` deg)."""
-    if unit == "reflectance":
+    """The twin sensor's ``intensity`` mapping for a file whose intensity is ``unit``
+    (:func:`~.intensity.intensity_unit`): for ``reflectance_db``, RIEGL's reflectance in dB as PDAL maps it
+    (:data:`~mitsuforest.scan.radiometry.RIEGL_DB_MAP`); else the amplitude or the linear reflectance times
+    the gain that puts bare ground at :data:`GROUND_COUNTS` (reflectance ρ at 1550 nm at scan angle ``a``:
+    an amplitude of ``ρ cos³ a / altitude²``, a reflectance of ``ρ cos a``)."""
+    if unit == "reflectance_db":
         from ..scan.radiometry import RIEGL_DB_MAP
         return dict(RIEGL_DB_MAP)
     cos = math.cos(math.radians(scan_angle))
-    ground = _ground_reflectance() * cos ** 3 / max(altitude, 1.0) ** 2
-    return {"source": "amplitude", "gain": float(f"{GROUND_COUNTS / ground:.4g}"), "offset": 0, "saturation": 65535}
+    ground = _ground_reflectance() * cos * (1.0 if unit == "reflectance" else cos ** 2 / max(altitude, 1.0) ** 2)
+    return {"source": unit, "gain": float(f"{GROUND_COUNTS / ground:.4g}"), "offset": 0, "saturation": 65535}
 
 
 def _flight_lines(est: survey_estimation.SurveyEstimate, frame, out: dict, report: dict) -> float | None:
     """The scan's own lines into ``out["lines"]`` where they were placed, else a lawnmower's spacing and
     heading; returns that spacing (m), or ``None`` for the scan's lines."""
     if est.line_positions and est.heading is not None:
-        local = [survey_estimation.leg_ends(p, h, frame.bounds, MARGIN) for p, h in zip(est.line_positions, est.line_headings)]
+        local = [survey_estimation.leg_ends(p, h, frame.bounds, MARGIN) for p, h in zip(est.line_positions, est.line_headings, strict=True)]
         out["lines"] = [[[round(a - frame.offset[0], 2), round(b - frame.offset[1], 2)] for a, b in leg] for leg in local]
         placed = {k: est.line_sources.count(k) for k in ("track", "scan angle", "scan lines", "not placed")}
         how = (f"{placed['scan lines']} where their scan lines' nadirs lie (no pulse with two returns)"

@@ -41,6 +41,8 @@ SWEEP_POINTS = 10       # returns a burst needs to count as a sweep for a nadir 
 SWEEP_ANGLES = 2.0      # deg of scan angle a sweep must span (LAS 1.2 stores whole degrees)
 NADIR_SWEEPS = 20       # sweeps a flight line needs for its sensor height from scan angles
 SWEEP_ITERATIONS = 4    # Gauss-Newton steps of a sweep's fit (:func:`sweep`)
+SWEEP_MISS = 1.0        # deg: RMS miss of a sweep's fitted angles above which it is not used (whole degrees: 0.29)
+MIN_LINE_SPEED = 0.5    # m/s over the ground a nadir line must make
 
 
 @dataclass(frozen=True)
@@ -189,10 +191,24 @@ def stamped_pulse_rate(bursts_: list[np.ndarray]) -> float | None:
 
 
 def sweep_parts(t, angle) -> list[np.ndarray]:
-    """Indices of the bursts of a flight line's (n,) returns that are sweeps: :data:`SWEEP_POINTS` returns
-    or more, over :data:`SWEEP_ANGLES` of scan angle or more, not all in one GPS stamp."""
-    return [b for b in burst_indices(t)
-            if len(b) >= SWEEP_POINTS and np.ptp(angle[b]) >= SWEEP_ANGLES and np.ptp(t[b]) > 0]
+    """Indices of the sweeps among a flight line's (n,) returns: its bursts (:func:`burst_indices`), each cut
+    where its scan angle turns back (an oscillating mirror's turn inside the plot leaves no pause), kept
+    with :data:`SWEEP_POINTS` returns or more over :data:`SWEEP_ANGLES` or more, not all in one GPS stamp."""
+    parts = [part for b in burst_indices(t) for part in _one_way(b, t, angle)]
+    return [b for b in parts if len(b) >= SWEEP_POINTS and np.ptp(angle[b]) >= SWEEP_ANGLES and np.ptp(t[b]) > 0]
+
+
+def _one_way(b: np.ndarray, t, angle) -> list[np.ndarray]:
+    """The burst ``b`` (indices in time order) cut where its scan angle turns back: between GPS stamps
+    whose mean angles step one way and then the other (a stamp may hold many pulses, in any order)."""
+    times, first, members = np.unique(t[b], return_index=True, return_inverse=True)
+    if len(times) < 3:
+        return [b]
+    means = np.bincount(members, weights=angle[b]) / np.bincount(members)
+    steps = np.sign(np.diff(means))
+    moving = np.flatnonzero(steps)
+    turns = moving[1:][steps[moving[1:]] != steps[moving[:-1]]]      # a step against the one before it
+    return np.split(b, first[turns]) if len(turns) else [b]
 
 
 def sweep_senses(t, angle) -> list[tuple[float, int]]:
@@ -204,12 +220,19 @@ def sweep_senses(t, angle) -> list[tuple[float, int]]:
 
 def deflector_of(senses: list[list[tuple[float, int]]]) -> tuple[str | None, list[float]]:
     """The deflector that the flight lines' sweeps (:func:`sweep_senses`, one list a line) say, and for an
-    oscillating one each line's scan-line period (s): half the period of its sweeps that run one way
-    (:func:`scan_period` of their starts). ``None`` and no periods with fewer than 6 sweeps."""
-    flat = [sense for line in senses for _, sense in line]
-    if len(flat) < 6:
+    oscillating one the scan-line periods (s) of its lines with 4 sweeps each way or more: half the period
+    of the sweeps that run one way (:func:`scan_period` of their starts). Each line with 6 sweeps or more
+    votes, oscillating where a quarter of its sweeps or more run against the rest (a file whose lines
+    count their scan angles from opposite sides still has each line's sweeps run one way), and the
+    deflector is the one of most sweeps; ``None`` without a line that votes."""
+    votes = {"rotating": 0, "oscillating": 0}
+    for line in senses:
+        ways = [sense for _, sense in line]
+        if len(ways) >= 6:
+            votes["oscillating" if min(ways.count(1), ways.count(-1)) >= 0.25 * len(ways) else "rotating"] += len(ways)
+    if not any(votes.values()):
         return None, []
-    if min(flat.count(1), flat.count(-1)) < 0.25 * len(flat):
+    if votes["rotating"] >= votes["oscillating"]:
         return "rotating", []
     periods = []
     for line in senses:
@@ -228,6 +251,14 @@ class Sweep:
     centroid: np.ndarray
     direction: np.ndarray
     sensor_z: float
+    miss: float = 0.0          # deg: RMS of the scan angles less those the fit gives
+    top: float = 0.0           # the highest of its points (file z)
+
+    @property
+    def usable(self) -> bool:
+        """Fitted within :data:`SWEEP_MISS` with the sensor above its points (a file that keeps absolute
+        or random scan angles fits neither)."""
+        return self.miss <= SWEEP_MISS and self.sensor_z > self.top
 
 
 def sweep(x, y, z, angle) -> Sweep:
@@ -250,7 +281,9 @@ def sweep(x, y, z, angle) -> Sweep:
         jacobian = np.column_stack([-1 / depth, -(s - s0) / depth ** 2])
         step, *_ = np.linalg.lstsq(jacobian, tan - (s - s0) / depth, rcond=None)
         s0, height = s0 + step[0], height + step[1]
-    return Sweep(centroid, direction, float(height))
+    fitted = np.rad2deg(np.arctan((s - s0) / np.maximum(height - z, 1e-3)))
+    miss = float(np.sqrt(np.mean((np.asarray(angle, np.float64) - fitted) ** 2)))
+    return Sweep(centroid, direction, float(height), miss if np.isfinite(miss) else np.inf, float(np.max(z)))
 
 
 def nadir_offset(sw: Sweep, x, y, z, angle, sensor_z: float) -> np.ndarray:
@@ -274,17 +307,24 @@ class NadirLine:
 
 def nadir_line(x, y, z, t, angle) -> tuple[NadirLine, list] | None:
     """The flight line of (n,) points with GPS times ``t`` and scan angles ``angle`` (deg), and its sweeps'
-    point indices and :class:`Sweep`; ``None`` with fewer than three sweeps (:func:`sweep_parts`). The flight is square to the sweeps' mean direction; its sense and speed are
-    the sweeps' centroids' progress along it over time (a least-squares slope)."""
-    parts = sweep_parts(t, angle)
-    if len(parts) < 3:
+    point indices and :class:`Sweep`; ``None`` with fewer than three usable sweeps (:func:`sweep_parts`,
+    :attr:`Sweep.usable`) or a progress under :data:`MIN_LINE_SPEED`. The flight is square to the sweeps'
+    mean direction; its sense and speed are the sweeps' centroids' progress along it over time (a
+    least-squares slope)."""
+    found = [(b, sweep(x[b], y[b], z[b], angle[b])) for b in sweep_parts(t, angle)]
+    found = [(b, sw) for b, sw in found if sw.usable]
+    if len(found) < 3:
         return None
-    sweeps = [sweep(x[b], y[b], z[b], angle[b]) for b in parts]
+    parts, sweeps = [b for b, _ in found], [sw for _, sw in found]
     across = np.sum([sw.direction * len(b) for sw, b in zip(sweeps, parts)], axis=0)
+    if np.linalg.norm(across) == 0:
+        return None
     across /= np.linalg.norm(across)
     along = np.array([-across[1], across[0]])
     times = np.array([np.mean(t[b]) for b in parts])
     progress = np.polyfit(times - times.mean(), np.array([sw.centroid for sw in sweeps]) @ along, 1)[0]
+    if not abs(progress) >= MIN_LINE_SPEED:
+        return None
     along = along if progress >= 0 else -along
     line = NadirLine(len(sweeps), float(np.median([sw.sensor_z for sw in sweeps])),
                      float(np.rad2deg(np.arctan2(along[0], along[1])) % 360), float(abs(progress)))
@@ -349,7 +389,10 @@ def estimate(scan, ground_height: float) -> SurveyEstimate:
             rates.append(r)
     senses = [sweep_senses(t[g], scan.scan_angle[g]) for g in groups] if scan.scan_angle is not None else []
     deflector, line_periods = deflector_of(senses)
-    periods = line_periods or periods
+    if deflector == "oscillating":      # burst spacings of a mirror there and back are not its scan lines'
+        periods = line_periods
+        if not periods and t is not None:
+            missing["scan_frequency"] = "an oscillating mirror with no line of 4 sweeps each way"
     lines = [_line(scan, g, xyz) for g in groups]
     tracks = [ln.track for ln in lines if ln.track is not None]
     good = [tr for tr in tracks if tr.residual <= GOOD_TRACK] or tracks
@@ -357,10 +400,11 @@ def estimate(scan, ground_height: float) -> SurveyEstimate:
     if t is not None and not tracks and nadir is None:
         why = (f"no flight line has {MIN_RAYS} pulses with a first and a last return {MIN_BEAM_LENGTH:g} m apart "
                "(return numbers and GPS times of one pulse are needed), nor "
-               + (f"{NADIR_SWEEPS} scan lines of {SWEEP_POINTS} returns over {SWEEP_ANGLES:g}° of scan angle"
+               + (f"{NADIR_SWEEPS} sweeps (bursts of {SWEEP_POINTS} returns or more over {SWEEP_ANGLES:g}° of scan "
+                  f"angle or more, fitted within {SWEEP_MISS:g}°) moving at {MIN_LINE_SPEED:g} m/s or more"
                   if scan.scan_angle is not None else "scan angles"))
         missing.update({k: why for k in ("lines", "altitude", "speed")})
-    if t is not None and not periods:
+    if t is not None and not periods and "scan_frequency" not in missing:
         missing["scan_frequency"] = "too few scan-line bursts in the GPS times"
     if t is not None and not rates:
         missing["pulse_frequency"] = "no scan-line burst of 10 pulses in the GPS times"
