@@ -287,10 +287,10 @@ def test_a_scan_of_single_returns_sets_the_leaf_by_the_gap_fraction():
     assert converged({**real, "cover": 0.5}, {**twin, "gap_fraction": 0.1, "cover": 0.5})
 
 
-def test_the_loop_converges_on_a_stand_whose_measures_follow_power_laws(tmp_path, monkeypatch):
+def _calibrate_a_stand(tmp_path, monkeypatch, real_lai: float, iterations: int = 6) -> dict:
     """A stand of 12 trees standing in for renders: the echoes beyond the first go as LAI^-0.7, the cover
-    as radius^1.5, the spread grows 14 m a unit of contrast; the loop's secant steps reach all three
-    within tolerance, and its factors are the ones the laws ask."""
+    as radius^1.5, the spread grows 14 m a unit of contrast; the real scan's echoes are those of
+    ``real_lai`` times the stand's leaf, its cover that of crowns 1.2 times as wide, its spread 8.5 m."""
     from types import SimpleNamespace
 
     from mitsuforest.twin import calibrate as c
@@ -312,12 +312,23 @@ def test_the_loop_converges_on_a_stand_whose_measures_follow_power_laws(tmp_path
 
     monkeypatch.setattr(c, "_render_state", lambda scene, variant, analysis, cells, first_only: measured(scene.parent))
     monkeypatch.setattr(c, "footprint", lambda *args: None)
-    real = {"echoes_per_pulse": 1.0 + 1.2 * 3.0 ** -0.7, "cover": 0.6 * 1.2 ** 1.5, "spread": 8.5, "gap_fraction": 0.1}
+    real = {"echoes_per_pulse": 1.0 + 1.2 * real_lai ** -0.7, "cover": 0.6 * 1.2 ** 1.5, "spread": 8.5,
+            "gap_fraction": 0.1}
     monkeypatch.setattr(c, "canopy_state", lambda *args: real)
     scan = SimpleNamespace(x=None, y=None, z=None, return_number=None, number_of_returns=None, first_only=False)
     analysis = {"frame": None, "dem": None, "dem_origin": None, "crown_ratio": 0.4}
-    record = c.calibrate(scan, analysis, tmp_path, "stand", 6, log=lambda *_: None)
-    assert record["converged"] and record["leaf_from"] == "echoes"
+    record = c.calibrate(scan, analysis, tmp_path, "stand", iterations, log=lambda *_: None)
+    record["real"] = real
+    return record
+
+
+def test_the_loop_converges_on_a_stand_whose_measures_follow_power_laws(tmp_path, monkeypatch):
+    """The stand of :func:`_calibrate_a_stand` with 3 times its leaf in the real scan: the loop's secant
+    steps reach all three measures within tolerance, and its factors are the ones the laws ask."""
+    from mitsuforest.twin import calibrate as c
+    record = _calibrate_a_stand(tmp_path, monkeypatch, 3.0)
+    real = record["real"]
+    assert record["converged"] and record["leaf_from"] == "echoes" and "leaf_held" not in record
     last = record["steps"][-1]
     assert abs(c.echo_scale(real["echoes_per_pulse"], last["echoes_per_pulse"]) - 1) <= c.ECHO_TOLERANCE
     assert abs(last["cover"] - real["cover"]) <= c.COVER_TOLERANCE
@@ -325,3 +336,11 @@ def test_the_loop_converges_on_a_stand_whose_measures_follow_power_laws(tmp_path
     assert len(record["steps"]) <= 4 and record["lai_factor"] == pytest.approx(3.0, rel=0.1)
     assert record["crown_factor"] == pytest.approx(1.2, rel=0.03)
     assert record["crown_contrast"] == pytest.approx(0.25, abs=0.04)
+
+
+def test_the_loop_holds_the_leaf_at_four_times_the_scan_s(tmp_path, monkeypatch):
+    """A real scan whose echoes ask for 8 times the stand's leaf: the steps stop at 4 times in all
+    (TOTAL_LEAF_LIMITS), the record says what was asked and held, and the loop does not converge."""
+    record = _calibrate_a_stand(tmp_path, monkeypatch, 8.0, iterations=5)
+    assert record["lai_factor"] == pytest.approx(4.0, rel=1e-9) and not record["converged"]
+    assert record["leaf_held"]["held"] == 4.0 and record["leaf_held"]["asked"] > 4.0

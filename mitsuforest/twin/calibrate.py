@@ -64,6 +64,10 @@ ECHO_TOLERANCE = 0.1    # |(E_twin - 1) / (E_real - 1) - 1|: the LAI step still 
 MIN_EXCESS = 0.02       # echoes per pulse beyond the first under which the LAI follows the gap fraction
 COVER_TOLERANCE = 0.03  # |cover_twin - cover_real|
 SCALE_LIMITS = (0.25, 4.0)   # one step changes LAI or crown radius by at most this factor
+# The leaf area per crown area all steps together may reach, against the scan's: a twin that asks for more
+# is missing something else, and its leaf cards outgrow memory (MixedConifer's airborne twin asked x 8 at
+# its third step, 209 trees, and its render passed 24 GB).
+TOTAL_LEAF_LIMITS = (0.25, 4.0)
 MIN_GAP = foliage.MIN_GAP
 MAX_LEAF_AREA = FIELDS["leaf_area"].metadata["hi"]   # m²: the most a procedural tree carries
 RATIO_LIMITS = (FIELDS["crown_ratio"].metadata["lo"], FIELDS["crown_ratio"].metadata["hi"])
@@ -340,6 +344,13 @@ def calibrate(real_scan, analysis: dict, folder: Path, name: str, iterations: in
         else:
             lai_exp, cover_exp = 1.0, 2.0
         k_lai = leaf_scale(real, twin, lai_exp)
+        total = min(max(record["lai_factor"] * k_lai, TOTAL_LEAF_LIMITS[0]), TOTAL_LEAF_LIMITS[1])
+        if total != record["lai_factor"] * k_lai:
+            log(f"twin: calibration {i + 1}: leaf area per crown area x{record['lai_factor'] * k_lai:.3g} in all asked "
+                f"for; held at x{total:g}, the most a calibration takes (see twin.json)")
+            record["leaf_held"] = {"asked": record["lai_factor"] * k_lai, "held": total,
+                                   "why": "beyond it the twin's echoes or gaps differ for another reason"}
+            k_lai = total / record["lai_factor"]
         k_r = crown_scale(real["cover"], twin["cover"], cover_exp)
         step.update(lai_factor=k_lai, crown_factor=k_r, lai_exponent=lai_exp, cover_exponent=cover_exp)
         ratios = None
