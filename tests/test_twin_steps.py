@@ -317,6 +317,27 @@ def test_a_sweep_that_its_angles_do_not_fit_is_not_used():
                 in est.missing["altitude"])
 
 
+def test_sweeps_place_a_line_whose_beams_fit_no_track():
+    """The airborne line with 200 of its pulses given a last return 6 m under the first but up to 4 m aside
+    at random (beams that point nowhere in common): their track misses them by metres, over GOOD_TRACK, so
+    the sweeps place the line (800 m, 72°) rather than that track."""
+    line = _first_returns_of_an_airborne_line(72.0, (-100 * math.cos(math.radians(72.0)), 100 * math.sin(math.radians(72.0))))
+    rng = np.random.default_rng(2)
+    pick = rng.choice(len(line.x), 200, replace=False)
+    twos = np.full(len(line.x), 1, np.int16)
+    twos[pick] = 2
+    last = {"x": line.x[pick] + rng.uniform(-4, 4, 200), "y": line.y[pick] + rng.uniform(-4, 4, 200),
+            "z": line.z[pick] - 6.0}
+    scan = RealScan("synthetic", np.r_[line.x, last["x"]], np.r_[line.y, last["y"]], np.r_[line.z, last["z"]], None,
+                    np.r_[np.ones(len(line.x), np.int16), np.full(200, 2, np.int16)], np.r_[twos, np.full(200, 2, np.int16)],
+                    np.r_[line.gps_time, line.gps_time[pick]], np.r_[line.scan_angle, line.scan_angle[pick]],
+                    None, None, None)
+    est = survey.estimate(scan, 0.0)
+    assert len(est.tracks) == 1 and est.tracks[0].residual > survey.GOOD_TRACK
+    assert est.line_sources == ("scan lines",) and est.altitude == pytest.approx(800.0, abs=5.0)
+    assert est.line_headings[0] == pytest.approx(72.0, abs=0.5)
+
+
 def test_a_file_without_beams_or_scan_angles_says_why_its_line_is_not_placed():
     """The same line without scan angles: no altitude, speed or lines, and the reason names both what a
     track and what a nadir line needs."""

@@ -372,7 +372,8 @@ def estimate(scan, ground_height: float) -> SurveyEstimate:
     A line whose own track fits its beams well (within ``GOOD_TRACK``) is placed on it. Another line
     with beams is placed parallel to the good tracks, on the side its beams point to, as far across as
     its median scan angle says at the sensor's height: ``(z_sensor - z_points) · tan(angle)``. Where no line
-    has a track, each line with sweeps is placed on its nadir line (:func:`nadir_line`), flown its own way.
+    has a track that fits its beams well, each line with sweeps is placed on its nadir line
+    (:func:`nadir_line`), flown its own way.
     """
     missing = {}
     t = scan.gps_time
@@ -395,8 +396,9 @@ def estimate(scan, ground_height: float) -> SurveyEstimate:
             missing["scan_frequency"] = "an oscillating mirror with no line of 4 sweeps each way"
     lines = [_line(scan, g, xyz) for g in groups]
     tracks = [ln.track for ln in lines if ln.track is not None]
-    good = [tr for tr in tracks if tr.residual <= GOOD_TRACK] or tracks
-    nadir = _nadir_lines(scan, groups) if t is not None and not tracks and scan.scan_angle is not None else None
+    good = [tr for tr in tracks if tr.residual <= GOOD_TRACK]
+    nadir = _nadir_lines(scan, groups) if t is not None and not good and scan.scan_angle is not None else None
+    good = good or tracks          # without sweeps, tracks that fit their beams badly are still the best guess
     if t is not None and not tracks and nadir is None:
         why = (f"no flight line has {MIN_RAYS} pulses with a first and a last return {MIN_BEAM_LENGTH:g} m apart "
                "(return numbers and GPS times of one pulse are needed), nor "
