@@ -344,11 +344,12 @@ def calibrate(real_scan, analysis: dict, folder: Path, name: str, iterations: in
         else:
             lai_exp, cover_exp = 1.0, 2.0
         k_lai = leaf_scale(real, twin, lai_exp)
-        total = min(max(record["lai_factor"] * k_lai, TOTAL_LEAF_LIMITS[0]), TOTAL_LEAF_LIMITS[1])
-        if total != record["lai_factor"] * k_lai:
-            log(f"twin: calibration {i + 1}: leaf area per crown area x{record['lai_factor'] * k_lai:.3g} in all asked "
+        asked = record["lai_factor"] * k_lai
+        total = min(max(asked, TOTAL_LEAF_LIMITS[0]), TOTAL_LEAF_LIMITS[1])
+        if total != asked:
+            log(f"twin: calibration {i + 1}: leaf area per crown area x{asked:.3g} in all asked "
                 f"for; held at x{total:g}, the most a calibration takes (see twin.json)")
-            record["leaf_held"] = {"asked": record["lai_factor"] * k_lai, "held": total,
+            record["leaf_held"] = {"asked": asked, "held": total,
                                    "why": "beyond it the twin's echoes or gaps differ for another reason"}
             k_lai = total / record["lai_factor"]
         k_r = crown_scale(real["cover"], twin["cover"], cover_exp)

@@ -88,7 +88,7 @@ def survey_plan(analysis: dict, sensor=None) -> tuple[dict, dict | str, dict]:
     prf = _pulse_rate(est, analysis["pulse_density"], speed, spacing or DEFAULTS["line_spacing"], fired, report)
     if sensor is not None:
         return out | _rates_of(sensor, prf, scan_frequency, report), str(Path(sensor).resolve()), report
-    mirror = round(scan_frequency / (2 if deflector == "oscillating" else 1), 3)   # turns, or cycles there and back
+    mirror = round(scan_frequency / lines_per_cycle(deflector), 3)   # turns, or cycles there and back
     reach = sensor_reach(altitude, fov)
     sensor_map = {**DEFAULT_SENSOR, **reach, "deflector": deflector, "field_of_view": fov, "pulse_frequencies": [prf],
                   "scan_frequency_range": [min(10.0, mirror), max(200.0, mirror)],
@@ -187,11 +187,17 @@ def _rates_of(sensor, prf: float, lines_per_second: float, report: dict) -> dict
     loaded = load_sensor(sensor)
     prf_listed = min(loaded.pulse_frequencies, key=lambda f: abs(f - prf))
     lo, hi = loaded.scan_frequency_range
-    lines_per_cycle = 2 if loaded.deflector == "oscillating" else 1
+    per_cycle = lines_per_cycle(loaded.deflector)
     report["sensor"] = {"value": str(Path(sensor).resolve()), "source": "--sensor (its nearest pulse rate "
                         f"{prf_listed:g} Hz and scan rate within {lo:g}-{hi:g} Hz"
-                        + (", half the lines per second: an oscillating mirror" if lines_per_cycle == 2 else "") + ")"}
-    return {"pulse_frequency": prf_listed, "scan_frequency": min(max(lines_per_second / lines_per_cycle, lo), hi)}
+                        + (", half the lines per second: an oscillating mirror" if per_cycle == 2 else "") + ")"}
+    return {"pulse_frequency": prf_listed, "scan_frequency": min(max(lines_per_second / per_cycle, lo), hi)}
+
+
+def lines_per_cycle(deflector: str) -> int:
+    """Scan lines a deflector draws per turn or cycle of its ``scan_frequency``: an oscillating mirror's
+    sweep there and back draws two, a turn one (scan/deflector.py)."""
+    return 2 if deflector == "oscillating" else 1
 
 
 def _dense_archetypes(species: tuple[str, ...], crown_ratio: float | None) -> dict:
