@@ -160,6 +160,29 @@ def test_the_checks_catch_what_they_look_for():
     assert _module_or_package("mitsuforest", "__version__") == "mitsuforest"
 
 
+def readme_graph() -> dict[str, set[str]]:
+    """README's "Layout" graph without the shared modules: package → the packages it imports."""
+    text = (PACKAGE.parent / "README.md").read_text()
+    block = text.split("Without the shared modules:", 1)[1].split("```", 2)[1]
+    graph = {}
+    for line in block.splitlines():
+        for entry in line.split(";"):
+            if "→" in entry:
+                a, _, b = entry.partition("→")
+                graph[a.strip()] = {name.strip() for name in b.split(",") if name.strip()}
+    return graph
+
+
+def test_readme_draws_the_graph_the_code_has():
+    """README's "Layout" lists, for every stage and layer above them, the packages it imports (the
+    shared modules left out), as ``python tests/test_layout.py`` prints them."""
+    drawn = {a: set() for a in (*STAGES, *ABOVE) if a != "__main__"}
+    for a, b in import_graph():
+        if a in drawn and b not in SHARED:
+            drawn[a].add(b)
+    assert readme_graph() == drawn
+
+
 if __name__ == "__main__":
     graph = defaultdict(set)
     for a, b in import_graph():
