@@ -12,11 +12,13 @@ from conftest import ROOT
 SENSORS = sorted(p.stem for p in (ROOT / "sensors").glob("*.yaml"))
 
 
-def _scene(folder, sensor: str):
+def _scene(folder, sensor: str, pulse_frequency: int | None = 100_000):
+    """A 12 m plot scanned by ``sensor`` at ``pulse_frequency`` (``None``: the sensor's own default)."""
     path = folder / "scene.yaml"
+    rate = "" if pulse_frequency is None else f"pulse_frequency: {pulse_frequency}, "
     path.write_text(f"name: tiny\nseed: 3\narea: {{size: [12, 12]}}\nforest: {{type: open, trees: 1}}\n"
                     f"understory: {{bushes: 0, rocks: 0, deadwood: 0, stumps: 0}}\nsensor: {sensor}\n"
-                    "survey: {altitude: 30, speed: 20, pulse_frequency: 100000, line_spacing: 6, margin: 2}\n"
+                    f"survey: {{altitude: 30, speed: 20, {rate}line_spacing: 6, margin: 2}}\n"
                     "simulation: {beam_samples: 1, beam_pattern: fixed}\noutput: {formats: [laz]}\n")
     return path
 
@@ -30,7 +32,7 @@ def test_the_package_ships_every_sensor_of_sensors_folder():
 @pytest.mark.parametrize("name", SENSORS)
 def test_a_builtin_sensor_is_named_without_a_path(tmp_path, name):
     from mitsuforest.config import load_scene, load_sensor
-    scene = load_scene(_scene(tmp_path, name))
+    scene = load_scene(_scene(tmp_path, name, pulse_frequency=None))
     assert scene.sensor == load_sensor(ROOT / "sensors" / f"{name}.yaml")
     assert scene.sensor.file == str((ROOT / "sensors" / f"{name}.yaml").resolve())
 

@@ -1,10 +1,11 @@
 """The twin's pure steps (ground, trees, foliage, understory, survey) against analytic values on
-constructed inputs: no render, no file (README, "Twins of real plots")."""
+constructed inputs: no render (README, "Twins of real plots")."""
 
 import math
 
 import numpy as np
 import pytest
+import yaml
 
 from mitsuforest.twin import detection, foliage, ground, survey, understory
 from mitsuforest.twin.points import RealScan
@@ -284,6 +285,39 @@ def test_a_first_return_file_s_flight_line_from_its_scan_angles(oscillating):
     assert est.deflector == ("oscillating" if oscillating else "rotating")
     assert est.scan_frequency == pytest.approx(120.0 if oscillating else 60.0, rel=0.01)
     assert "altitude" not in est.missing
+
+
+@pytest.mark.parametrize("oscillating", [True, False])
+def test_a_twin_sensor_has_the_optics_of_a_scanner_with_its_files_mirror(tmp_path, oscillating):
+    """The airborne line above: an oscillating mirror's twin gets the Leica ALS50-II's optics (1064 nm,
+    0.22 mrad, 10 ns, 4 returns told apart from 2.7 m, where the pulse shape alone says 1.5 m), a rotating
+    one's the VUX-1UAV22's (1550 nm, 0.5 mrad, 4 ns, 15 returns); each as in its shipped sensor file, and
+    the twin's sensor loads as a sensor. Both reach twice the slant range at the edge of their field of view
+    and detect a hundredth of bare ground's echo at nadir at their own wavelength (ground 0.30 at 1064 nm,
+    0.33 at 1550 nm)."""
+    from mitsuforest.classes import GROUND
+    from mitsuforest.config import BUILTIN_SENSORS, load_sensor
+    from mitsuforest.scan import radiometry
+    from mitsuforest.twin import TwinFrame, scene
+    heading, nadir = 72.0, (-100 * math.cos(math.radians(72.0)), 100 * math.sin(math.radians(72.0)))
+    est = survey.estimate(_first_returns_of_an_airborne_line(heading, nadir, oscillating), 0.0)
+    analysis = {"survey": est, "pulse_density": 4.0, "frame": TwinFrame((-45.0, -45.0, 0.0), (90.0, 90.0)),
+                "scan_angle": 7.0, "intensity_unit": ("amplitude", "a test")}
+    _, sensor, report = scene.survey_plan(analysis)
+    (tmp_path / "twin.yaml").write_text(yaml.safe_dump(sensor))
+    twin = load_sensor(tmp_path / "twin.yaml")
+    shipped = load_sensor(BUILTIN_SENSORS / ("leica_als50-ii.yaml" if oscillating else "riegl_vux-1uav22.yaml"))
+    for key in ("beam_divergence", "pulse_length", "wavelength", "range_precision", "range_accuracy",
+                "max_returns", "echo_separation"):
+        assert getattr(twin, key) == getattr(shipped, key), key
+    assert (twin.wavelength, twin.beam_divergence[0], twin.max_returns) == \
+        ((1064e-9, 0.22e-3, 4) if oscillating else (1550e-9, 0.5e-3, 15))
+    assert twin.resolving_distance == (2.7 if oscillating else pytest.approx(299_792_458 * 4e-9 / 2))
+    assert twin.name == f"twin sensor ({'Leica ALS50-II' if oscillating else 'RIEGL VUX-1UAV22'} optics)"
+    assert ("Leica ALS50-II's optics" if oscillating else "VUX-1UAV22's optics") in report["sensor"]["source"]
+    assert twin.range_max == 10 * math.ceil(2 * est.altitude / math.cos(math.radians(twin.field_of_view / 2)) / 10)
+    ground = radiometry.received_power(1.0, radiometry.reflectance_table(twin.wavelength)[GROUND], 1.0, est.altitude)
+    assert 0.0099 * ground < twin.detection_threshold < 0.0101 * ground
 
 
 def test_an_oscillating_mirror_that_turns_inside_the_plot_still_gives_its_line():

@@ -22,14 +22,25 @@ from ..config import understory_capacity
 from . import DEM_CELL, survey as survey_estimation
 
 DEFAULT_SPECIES = "pinus_radiata"   # both real plots we twin are conifers
-# The sensor a twin gets when the file does not say and --sensor is not given: the RIEGL VUX-1UAV22's
-# optics (sensors/riegl_vux-1uav22.yaml), with the pulse and scan rates and field of view the survey needs.
-DEFAULT_SENSOR = {"name": "twin sensor (RIEGL VUX-1UAV22 optics)", "deflector": "rotating",
-                  "source": "mitsuforest twin: rates, field of view and mirror estimated from the scan, reach and "
-                            "intensity set for the survey (twin.json), the optics the RIEGL VUX-1UAV22 data sheet (2023)",
-                  "beam_divergence": 0.5e-3, "pulse_length": 4.0e-9, "wavelength": 1550e-9, "range_min": 3.0,
-                  "range_max": 1000.0, "range_precision": 0.005, "range_accuracy": 0.010, "max_returns": 15,
-                  "detection_threshold": 2.0e-7}
+# The sensor a twin gets when the file does not say and --sensor is not given: the rates and field of view
+# the survey needs (estimated), reach and intensity set for the survey, and the optics of a scanner with the
+# file's mirror. A rotating mirror's are the RIEGL VUX-1UAV22's (sensors/riegl_vux-1uav22.yaml). Airborne
+# scanners with an oscillating mirror (Leica ALS, Optech ALTM) fire at 1064 nm with a narrower beam and a
+# longer pulse, and keep up to 4 returns a pulse, as MixedConifer's file does: theirs are the Leica
+# ALS50-II's (sensors/leica_als50-ii.yaml). Uncalibrated, MixedConifer's twin had 39.6 % of its pulses
+# single-return with the VUX's optics against the file's 69.3 % (returns_tv 0.297); with these, 65.9 % (0.063).
+TWIN_OPTICS = {
+    "rotating": {"name": "RIEGL VUX-1UAV22", "source": "the RIEGL VUX-1UAV22 data sheet (2023)",
+                 "beam_divergence": 0.5e-3, "pulse_length": 4.0e-9, "wavelength": 1550e-9,
+                 "range_precision": 0.005, "range_accuracy": 0.010, "max_returns": 15},
+    "oscillating": {"name": "Leica ALS50-II", "source": "NERC-ARF's notes on the Leica ALS50-II and HELIOS++'s "
+                    "leica_als50-ii", "beam_divergence": 0.22e-3, "pulse_length": 10.0e-9, "wavelength": 1064e-9,
+                    "range_precision": 0.05, "range_accuracy": 0.0, "max_returns": 4, "echo_separation": 2.7},
+}
+# The reach (m) and detection threshold of a UAV survey, the VUX-1UAV22's (a 20 % target detected at its
+# reach); sensor_reach raises the one and lowers the other for a far survey.
+TWIN_RANGE_MAX = 1000.0
+TWIN_THRESHOLD = 2.0e-7
 # The twin's sensor writes intensity as its amplitude scaled so that bare ground (the twin's ground reflectance)
 # filling the beam at the survey's altitude and the file's median scan angle reads this many counts: fine steps
 # (a 1e6 gain put a 127 m survey's ground at 16 counts, an 800 m one's at 0; here an echo of 1 % of the ground's
@@ -74,7 +85,7 @@ def survey_plan(analysis: dict, sensor=None) -> tuple[dict, dict | str, dict]:
     altitude = pick("altitude", est.altitude)
     speed = pick("speed", est.speed)
     fov_seen = None if est.field_of_view is None else min(360.0, 5 * math.ceil(est.field_of_view / 5))
-    deflector = est.deflector or DEFAULT_SENSOR["deflector"]
+    deflector = est.deflector or "rotating"
     fired = (fov_seen or DEFAULTS["field_of_view"]) / 360.0 if deflector == "rotating" else 1.0   # pulses in the FOV
     if est.speed is None and est.pulse_frequency is not None:   # fly as fast as the file's pulse density asks
         speed = est.pulse_frequency * fired / (analysis["pulse_density"] * DEFAULTS["line_spacing"])
@@ -89,16 +100,18 @@ def survey_plan(analysis: dict, sensor=None) -> tuple[dict, dict | str, dict]:
     if sensor is not None:
         return out | _rates_of(sensor, prf, scan_frequency, report), str(Path(sensor).resolve()), report
     mirror = round(scan_frequency / lines_per_cycle(deflector), 3)   # turns, or cycles there and back
-    reach = sensor_reach(altitude, fov)
-    sensor_map = {**DEFAULT_SENSOR, **reach, "deflector": deflector, "field_of_view": fov, "pulse_frequencies": [prf],
+    optics = twin_sensor(deflector)
+    reach = sensor_reach(altitude, fov, optics["wavelength"])
+    sensor_map = {**optics, **reach, "field_of_view": fov, "pulse_frequencies": [prf],
                   "scan_frequency_range": [min(10.0, mirror), max(200.0, mirror)],
-                  "intensity": intensity_scale(altitude, analysis["scan_angle"], analysis["intensity_unit"][0])}
+                  "intensity": intensity_scale(altitude, analysis["scan_angle"], analysis["intensity_unit"][0],
+                                               optics["wavelength"])}
     out["pulse_frequency"], out["scan_frequency"] = prf, mirror
     if deflector == "oscillating" and est.scan_frequency is not None:
         report["scan_frequency"] = {"value": mirror, "source": f"estimated: {scan_frequency:g} scan lines a second, "
                                     "swept there and back"}
     longer = f", its reach {reach['range_max']:g} m for a {altitude:.0f} m survey" \
-        if reach["range_max"] > DEFAULT_SENSOR["range_max"] else ""
+        if reach["range_max"] > TWIN_RANGE_MAX else ""
     swept = (f"an oscillating mirror (sweeps both ways: {mirror:g} cycles a second)" if deflector == "oscillating"
              else "a rotating mirror" + ("" if est.deflector else " (default)"))
     unit, why = analysis["intensity_unit"]
@@ -106,41 +119,56 @@ def survey_plan(analysis: dict, sensor=None) -> tuple[dict, dict | str, dict]:
                "reflectance": f"the linear reflectance x {sensor_map['intensity']['gain']:.4g}",
                "amplitude": f"the amplitude x {sensor_map['intensity']['gain']:.4g}"}[unit]
     report["sensor"] = {"value": sensor_map["name"], "source": f"estimated rates and field of view, {swept}, the "
-                        f"VUX-1UAV22's optics{longer}; intensity: {written}, as {why}"}
+                        f"{TWIN_OPTICS[deflector]['name']}'s optics{longer}; intensity: {written}, as {why}"}
     return out, sensor_map, report
 
 
-def sensor_reach(altitude: float, field_of_view: float) -> dict:
-    """The twin sensor's ``range_max`` and ``detection_threshold``. The VUX-1UAV22's (a 20 % target detected
-    at 1000 m) where they serve; a survey whose longest slant range (at the half ``field_of_view``, at most
-    :data:`SURROUND_ANGLE`) is more than half that reaches twice that range, and where the data sheet's
-    threshold is more than :data:`GROUND_THRESHOLD` of bare ground's echo at nadir from ``altitude``, the
-    threshold is that: the data sheet's own share at 128 m. An airborne scanner flown at 800 m detects
-    such echoes (MixedConifer's weakest first returns, its 1st percentile, read 0.7 % of its ground's median
-    intensity), where the data sheet's threshold would drop every leaf echo that fills less than half the beam."""
+def twin_sensor(deflector: str) -> dict:
+    """The twin sensor's keys but its rates, field of view and intensity: the optics of :data:`TWIN_OPTICS`
+    for the ``deflector`` (``rotating`` or ``oscillating``), the reach and threshold of a UAV survey."""
+    optics = dict(TWIN_OPTICS[deflector])
+    name, source = optics.pop("name"), optics.pop("source")
+    return {"name": f"twin sensor ({name} optics)", "deflector": deflector,
+            "source": "mitsuforest twin: rates, field of view and mirror estimated from the scan, reach and "
+                      f"intensity set for the survey (twin.json), the optics of {source}",
+            **optics, "range_min": 3.0, "range_max": TWIN_RANGE_MAX, "detection_threshold": TWIN_THRESHOLD}
+
+
+def sensor_reach(altitude: float, field_of_view: float, wavelength: float = 1550e-9) -> dict:
+    """The twin sensor's ``range_max`` and ``detection_threshold`` at ``wavelength`` (m). Those of a UAV
+    survey (:data:`TWIN_RANGE_MAX`, the VUX-1UAV22's, a 20 % target detected there) where they serve; a
+    survey whose longest slant range (at the half ``field_of_view``, at most :data:`SURROUND_ANGLE`) is more
+    than half that reaches twice that range, and where that threshold is more than :data:`GROUND_THRESHOLD`
+    of bare ground's echo at nadir from ``altitude``, the threshold is that: the VUX's own share at 128 m.
+    An airborne scanner flown at 800 m detects such echoes (MixedConifer's weakest first returns, its 1st
+    percentile, read 0.7 % of its ground's median intensity), where the VUX's threshold would drop every leaf
+    echo that fills less than half the beam."""
     slant = altitude / math.cos(math.radians(min(field_of_view / 2, SURROUND_ANGLE)))
-    reach = max(DEFAULT_SENSOR["range_max"], 10.0 * math.ceil(2 * slant / 10))
-    threshold = min(DEFAULT_SENSOR["detection_threshold"], GROUND_THRESHOLD * _ground_reflectance() / max(altitude, 1.0) ** 2)
+    reach = max(TWIN_RANGE_MAX, 10.0 * math.ceil(2 * slant / 10))
+    ground = _ground_reflectance(wavelength)
+    threshold = min(TWIN_THRESHOLD, GROUND_THRESHOLD * ground / max(altitude, 1.0) ** 2)
     return {"range_max": reach, "detection_threshold": float(f"{threshold:.4g}")}
 
 
-def _ground_reflectance() -> float:
+def _ground_reflectance(wavelength: float) -> float:
     from ..classes import GROUND
     from ..scan.radiometry import reflectance_table
-    return float(reflectance_table(DEFAULT_SENSOR["wavelength"])[GROUND])
+    return float(reflectance_table(wavelength)[GROUND])
 
 
-def intensity_scale(altitude: float, scan_angle: float, unit: str = "amplitude") -> dict:
+def intensity_scale(altitude: float, scan_angle: float, unit: str = "amplitude",
+                    wavelength: float = 1550e-9) -> dict:
     """The twin sensor's ``intensity`` mapping for a file whose intensity is ``unit``
     (:func:`~.intensity.intensity_unit`): for ``reflectance_db``, RIEGL's reflectance in dB as PDAL maps it
     (:data:`~mitsuforest.scan.radiometry.RIEGL_DB_MAP`); else the amplitude or the linear reflectance times
-    the gain that puts bare ground at :data:`GROUND_COUNTS` (reflectance ρ at 1550 nm at scan angle ``a``:
+    the gain that puts bare ground at :data:`GROUND_COUNTS` (reflectance ρ at ``wavelength`` at scan angle ``a``:
     an amplitude of ``ρ cos³ a / altitude²``, a reflectance of ``ρ cos a``)."""
     if unit == "reflectance_db":
         from ..scan.radiometry import RIEGL_DB_MAP
         return dict(RIEGL_DB_MAP)
     cos = math.cos(math.radians(scan_angle))
-    ground = _ground_reflectance() * cos * (1.0 if unit == "reflectance" else cos ** 2 / max(altitude, 1.0) ** 2)
+    ground = _ground_reflectance(wavelength) * cos
+    ground *= 1.0 if unit == "reflectance" else cos ** 2 / max(altitude, 1.0) ** 2
     return {"source": unit, "gain": float(f"{GROUND_COUNTS / ground:.4g}"), "offset": 0, "saturation": 65535}
 
 
