@@ -98,7 +98,8 @@ def _add_twin(sub: argparse._SubParsersAction) -> None:
     p.add_argument("-o", "--output", type=_folder, required=True, help="output folder")
     p.add_argument("--species", nargs="+", default=[], metavar="NAME",
                    help="procedural species of the trees, drawn in turn (default: pinus_radiata)")
-    p.add_argument("--sensor", type=_named("--sensor", "a file"), help="a sensor file to use instead of the estimated sensor")
+    p.add_argument("--sensor", type=_named("--sensor", "a sensor"),
+                   help="a built-in sensor's name (leica_als50-ii) or a sensor file, used instead of the estimated sensor")
     p.add_argument("--name", help="the scene's name (default: the file's stem)")
     p.add_argument("--calibrate", type=int, default=0, metavar="N",
                    help="render the twin up to N times, rescaling its crowns' leaf area, width and depth towards the "

@@ -1,6 +1,7 @@
 """mitsuforest twin: a scene from a scan recovers the trees, ground and survey of one of our own scans."""
 
 import json
+import shutil
 import sys
 from types import SimpleNamespace
 
@@ -191,10 +192,27 @@ def test_twin_refuses_an_empty_or_damaged_file_in_one_line(tmp_path, capsys):
     for args, words in ((["--species", "oak"], "--species: must be one of eucalyptus, acacia, pinus_radiata, got 'oak'"),
                         (["--name", ".hidden"], "--name: must not start with a dot"),
                         (["--calibrate", "-1"], "--calibrate: must be >= 0, got -1"),
-                        (["--sensor", tmp_path / "none.yaml"], "none.yaml: file not found")):
+                        (["--sensor", tmp_path / "none.yaml"], "none.yaml: file not found"),
+                        (["--sensor", "leica_als50"], "--sensor: unknown built-in sensor 'leica_als50'; built-in "
+                                                      "sensors: ideal, leica_als50-ii, livox_mid-70,")):
         r = _run(capsys, "twin", good, "-o", tmp_path / "out", *args)
         assert r.returncode == 2 and r.stderr.count("\n") == 1 and words in r.stderr, r.stderr
         assert not (tmp_path / "out").exists()
+
+
+def test_twin_sensor_by_its_built_in_name_is_written_by_that_name(tmp_path, capsys):
+    """``--sensor leica_als50-ii`` takes the built-in sensor, as a scene's ``sensor:`` does, and the twin's
+    scene names it so (it renders on another machine); a file's path is written whole."""
+    _shrubby_clip(tmp_path / "clip.las", 20.0)
+    own = tmp_path / "own.yaml"
+    own.write_text((ROOT / "sensors" / "ideal.yaml").read_text())
+    for sensor, written in (("leica_als50-ii", "leica_als50-ii"), (own, str(own.resolve()))):
+        r = _run(capsys, "twin", tmp_path / "clip.las", "-o", tmp_path / "out", "--sensor", sensor)
+        assert r.returncode == 0, r.stderr
+        scene = yaml.safe_load((tmp_path / "out" / "clip.yaml").read_text())
+        assert scene["sensor"] == written
+        assert json.loads((tmp_path / "out" / "twin.json").read_text())["survey"]["sensor"]["value"] == written
+        shutil.rmtree(tmp_path / "out")
 
 
 def test_twin_without_ground_points_or_gps_time_says_so_and_uses_named_fallbacks(tmp_path, capsys):

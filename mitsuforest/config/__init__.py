@@ -212,6 +212,18 @@ def names_builtin_sensor(value: str) -> bool:
     return "/" not in value and "\\" not in value and not value.endswith((".yaml", ".yml"))
 
 
+def sensor_file(value) -> Path:
+    """The file of a command line's sensor (``--sensor``): a built-in sensor's name (``leica_als50-ii``) or
+    a sensor file's path; a name that is neither is refused listing the built-in sensors."""
+    names = builtin_sensors()
+    if names_builtin_sensor(str(value)) and not Path(value).exists():
+        if str(value) not in names:
+            raise UserError(f"--sensor: unknown built-in sensor {str(value)!r}; built-in sensors: {', '.join(names)} "
+                            "(or give a sensor file's path)")
+        return BUILTIN_SENSORS / f"{value}.yaml"
+    return Path(value)
+
+
 def _sensor_path(value: str, ctx: Context, key: str) -> Path:
     """A built-in sensor by its name (``livox_mid-70``), or a sensor file's path relative to the scene file."""
     names = builtin_sensors()

@@ -106,7 +106,7 @@ def make_twin(path, out_dir, species=(), sensor=None, name: str | None = None, l
     ``trees.csv`` and ``twin.json``; returns the report (``twin.json``'s content).
 
     :param species: procedural families drawn for the trees in turn (default ``pinus_radiata``).
-    :param sensor: a sensor file to use instead of the estimated sensor.
+    :param sensor: a built-in sensor's name or a sensor file to use instead of the estimated sensor.
     :param name: the scene's name (default: the file's stem, or ``twin`` where that cannot name files).
     :param calibrate: render the twin up to this many times, rescaling its crowns' leaf area, width and
         depth towards the real scan's echoes per pulse (or gap fraction), canopy cover and canopy spread
@@ -126,7 +126,8 @@ def make_twin(path, out_dir, species=(), sensor=None, name: str | None = None, l
     if name is not None and (problem := name_problem(name)):
         raise UserError(f"--name: {problem}")
     if sensor is not None:
-        from ..config import load_sensor
+        from ..config import load_sensor, sensor_file
+        sensor = sensor_file(sensor)
         load_sensor(sensor)                     # a bad sensor file is refused before any work
     scan = read_scan(path)
     stem = scene_stem(path)

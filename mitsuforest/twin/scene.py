@@ -98,7 +98,7 @@ def survey_plan(analysis: dict, sensor=None) -> tuple[dict, dict | str, dict]:
     spacing = _flight_lines(est, analysis["frame"], out, report)
     prf = _pulse_rate(est, analysis["pulse_density"], speed, spacing or DEFAULTS["line_spacing"], fired, report)
     if sensor is not None:
-        return out | _rates_of(sensor, prf, scan_frequency, report), str(Path(sensor).resolve()), report
+        return out | _rates_of(sensor, prf, scan_frequency, report), _sensor_value(sensor), report
     mirror = round(scan_frequency / lines_per_cycle(deflector), 3)   # turns, or cycles there and back
     optics = twin_sensor(deflector)
     reach = sensor_reach(altitude, fov, optics["wavelength"])
@@ -208,6 +208,13 @@ def _pulse_rate(est: survey_estimation.SurveyEstimate, pulse_density: float, spe
     return float(round(prf, -2)) if prf >= 1000 else float(round(prf))
 
 
+def _sensor_value(sensor) -> str:
+    """The scene's ``sensor:`` for the file ``sensor``: a built-in sensor's name, else its absolute path."""
+    from ..config import BUILTIN_SENSORS, builtin_sensors
+    path = Path(sensor).resolve()
+    return path.stem if path.parent == BUILTIN_SENSORS.resolve() and path.stem in builtin_sensors() else str(path)
+
+
 def _rates_of(sensor, prf: float, lines_per_second: float, report: dict) -> dict:
     """``--sensor``'s listed pulse rate nearest ``prf``, and its scan rate for the scan's lines per second
     within its range: an oscillating mirror's sweep there and back draws two lines, a turn one."""
@@ -216,7 +223,7 @@ def _rates_of(sensor, prf: float, lines_per_second: float, report: dict) -> dict
     prf_listed = min(loaded.pulse_frequencies, key=lambda f: abs(f - prf))
     lo, hi = loaded.scan_frequency_range
     per_cycle = lines_per_cycle(loaded.deflector)
-    report["sensor"] = {"value": str(Path(sensor).resolve()), "source": "--sensor (its nearest pulse rate "
+    report["sensor"] = {"value": _sensor_value(sensor), "source": "--sensor (its nearest pulse rate "
                         f"{prf_listed:g} Hz and scan rate within {lo:g}-{hi:g} Hz"
                         + (", half the lines per second: an oscillating mirror" if per_cycle == 2 else "") + ")"}
     return {"pulse_frequency": prf_listed, "scan_frequency": min(max(lines_per_second / per_cycle, lo), hi)}
