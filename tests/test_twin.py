@@ -234,6 +234,20 @@ def _shrubby_clip(path, width: float, length: float = 30.0) -> None:
     las.write(str(path))
 
 
+@pytest.mark.parametrize(("variant", "words"), [
+    ("scalar_rgb", "--variant: must be auto or a Mitsuba llvm_* or cuda_* variant such as llvm_ad_mono, got 'scalar_rgb'"),
+    ("llvm_nope", "--variant: 'llvm_nope' is not in this Mitsuba build"),
+])
+def test_a_calibration_variant_this_machine_cannot_run_is_refused_before_the_twin_is_written(tmp_path, capsys,
+                                                                                             variant, words):
+    """The variant was first checked by the calibration's render of the written twin: the twin's scene,
+    DEM and trees.csv were left in the folder, and the line named the twin's scene file, not --variant."""
+    _shrubby_clip(tmp_path / "clip.las", 10.0)
+    r = _run(capsys, "twin", tmp_path / "clip.las", "-o", tmp_path / "out", "--calibrate", "1", "--variant", variant)
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and r.stderr.startswith(f"mitsuforest: {words}"), r.stderr
+    assert not (tmp_path / "out").exists()
+
+
 def test_a_twin_asks_for_no_more_bushes_than_its_plot_can_place(tmp_path, capsys):
     """A clip thick with shrubs calls for more bushes than its plot can place (each keeps a 3.4 m clear
     disc): a 2 m wide one gets none and a 40 m wide one half the plan's capacity, said on stderr, and
