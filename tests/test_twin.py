@@ -289,6 +289,8 @@ def test_tree_list_refuses_a_tree_outside_the_plot_and_a_count_beside_it(tmp_pat
     ("x;y;height;crown_radius\n5,5;5;12,1;2\n",      # a spreadsheet set to decimal commas
      "the tree list is separated by ';' (a spreadsheet set to decimal commas): save it as CSV with ','"),
     ("x,y,height,crown_radius,height\n5,5,12,2,14\n", "the tree list has the column height 2 times; keep one"),
+    # a decimal comma in a comma-separated list: was read as height 12 and crown_radius 5, the 2 left out
+    ("x,y,height,crown_radius\n5,5,12,5,2\n", "line 2: 5 cells, the header has 4 (a decimal comma, as in 12,5"),
 ])
 def test_tree_list_in_other_separators_is_refused_saying_so(tmp_path, text, message):
     from mitsuforest.config import load_scene
