@@ -115,7 +115,8 @@ def _checked_legs(scene, legs: list[Leg], terrain: Terrain) -> list[Leg]:
         key = f"survey.lines[{i}]" if scene.survey.lines else "survey.trajectory" if leg.track else "survey"
         seconds = leg.t1 - leg.t0
         if not seconds * scene.pulse_frequency < MAX_LEG_PULSES:   # inf and nan too: legs of 1e300 m
-            raise _Refusal("survey.speed", f"leg {i + 1} lasts {_amount(seconds)} s: "
+            raise _Refusal("survey.trajectory" if leg.track is not None else "survey.speed",   # the file's times
+                           f"leg {i + 1} lasts {_amount(seconds)} s: "
                            f"{_amount(seconds * scene.pulse_frequency)} pulses, more than the {MAX_LEG_PULSES:,} a leg "
                            "can number; fly faster or split the leg")
         pulses += leg.pulse_count(scene.pulse_frequency)
