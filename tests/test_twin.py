@@ -191,7 +191,9 @@ def test_twin_refuses_an_empty_or_damaged_file_in_one_line(tmp_path, capsys):
     for args, words in ((["--species", "oak"], "--species: must be one of eucalyptus, acacia, pinus_radiata, got 'oak'"),
                         (["--name", ".hidden"], "--name: must not start with a dot"),
                         (["--calibrate", "-1"], "--calibrate: must be >= 0, got -1"),
-                        (["--sensor", tmp_path / "none.yaml"], "none.yaml: file not found")):
+                        (["--sensor", tmp_path / "none.yaml"], "none.yaml: file not found"),
+                        (["--sensor", "livox_mid-70"], "--sensor: livox_mid-70: file not found; --sensor takes a file: "
+                                                       "the built-in sensor of that name is ")):
         r = _run(capsys, "twin", good, "-o", tmp_path / "out", *args)
         assert r.returncode == 2 and r.stderr.count("\n") == 1 and words in r.stderr, r.stderr
         assert not (tmp_path / "out").exists()

@@ -140,7 +140,10 @@ def make_twin(path, out_dir, species=(), sensor=None, name: str | None = None, l
     if name is not None and (problem := name_problem(name)):
         raise UserError(f"--name: {problem}")
     if sensor is not None:
-        from ..config import load_sensor
+        from ..config import BUILTIN_SENSORS, builtin_sensors, load_sensor
+        if not Path(sensor).exists() and str(sensor) in builtin_sensors():   # a scene's `sensor: NAME`
+            raise UserError(f"--sensor: {sensor}: file not found; --sensor takes a file: the built-in sensor of "
+                            f"that name is {BUILTIN_SENSORS / (str(sensor) + '.yaml')}")
         load_sensor(sensor)                     # a bad sensor file is refused before any work
     if calibrate or variant is not None:       # not once the twin's files are written, naming its scene file
         _check_variant("auto" if variant is None else variant)
