@@ -77,6 +77,29 @@ CASES = {
                               "not UTF-8 text (line 1 holds the byte 0xe4, as Windows-1252 or Latin-1 would write an "
                               "accented letter); save the file as UTF-8"),
     "binary": (b"\x00\x01\xff" + GOOD.encode(), "scene.yaml: not a text file"),
+    # Values that passed the schema and then hung the plan, ended in a traceback, printed a number of 300
+    # digits or rendered an empty scan:
+    "line spacing of a micrometre": (GOOD.replace("altitude: 30", "altitude: 30, line_spacing: 1e-6"),
+                                     "survey.line_spacing: 1e-06 m apart, 10,000,001 flight lines cross the plot, "
+                                     "more than the 65,535"),
+    "line spacing below float64s normal range": (GOOD.replace("altitude: 30", "altitude: 30, line_spacing: 1e-320"),
+                               "m apart, inf flight lines cross the plot"),
+    "margin of 1e300 m": (GOOD.replace("altitude: 30", "altitude: 30, margin: 1e300"),
+                          "survey.margin: must be <= 1e+09, got 1e+300"),
+    "leg of 1e300 m": (GOOD.replace("altitude: 30", "altitude: 30, lines: [[[5, -1e300], [5, 1e300]]]"),
+                       "survey.lines[0][0][1]: must be >= -1e+09, got -1e+300"),
+    "speed of 1e-300 m/s": (GOOD.replace("altitude: 30", "altitude: 30, speed: 1e-300"),
+                            "survey.speed: leg 1 lasts 3e+301 s: 6e+306 pulses, more than the 4,294,967,296"),
+    "speed of 1e300 m/s": (GOOD.replace("altitude: 30", "altitude: 30, speed: 1e300"), "survey: fires no pulse"),
+    "flight beyond the sensor's range": (GOOD.replace("altitude: 30", "altitude: 2000"),
+                                         "survey.altitude: the plot's ground lies 2,000.0 m from leg 1 at the nearest, "
+                                         "beyond the sensor's range_max of 1,000 m"),
+    "a billion trees without spacing": (GOOD.replace("trees: 1", "trees: 1000000000, min_spacing: 0"),
+                                        "forest.trees: 1000000000 trees in a 10 x 10 m plot is more than 1 a square metre"),
+    "spacing of 1e300 m": (GOOD.replace("trees: 1", "trees: 2, min_spacing: 1e300"),
+                           "forest.trees: 2 trees at min_spacing 1e+300 m do not fit"),
+    "GNSS error of 1e300 m": (GOOD.replace("altitude: 30", "altitude: 30, navigation_errors: {gnss_sigma_m: 1e300}"),
+                              "survey.navigation_errors.gnss_sigma_m: must be <= 100, got 1e+300"),
 }
 
 
@@ -172,6 +195,18 @@ def test_errors_inside_a_sensor_file_name_that_file(tmp_path, monkeypatch, capsy
     ("wavelength: 1e-9", "wavelength: must be >= 2e-07, got 1e-09"),
     ("pulse_length: 4", "pulse_length: must be <= 1e-06, got 4 (seconds: 4 ns is 4e-9)"),
     ("beam_divergence: [0.5, 0.5]", "beam_divergence[0]: must be <= 0.3, got 0.5 (radians, full angle: 0.5 mrad is 0.5e-3)"),
+    # each of these passed and then ended the render in a traceback, or rendered no point, saying nothing:
+    ("range_precision: 1e300", "range_precision: must be <= 10, got 1e+300"),
+    ("range_precision_per_metre: 1e300", "range_precision_per_metre: must be <= 0.1, got 1e+300"),
+    ("footprint_range_noise: 1e300", "footprint_range_noise: must be <= 10, got 1e+300"),
+    ("range_max: 1e300", "range_max: must be <= 100000, got 1e+300"),
+    ("waveform: {bin_size: 1e-300}", "waveform.bin_size: must be >= 1e-11, got 1e-300"),
+    ("pulse_length: 1e-300", "pulse_length: must be >= 1e-11, got 1e-300"),
+    ("echo_separation: 1e-300", "echo_separation: must be >= 0.0001, got 1e-300"),
+    ("mount: {lever_arm: [1e6, 0, 0]}", "mount.lever_arm[0]: must be <= 100, got 1e+06"),
+    ("scan_frequency_range: [0, 0]", "scan_frequency_range: a rotating deflector needs a scan frequency above 0"),
+    ("scan_frequency_range: [1e300, 1e300]", "scan_frequency_range[0]: must be <= 10000, got 1e+300"),
+    ("risley: {prism_rates: [1e300, 1]}", "risley.prism_rates[0]: must be <= 10000, got 1e+300"),
 ])
 def test_bad_noise_and_intensity_keys_of_a_sensor_file(tmp_path, monkeypatch, capsys, line, message):
     monkeypatch.chdir(tmp_path)

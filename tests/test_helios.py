@@ -198,7 +198,7 @@ HOSTILE_SURVEYS = {   # file in data/, its text, the text to put instead, and th
                             "scanner[vux].beamDivergence_rad: must be >= 0, got -1 (checked as our "
                             "sensor.beam_divergence)"),
     "zero pulse length": ("scanners.xml", 'pulseLength_ns="4"', 'pulseLength_ns="0"',
-                          "scanner[vux].pulseLength_ns: must be > 0, got 0 (checked as our sensor.pulse_length)"),
+                          "scanner[vux].pulseLength_ns: must be >= 1e-11, got 0 (checked as our sensor.pulse_length)"),
 }
 
 

@@ -275,6 +275,17 @@ def test_a_bad_trajectory_file_is_one_line_and_exit_2(tmp_path, capsys, text, wh
     assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
 
 
+def test_a_trajectory_too_long_to_number_its_pulses_is_refused_as_the_files_not_survey_speed(tmp_path, capsys):
+    """A flight line of 10^7 s (1 m/s over 10,000 km): the refusal named survey.speed, which a trajectory
+    does not fly, and said "fly faster"."""
+    csv = _trajectory_csv(tmp_path / "t.csv", [[0, 20, 5, 30, 0, 0, 0], [1e7, 20, 1e7, 30, 0, 0, 0]])
+    path = scene_file(tmp_path, survey={"trajectory": str(csv)})
+    assert main(["plan", str(path), "-o", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "scene.yaml: survey.trajectory: leg 1 lasts 10,000,000 s" in err, err
+    assert not (tmp_path / "out").exists()
+
+
 def test_a_trajectory_below_the_ground_is_refused_as_the_files_not_survey_altitude(tmp_path, capsys):
     """Heights above the datum less an offset gone wrong: the refusal named survey.altitude (not flown with
     a trajectory) and 'the ground rises 0.0 m above its mean height'."""

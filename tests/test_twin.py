@@ -252,6 +252,20 @@ def _shrubby_clip(path, width: float, length: float = 30.0) -> None:
     las.write(str(path))
 
 
+@pytest.mark.parametrize(("variant", "words"), [
+    ("scalar_rgb", "--variant: must be auto or a Mitsuba llvm_* or cuda_* variant such as llvm_ad_mono, got 'scalar_rgb'"),
+    ("llvm_nope", "--variant: 'llvm_nope' is not in this Mitsuba build"),
+])
+def test_a_calibration_variant_this_machine_cannot_run_is_refused_before_the_twin_is_written(tmp_path, capsys,
+                                                                                             variant, words):
+    """The variant was first checked by the calibration's render of the written twin: the twin's scene,
+    DEM and trees.csv were left in the folder, and the line named the twin's scene file, not --variant."""
+    _shrubby_clip(tmp_path / "clip.las", 10.0)
+    r = _run(capsys, "twin", tmp_path / "clip.las", "-o", tmp_path / "out", "--calibrate", "1", "--variant", variant)
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and r.stderr.startswith(f"mitsuforest: {words}"), r.stderr
+    assert not (tmp_path / "out").exists()
+
+
 def test_a_twin_asks_for_no_more_bushes_than_its_plot_can_place(tmp_path, capsys):
     """A clip thick with shrubs calls for more bushes than its plot can place (each keeps a 3.4 m clear
     disc): a 2 m wide one gets none and a 40 m wide one half the plan's capacity, said on stderr, and
@@ -293,6 +307,8 @@ def test_tree_list_refuses_a_tree_outside_the_plot_and_a_count_beside_it(tmp_pat
     ("x;y;height;crown_radius\n5,5;5;12,1;2\n",      # a spreadsheet set to decimal commas
      "the tree list is separated by ';' (a spreadsheet set to decimal commas): save it as CSV with ','"),
     ("x,y,height,crown_radius,height\n5,5,12,2,14\n", "the tree list has the column height 2 times; keep one"),
+    # a decimal comma in a comma-separated list: was read as height 12 and crown_radius 5, the 2 left out
+    ("x,y,height,crown_radius\n5,5,12,5,2\n", "line 2: 5 cells, the header has 4 (a decimal comma, as in 12,5"),
 ])
 def test_tree_list_in_other_separators_is_refused_saying_so(tmp_path, text, message):
     from mitsuforest.config import load_scene

@@ -222,7 +222,7 @@ survey: {altitude: 30, pulse_frequency: 200000}
     ("output: {waveform: true}", "", "scene.yaml: output.waveform: unknown key (did you mean 'waveforms'?)"),
     ("", "waveform: {samples: 0}", "s.yaml: waveform.samples: must be >= 1, got 0"),
     ("", "waveform: {samples: 100000}", "s.yaml: waveform.samples: must be <= 4096, got 100000"),
-    ("", "waveform: {bin_size: -1.0e-9}", "s.yaml: waveform.bin_size: must be > 0, got -1e-09"),
+    ("", "waveform: {bin_size: -1.0e-9}", "s.yaml: waveform.bin_size: must be >= 1e-11, got -1e-09"),
     ("", "waveform: {bins: 3}", "s.yaml: waveform.bins: unknown key (did you mean 'bin_size'?)"),
 ])
 def test_bad_waveform_keys_give_one_line_and_exit_2(tmp_path, monkeypatch, capsys, scene, sensor, message):

@@ -35,27 +35,36 @@ MAX_BEAM_SAMPLES = 61   # the speed-against-error benchmark stops here; compile 
 MAX_PLOT_SIDE = 2000.0  # m: the 0.25 m cover raster of a 2 km plot is 64 MB (a 1000 km one would be 14.6 TiB)
 MAX_WAVEFORM_SAMPLES = 4096   # a batch's waveforms are 4 bytes x samples x pulses: 1.7 GB at 105,263 pulses
 MIN_BATCH = 1000        # time slots per launch: fewer spend their time launching kernels
+MAX_RANGE = 1e5         # m: beyond any lidar's reach (the shipped sensors reach 250-10,000 m); the scene's bounds are float32
+MAX_RANGE_NOISE = 10.0  # m: 1-sigma ranging noise at short range (data sheets give millimetres to centimetres)
+MAX_LEVER_ARM = 100.0   # m: the scanner's offset from the navigation reference point (decimetres on a UAV)
+MAX_SCAN_RATE = 1e4     # Hz: scan lines or prism turns a second (polygon mirrors reach about 600)
+MIN_BIN = 1e-11         # s: a waveform digitiser's sample, or a pulse (the fastest sample at 0.1 ns, the shortest pulses last 0.3 ns)
+MAX_GNSS_SIGMA = 100.0  # m: a navigation solution this far off is no solution
+MAX_STEMS_PER_M2 = 1.0  # trees a square metre (10,000 a hectare: the densest plantations)
 RSA_JAMMING = 0.547     # random sequential adsorption of discs fills at most this share of a plane
+MAX_OFFSET = 1e9   # m: beyond every projected CRS (eastings and northings are below 1e7 m); float64 keeps 0.1 mm to ~1e11 m
+MAX_LEGS = 65_535       # a point's point_source_id (16 bits) is its leg's number, from 1
 SENSOR_SPEC = {
     "name": Text(REQUIRED),
     "source": Text(""),
     "deflector": Text("rotating", choices=("rotating", "oscillating", "risley")),
     "field_of_view": Number(360.0, gt=0, le=360),
     "pulse_frequencies": ListOf(Number(integer=False, gt=0), REQUIRED, min_length=1),
-    "scan_frequency_range": Vector(2, Number(ge=0), [10.0, 200.0]),
+    "scan_frequency_range": Vector(2, Number(ge=0, le=MAX_SCAN_RATE), [10.0, 200.0]),
     "beam_divergence": Vector(2, Number(ge=0, le=0.3, unit_hint="radians, full angle: 0.5 mrad is 0.5e-3"), REQUIRED,
                               scalar_ok=True),
-    "pulse_length": Number(4e-9, gt=0, le=1e-6, unit_hint="seconds: 4 ns is 4e-9"),
+    "pulse_length": Number(4e-9, ge=MIN_BIN, le=1e-6, unit_hint="seconds: 4 ns is 4e-9"),
     "wavelength": Number(1550e-9, ge=2e-7, le=2e-5, unit_hint="metres: 905 nm is 905e-9"),
     "range_min": Number(0.0, ge=0),
-    "range_max": Number(1000.0, gt=0),
-    "range_precision": Number(0.0, ge=0),
+    "range_max": Number(1000.0, gt=0, le=MAX_RANGE),
+    "range_precision": Number(0.0, ge=0, le=MAX_RANGE_NOISE),
     "range_accuracy": Number(0.0, ge=0),
     "max_returns": Number(0, integer=True, ge=0),
     "detection_threshold": Number(None, ge=0, nullable=True),
-    "echo_separation": Number(None, gt=0, nullable=True),
-    "range_precision_per_metre": Number(0.0, ge=0),
-    "footprint_range_noise": Number(0.0, ge=0),
+    "echo_separation": Number(None, ge=1e-4, nullable=True),   # m: 0.1 mm; data sheets give decimetres
+    "range_precision_per_metre": Number(0.0, ge=0, le=0.1),   # sigma grows by at most a tenth of the range
+    "footprint_range_noise": Number(0.0, ge=0, le=10),       # a share of the footprint's range spread
     "speckle_looks": Number(0, integer=True, ge=0, le=MAX_SPECKLE_LOOKS),
     "intensity": {
         "source": Text("amplitude", choices=INTENSITY_SOURCES),
@@ -64,15 +73,15 @@ SENSOR_SPEC = {
         "saturation": Number(65535, integer=True, ge=1, le=65535),
     },
     "risley": {
-        "prism_rates": Vector(2, Number(), [121.6, -77.7]),
+        "prism_rates": Vector(2, Number(ge=-MAX_SCAN_RATE, le=MAX_SCAN_RATE), [121.6, -77.7]),
         "prism_deflection": Vector(2, Number(ge=0), [17.6, 17.6]),
     },
     "waveform": {   # scan/waveform.py: samples x pulses per batch x 4 bytes are held per batch
-        "bin_size": Number(1.0e-9, gt=0, le=1.0e-6),
+        "bin_size": Number(1.0e-9, ge=MIN_BIN, le=1.0e-6, unit_hint="seconds: 1 ns is 1e-9"),
         "samples": Number(256, integer=True, ge=1, le=MAX_WAVEFORM_SAMPLES),
     },
     "mount": {   # plan/trajectory.py: body frame x forward, y right, z down
-        "lever_arm": Vector(3, Number(), [0.0, 0.0, 0.0]),
+        "lever_arm": Vector(3, Number(ge=-MAX_LEVER_ARM, le=MAX_LEVER_ARM), [0.0, 0.0, 0.0]),
         "boresight": Vector(3, Number(ge=-180, le=180), [0.0, 0.0, 0.0]),
     },
 }
@@ -269,7 +278,8 @@ def _crs(value, ctx: Context, key: str):
 def _legs(value, ctx: Context, key: str):
     if value is None:
         return None
-    leg = Custom(lambda v, c, k: [Vector(2).parse(p, c, f"{k}[{j}]") for j, p in enumerate(_pair(v, c, k))])
+    end = Vector(2, Number(ge=-MAX_OFFSET, le=MAX_OFFSET))   # local metres: legs of 1e300 m overflow their timing
+    leg = Custom(lambda v, c, k: [end.parse(p, c, f"{k}[{j}]") for j, p in enumerate(_pair(v, c, k))])
     return ListOf(leg, min_length=1).parse(value, ctx, key)
 
 
@@ -312,14 +322,16 @@ SCENE_SPEC = {
         "speed": Number(2.0, gt=0),
         "pulse_frequency": Number(None, gt=0, nullable=True),
         "scan_frequency": Number(None, gt=0, nullable=True),
-        "line_spacing": Number(12.0, gt=0),
+        "line_spacing": Number(12.0, gt=0, le=MAX_OFFSET),
         "heading": Number(0.0),
-        "margin": Number(10.0, ge=0),
+        "margin": Number(10.0, ge=0, le=MAX_OFFSET),
         "lines": Custom(_legs, None),
         "trajectory": FilePath(None, nullable=True),
         "attitude": {axis: Custom(_wave, {}) for axis in ("roll", "pitch", "yaw")},
         "navigation_errors": {
-            "gnss_sigma_m": ANGLES, "gnss_random_walk_m_per_sqrt_s": ANGLES, "imu_sigma_deg": ANGLES,
+            "gnss_sigma_m": Vector(3, Number(ge=0, le=MAX_GNSS_SIGMA), [0.0, 0.0, 0.0], scalar_ok=True),
+            "gnss_random_walk_m_per_sqrt_s": Vector(3, Number(ge=0, le=MAX_GNSS_SIGMA), [0.0, 0.0, 0.0], scalar_ok=True),
+            "imu_sigma_deg": Vector(3, Number(ge=0, le=180), [0.0, 0.0, 0.0], scalar_ok=True),
             "boresight_error_deg": Vector(3, Number(ge=-10, le=10), [0.0, 0.0, 0.0]),
             "rate_hz": Number(10.0, gt=0, le=1000),
         },
@@ -342,7 +354,6 @@ SCENE_SPEC = {
 }
 
 
-MAX_OFFSET = 1e9   # m: beyond every projected CRS (eastings and northings are below 1e7 m); float64 keeps 0.1 mm to ~1e11 m
 MAX_YAML_DEPTH = 100   # nesting levels; a scene needs about 6. PyYAML composes recursively: 1,000 levels overflow
 
 
@@ -468,6 +479,9 @@ def _check_sensor(sensor: dict, ctx: Context, prefix: str):
     lo, hi = sensor["scan_frequency_range"]
     if lo > hi:
         ctx.fail(prefix + "scan_frequency_range", f"must be [low, high], got [{lo:g}, {hi:g}]")
+    if hi <= 0 and sensor["deflector"] != "risley":   # a Risley deflector's prism rates set its pattern
+        ctx.fail(prefix + "scan_frequency_range", f"a {sensor['deflector']} deflector needs a scan frequency above 0: "
+                 f"the high end must be > 0, got [{lo:g}, {hi:g}]")
     if sensor["range_max"] <= sensor["range_min"]:
         ctx.fail(prefix + "range_max", f"must be > range_min ({sensor['range_min']:g})")
 
@@ -530,6 +544,18 @@ def _parsed_scene(data, ctx: Context) -> dict:
     return scene
 
 
+def lawnmower_lines(size, heading: float, line_spacing: float) -> float:
+    """How many parallel legs ``line_spacing`` apart along ``heading`` (degrees clockwise from +y) cover
+    a plot of ``size`` (w, h) m: plan/flight.py's lawnmower lays them. A float, as a spacing of 1e-300 m
+    calls for more legs than an integer type holds (the scene's check refuses over :data:`MAX_LEGS`)."""
+    (w, h), a = size, math.radians(heading)
+    half_width = max(abs(x * math.cos(a) - y * math.sin(a)) for x in (-w / 2, w / 2) for y in (-h / 2, h / 2))
+    try:
+        return math.ceil(2 * half_width / line_spacing) + 1.0
+    except OverflowError:   # the quotient is inf
+        return math.inf
+
+
 def understory_capacity(size, kind: str) -> int:
     """How many understory objects of ``kind`` random placement can fit, alone, in a plot of ``size``
     (w, h) m: their clear discs (``CLEARANCE``) fill at most a share RSA_JAMMING of it, and none fits in a
@@ -568,10 +594,17 @@ def _check_scene(scene: dict, ctx: Context):
         ctx.fail("forest.trees", "give either forest.canopy_cover or forest.trees, not both")
     if forest["trees"] and forest["min_spacing"] > 0:
         w, h = scene["area"]["size"]
-        fit = int(RSA_JAMMING * w * h / (math.pi * (forest["min_spacing"] / 2) ** 2)) + 1
+        disc = math.pi * (forest["min_spacing"] / 2) * (forest["min_spacing"] / 2)   # inf, not OverflowError, for 1e300
+        fit = int(RSA_JAMMING * w * h / disc) + 1
         if forest["trees"] > fit:
             ctx.fail("forest.trees", f"{forest['trees']} trees at min_spacing {forest['min_spacing']:g} m do not fit "
                      f"in a {w:g} x {h:g} m plot (random placement fills at most about {fit})")
+    if forest["trees"]:
+        w, h = scene["area"]["size"]
+        most = max(1, int(MAX_STEMS_PER_M2 * w * h))
+        if forest["trees"] > most:
+            ctx.fail("forest.trees", f"{forest['trees']} trees in a {w:g} x {h:g} m plot is more than {MAX_STEMS_PER_M2:g} a "
+                     f"square metre (at most {most}; the densest plantations hold about 1)")
     _check_understory_fits(understory_counts(scene["understory"], scene["area"]["size"]), scene["area"]["size"], ctx)
     cover = forest["canopy_cover"]
     lo, hi = FOREST_BANDS[forest["type"]]
@@ -599,6 +632,12 @@ def _check_scene(scene: dict, ctx: Context):
                  f"{lo:g}-{hi:g} Hz")
     if survey["trajectory"] and survey["lines"] is not None:
         ctx.fail("survey.lines", "give either survey.lines or survey.trajectory, not both")
+    if survey["trajectory"] is None and survey["lines"] is None:   # before the legs are laid: 1e-6 m would take hours
+        lines = lawnmower_lines(scene["area"]["size"], survey["heading"], survey["line_spacing"])
+        if lines > MAX_LEGS:
+            count = f"{lines:,.0f}" if lines < 1e15 else f"{lines:.3g}"
+            ctx.fail("survey.line_spacing", f"{survey['line_spacing']:g} m apart, {count} flight lines cross the "
+                     f"plot, more than the {MAX_LEGS:,} that LAS point_source_id can number")
     waves = survey["attitude"].values()
     if survey["trajectory"] and any(w["mean_deg"] or w["amplitude_deg"] for w in waves):
         ctx.fail("survey.attitude", "a trajectory file gives its own attitude; survey.attitude is for planned legs")

@@ -19,7 +19,7 @@ import numpy as np
 
 from .. import seeds
 from ..classes import DEADWOOD_TREEID, GROUND_OBJECT_ID
-from ..config import scene_error
+from ..config import MAX_LEGS, scene_error
 from ..errors import UserError
 from ..specs.understory import CLEARANCE, SHRUB_FORMS, UNDERSTORY_COMPONENTS, UNDERSTORY_KEYS
 from ..specs.archetypes import Archetype, UniqueTrees, grown_to, nearest_template, unique_archetypes
@@ -101,7 +101,6 @@ def _plan(scene, tree_shape: TreeShape) -> Plan:
 
 
 MAX_LEG_PULSES = 2 ** 32     # time slots are numbered in 32 bits within a leg
-MAX_LEGS = 65_535            # a point's point_source_id (16 bits) is its leg's number, from 1
 
 
 def _checked_legs(scene, legs: list[Leg], terrain: Terrain) -> list[Leg]:
@@ -111,17 +110,35 @@ def _checked_legs(scene, legs: list[Leg], terrain: Terrain) -> list[Leg]:
     if len(legs) > MAX_LEGS:
         raise _Refusal("survey.trajectory" if scene.survey.trajectory else "survey",
                        f"{len(legs):,} flight lines, more than the {MAX_LEGS:,} that LAS point_source_id can number")
+    top, pulses = float(terrain.z.max()), 0
     for i, leg in enumerate(legs):
         key = f"survey.lines[{i}]" if scene.survey.lines else "survey.trajectory" if leg.track else "survey"
-        count = leg.pulse_count(scene.pulse_frequency)
-        if count >= MAX_LEG_PULSES:
-            raise _Refusal("survey.speed", f"leg {i + 1} lasts {leg.t1 - leg.t0:,.0f} s: {count:,} pulses, more "
-                           f"than the {MAX_LEG_PULSES:,} a leg can number; fly faster or split the leg")
+        seconds = leg.t1 - leg.t0
+        if not seconds * scene.pulse_frequency < MAX_LEG_PULSES:   # inf and nan too: legs of 1e300 m
+            raise _Refusal("survey.trajectory" if leg.track is not None else "survey.speed",   # the file's times
+                           f"leg {i + 1} lasts {_amount(seconds)} s: "
+                           f"{_amount(seconds * scene.pulse_frequency)} pulses, more than the {MAX_LEG_PULSES:,} a leg "
+                           "can number; fly faster or split the leg")
+        pulses += leg.pulse_count(scene.pulse_frequency)
         gap, reach = _leg_gap(leg, scene.area.size), _reach(scene, leg, terrain)
         if gap > reach:
-            raise _Refusal(key, f"the leg passes {gap:,.1f} m from the plot, beyond the sensor's reach of "
+            raise _Refusal(key, f"the leg passes {_amount(gap, 1)} m from the plot, beyond the sensor's reach of "
                            f"{reach:,.1f} m at this altitude")
+        nearest = math.hypot(gap, max(0.0, float(leg.positions()[:, 2].min()) - top))
+        if nearest > scene.sensor.range_max:
+            where = "survey.altitude" if key == "survey" else key
+            raise _Refusal(where, f"the plot's ground lies {_amount(nearest, 1)} m from leg {i + 1} at the nearest, "
+                           f"beyond the sensor's range_max of {scene.sensor.range_max:,g} m: no pulse would reach it")
+    if legs and not pulses:
+        raise _Refusal("survey", f"fires no pulse: {len(legs)} leg(s) of {_amount(legs[-1].t1 - legs[0].t0, 3)} s "
+                       f"at {scene.pulse_frequency:g} Hz; fly slower or give a higher pulse frequency")
     return legs
+
+
+def _amount(value: float, decimals: int = 0) -> str:
+    """A measure for a message: with thousands separators, or in powers of ten when it is huge (300
+    digits of a leg of 1e300 m say nothing more)."""
+    return f"{value:,.{decimals}f}" if abs(value) < 1e15 else f"{value:.3g}"
 
 
 def _check_ground_below_flight(scene, legs: list[Leg], terrain: Terrain) -> None:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..config import lawnmower_lines
 from .trajectory import read_trajectory
 from .types import Leg
 
@@ -22,7 +23,7 @@ def lawnmower(size, survey) -> list[tuple[np.ndarray, np.ndarray]]:
     corners = np.array([[0, 0], [w, 0], [w, h], [0, h]]) - centre
     half_len = np.abs(corners @ along).max() + survey.margin
     half_width = np.abs(corners @ across).max()
-    count = int(np.ceil(2 * half_width / survey.line_spacing)) + 1
+    count = int(lawnmower_lines(size, survey.heading, survey.line_spacing))
     offsets = (np.arange(count) - (count - 1) / 2) * survey.line_spacing
     legs = []
     for k, off in enumerate(offsets):
@@ -45,12 +46,13 @@ def flight_legs(size, survey, ground_height: float) -> list[Leg]:
     pairs = survey.lines or lawnmower(size, survey)
     z = ground_height + survey.altitude
     legs, t, last = [], 0.0, None
-    for a, b in pairs:
-        a, b = np.append(np.asarray(a, float), z), np.append(np.asarray(b, float), z)
-        if last is not None:
-            t += np.linalg.norm(a - last) / survey.speed
-        duration = np.linalg.norm(b - a) / survey.speed
-        legs.append(Leg(tuple(a.tolist()), tuple(b.tolist()), float(t), float(t + duration)))
-        t += duration
-        last = b
+    with np.errstate(over="ignore", invalid="ignore"):   # legs of 1e300 m: refused by their pulse count, in one line
+        for a, b in pairs:
+            a, b = np.append(np.asarray(a, float), z), np.append(np.asarray(b, float), z)
+            if last is not None:
+                t += np.linalg.norm(a - last) / survey.speed
+            duration = np.linalg.norm(b - a) / survey.speed
+            legs.append(Leg(tuple(a.tolist()), tuple(b.tolist()), float(t), float(t + duration)))
+            t += duration
+            last = b
     return legs

@@ -62,6 +62,9 @@ def read_tree_list(path, offset=(0.0, 0.0, 0.0)) -> list[ListedTree]:
             continue
         if len(row) < len(header):
             raise UserError(f"{path}: line {line}: {len(row)} cells, the header has {len(header)}")
+        if any(cell.strip() for cell in row[len(header):]):   # empty ones are a spreadsheet's trailing commas
+            raise UserError(f"{path}: line {line}: {len(row)} cells, the header has {len(header)} (a decimal comma, "
+                            "as in 12,5, splits a number in two cells: write 12.5)")
         values = {c: _number(row[at[c]], path, line, c) for c in COLUMNS}
         if values["height"] <= 0 or values["crown_radius"] <= 0:
             raise UserError(f"{path}: line {line}: height and crown_radius must be > 0")

@@ -100,6 +100,20 @@ def scene_stem(path) -> str:
     return name[:-len(POINT_FORMATS[fmt])] if fmt else Path(path).stem
 
 
+def _check_variant(variant: str) -> None:
+    """Refuse a ``--variant`` the calibration renders could not run, as a scene's ``simulation.variant``
+    would be refused, in one line naming the option."""
+    from ..errors import UserError
+    from ..scene.variant import VariantError, select_variant
+    if variant != "auto" and not variant.startswith(("llvm_", "cuda_")):
+        raise UserError(f"--variant: must be auto or a Mitsuba llvm_* or cuda_* variant such as llvm_ad_mono, "
+                        f"got {variant!r}")
+    try:
+        select_variant(variant)
+    except VariantError as e:
+        raise UserError(f"--variant: {e.reason}") from None
+
+
 def make_twin(path, out_dir, species=(), sensor=None, name: str | None = None, log=None, calibrate: int = 0,
               variant: str | None = None) -> dict:
     """Write the twin of the scan ``path`` into ``out_dir``: ``<name>.yaml``, ``<name>_dem.tif``,
@@ -129,6 +143,8 @@ def make_twin(path, out_dir, species=(), sensor=None, name: str | None = None, l
         from ..config import load_sensor, sensor_file
         sensor = sensor_file(sensor)
         load_sensor(sensor)                     # a bad sensor file is refused before any work
+    if calibrate or variant is not None:       # not once the twin's files are written, naming its scene file
+        _check_variant("auto" if variant is None else variant)
     scan = read_scan(path)
     stem = scene_stem(path)
     name = name or (stem if name_problem(stem) is None else "twin")
