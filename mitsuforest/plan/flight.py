@@ -22,7 +22,6 @@ def lawnmower(size, survey) -> list[tuple[np.ndarray, np.ndarray]]:
     across = np.array([along[1], -along[0]])
     corners = np.array([[0, 0], [w, 0], [w, h], [0, h]]) - centre
     half_len = np.abs(corners @ along).max() + survey.margin
-    half_width = np.abs(corners @ across).max()
     count = int(lawnmower_lines(size, survey.heading, survey.line_spacing))
     offsets = (np.arange(count) - (count - 1) / 2) * survey.line_spacing
     legs = []
