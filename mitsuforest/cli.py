@@ -155,6 +155,8 @@ def main(argv=None) -> int:
     try:
         if args.command not in ("info", "compare"):
             _preload(args)
+            from .trees.cache import cache_limit
+            cache_limit()                     # a bad MITSUFOREST_CACHE_SIZE, refused before any work
             if argv is None:
                 _spare_the_collector()
         code = _COMMANDS[args.command](args) or 0

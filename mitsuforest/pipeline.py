@@ -20,6 +20,7 @@ from .scan import read_ahead_variable
 from .scene import scene_variant
 from .survey import Batches, PreparedSurvey, prepare, scan, write as write_survey
 from .threads import writer_threads
+from .trees.cache import cache_limit
 from .write import Staging, check_output_folder, earlier_results, output_lock
 from .write.processes import start_processes, writer_processes
 
@@ -83,11 +84,13 @@ def check_output(scene: Scene, overwrite: bool) -> None:
 
 
 def check_variables() -> None:
-    """Refuse a bad ``MITSUFOREST_WRITER_THREADS``, ``MITSUFOREST_WRITER_PROCESSES`` or
-    ``MITSUFOREST_READ_AHEAD`` (one line naming it, see :class:`~mitsuforest.errors.UserError`)."""
+    """Refuse a bad ``MITSUFOREST_WRITER_THREADS``, ``MITSUFOREST_WRITER_PROCESSES``,
+    ``MITSUFOREST_READ_AHEAD`` or ``MITSUFOREST_CACHE_SIZE`` (one line naming it, see
+    :class:`~mitsuforest.errors.UserError`)."""
     writer_threads()
     writer_processes()
     read_ahead_variable()
+    cache_limit()
 
 
 def write_files(prepared: PreparedSurvey, batches: Batches, *, overwrite: bool = False,

@@ -75,6 +75,62 @@ def test_full_cache_builds_warns_and_leaves_no_temporary(model_cache, monkeypatc
     assert list(model_cache.iterdir()) == []
 
 
+def _aged(path: Path, seconds_ago: float) -> None:
+    """Set an entry's last read ``seconds_ago``, its modification time kept."""
+    os.utime(path, ns=(int((cache.time.time() - seconds_ago) * 1e9), path.stat().st_mtime_ns))
+
+
+def test_a_full_cache_drops_the_entries_read_longest_ago(model_cache, monkeypatch):
+    """Entries of 40 kB under a bound of 1 MiB: the store that puts the cache past its bound removes the
+    entries read longest ago until the cache holds 80 % of it; the first entry, read again just before,
+    stays, and so does the one just stored. A store under the bound counts nothing."""
+    monkeypatch.setattr(cache, "_cache_bytes", {})
+    monkeypatch.setenv("MITSUFOREST_CACHE_SIZE", str(2 ** 20))
+    values = np.zeros(5_000)
+
+    def entry(seed):
+        return model_cache / f"{cache.cache_key('crown', {'seed': seed})}.npz"
+
+    def store(seed):
+        cache.cached_arrays("crown", {"seed": seed}, ("value",), lambda: {"value": values})
+
+    store(0)
+    size = entry(0).stat().st_size
+    fit = 2 ** 20 // size                                          # entries within the bound
+    for seed in range(1, fit):
+        store(seed)
+    for seed in range(fit):
+        _aged(entry(seed), 1000 - seed)                           # seed 0 read longest ago ...
+    store(0)                                                      # ... but read again now
+    assert all(entry(seed).exists() for seed in range(fit))
+    store(fit)                                                    # past the bound
+    kept = {seed for seed in range(fit + 1) if entry(seed).exists()}
+    assert len(kept) * size <= cache.EVICT_TO * 2 ** 20 < (len(kept) + 1) * size
+    assert kept == {0} | set(range(fit + 2 - len(kept), fit + 1))  # the ones read last, and the new one
+    monkeypatch.setattr(cache, "_entries", lambda root: pytest.fail("counted under the bound"))
+    store(fit + 1)
+
+
+@pytest.mark.parametrize("text, limit", [("20G", 20 * 2 ** 30), ("512m", 512 * 2 ** 20), ("1.5T", int(1.5 * 2 ** 40)),
+                                         ("3000000", 3_000_000), ("20GB", 20 * 2 ** 30), ("unlimited", None),
+                                         ("", 20 * 2 ** 30)])
+def test_the_cache_bound_reads_sizes_with_units(monkeypatch, text, limit):
+    monkeypatch.setenv("MITSUFOREST_CACHE_SIZE", text)
+    assert cache.cache_limit() == limit
+
+
+@pytest.mark.parametrize("text", ["20X", "-5G", "lots", "100", "nanG", "infT"])
+def test_a_bad_cache_bound_is_refused_before_a_render_in_one_line(tmp_path, monkeypatch, capsys, text):
+    from mitsuforest.cli import main
+    monkeypatch.setenv("MITSUFOREST_CACHE_SIZE", text)
+    scene = tmp_path / "scene.yaml"
+    scene.write_text("name: s\narea: {size: [10, 10]}\n")
+    assert main(["render", str(scene), "-o", str(tmp_path / "out")]) == 2
+    assert capsys.readouterr().err == (f"mitsuforest: MITSUFOREST_CACHE_SIZE: must be a size of 1M or more (bytes, "
+                                       f"or with K, M, G or T: 20G) or 'unlimited', got {text!r}\n")
+    assert not (tmp_path / "out").exists()
+
+
 def test_key_follows_the_generator_code(model_cache, monkeypatch):
     assert cache.code_hash() == cache.code_hash() and len(cache.code_hash()) == 20
     build = Builds()

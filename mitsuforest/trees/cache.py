@@ -4,6 +4,11 @@ Location: ``$MITSUFOREST_CACHE`` or ``~/.cache/mitsuforest``. Delete the folder 
 the models, ``models/derived/`` keeps what the scan computes from a cached model's meshes
 (:class:`DerivedArrays`).
 
+Size: at most ``$MITSUFOREST_CACHE_SIZE`` (``20G`` unless set; ``unlimited`` for no bound). A process that
+stores an entry past the bound removes the entries used longest ago (a read sets an entry's access time)
+until the cache holds :data:`EVICT_TO` of it: the keys change with the code and with every calibrated or
+unique tree, so entries nobody reads again pile up (61 GB of them after a month of this project's work).
+
 The key hashes the model's parameters together with :func:`code_hash`: the source of the
 generating modules and the versions of the libraries they call, so editing a generator or
 upgrading a library makes new entries without anyone bumping a version number. The cache is best
@@ -22,7 +27,9 @@ import hashlib
 import importlib.metadata
 import json
 import logging
+import math
 import os
+import time
 import sys
 import zipfile
 from pathlib import Path
@@ -44,12 +51,38 @@ GENERATOR_LIBRARIES = ("numpy", "trimesh", "manifold3d", "pymeshfix", "scipy")
 LOAD_ERRORS = (OSError, EOFError, ValueError, KeyError, TypeError, zipfile.BadZipFile)
 
 _write_failed = False   # set once a write failed, so the warning is given once per process
+SIZE_VARIABLE = "MITSUFOREST_CACHE_SIZE"
+DEFAULT_SIZE = "20G"
+EVICT_TO = 0.8          # an eviction leaves the cache at this share of its bound, so the next store does not scan
+UNITS = {"": 1, "K": 2 ** 10, "M": 2 ** 20, "G": 2 ** 30, "T": 2 ** 40}
+_cache_bytes: dict[Path, int] = {}   # per cache folder: its size as this process last counted it plus what it stored
 MEMORY_ENTRIES = 64     # models kept in memory per process (see :func:`cached`)
 _in_memory: collections.OrderedDict[tuple, Model] = collections.OrderedDict()
 
 
 def cache_dir() -> Path:
     return Path(os.environ.get("MITSUFOREST_CACHE", Path.home() / ".cache" / "mitsuforest")) / "models"
+
+
+def cache_limit() -> int | None:
+    """The cache's bound in bytes from ``$MITSUFOREST_CACHE_SIZE`` (:data:`DEFAULT_SIZE` unless set): a
+    number of bytes with an optional K, M, G or T (powers of 1024), or ``unlimited`` (None).
+
+    :raises UserError: for any other value, or a bound under 1 MB.
+    """
+    text = (os.environ.get(SIZE_VARIABLE, "").strip() or DEFAULT_SIZE).upper().removesuffix("B")
+    if text == "UNLIMITED":
+        return None
+    number, unit = (text[:-1], text[-1]) if text[-1:] in UNITS else (text, "")
+    try:
+        size = float(number) * UNITS[unit]
+    except ValueError:
+        size = math.nan
+    if not size >= 2 ** 20 or not math.isfinite(size):
+        from ..errors import UserError
+        raise UserError(f"{SIZE_VARIABLE}: must be a size of 1M or more (bytes, or with K, M, G or T: 20G) or "
+                        f"'unlimited', got {os.environ.get(SIZE_VARIABLE)!r}")
+    return int(size)
 
 
 @functools.cache
@@ -84,7 +117,9 @@ def cached(kind: str, params: dict, build) -> Model:
     archetypes without reading them again."""
     path = _entry_path(kind, params)
     model = _in_memory.get(_entry_state(path))
-    if model is None:
+    if model is not None:
+        _used(path)                             # still in use: not the first to go when the cache is full
+    else:
         with contextlib.suppress(*LOAD_ERRORS):  # no entry yet, or an unreadable or damaged one: build it
             model = _load(path)
     if model is None:
@@ -110,8 +145,17 @@ def cached_arrays(kind: str, params: dict, names: tuple[str, ...], build) -> dic
 def _read(path: Path, names: tuple[str, ...]) -> dict[str, np.ndarray] | None:
     """The arrays ``names`` of the entry ``path``, or None when there is no readable, undamaged one."""
     with contextlib.suppress(*LOAD_ERRORS), np.load(path) as data:
-        return {name: data[name] for name in names}
+        arrays = {name: data[name] for name in names}
+        _used(path)
+        return arrays
     return None
+
+
+def _used(path: Path) -> None:
+    """Set the entry's access time to now, keeping its modification time (which keys the memory cache):
+    the eviction removes the entries read longest ago first, whatever the folder's mount does with reads."""
+    with contextlib.suppress(OSError):
+        os.utime(path, ns=(time.time_ns(), path.stat().st_mtime_ns))
 
 
 def _entry_state(path: Path) -> tuple | None:
@@ -212,9 +256,54 @@ def _store(arrays: dict[str, np.ndarray], path: Path) -> None:
         os.replace(tmp, path)
     except OSError as e:
         _warn_write_failed(path.parent, e)
+    else:
+        _keep_within_limit(path)
     finally:
         with contextlib.suppress(OSError):
             tmp.unlink(missing_ok=True)
+
+
+def _keep_within_limit(stored: Path) -> None:
+    """After ``stored`` was written: where the cache (as this process last counted it, plus what it stored
+    since) is past :func:`cache_limit`, count it again and remove the entries read longest ago until it
+    holds :data:`EVICT_TO` of the bound. Entries other processes are reading stay readable to them (POSIX)."""
+    from ..errors import UserError
+    try:
+        limit = cache_limit()
+    except UserError:       # refused up front by the commands; the API's caller keeps an unbounded cache
+        return
+    if limit is None:
+        return
+    root = cache_dir()
+    counted = _cache_bytes.get(root)
+    with contextlib.suppress(OSError):
+        size = stored.stat().st_size
+        if counted is not None and counted + size <= limit:
+            _cache_bytes[root] = counted + size
+            return
+        entries = sorted(_entries(root))                 # (last read, size, path), longest ago first
+        total = sum(e[1] for e in entries)
+        for _, entry_size, path in entries:
+            if total <= EVICT_TO * limit:
+                break
+            if path != stored:
+                with contextlib.suppress(OSError):
+                    path.unlink()
+                    total -= entry_size
+        _cache_bytes[root] = total
+
+
+def _entries(root: Path) -> list[tuple[int, int, Path]]:
+    """(access time in ns, size, path) of every entry under ``root`` and ``root/derived``."""
+    found = []
+    for folder in (root, root / "derived"):
+        with contextlib.suppress(OSError), os.scandir(folder) as it:
+            for e in it:
+                if e.is_file(follow_symlinks=False) and e.name.endswith(".npz") and ".tmp-" not in e.name:
+                    with contextlib.suppress(OSError):
+                        st = e.stat(follow_symlinks=False)
+                        found.append((st.st_atime_ns, st.st_size, Path(e.path)))
+    return found
 
 
 def _load(path: Path) -> Model:
@@ -222,6 +311,7 @@ def _load(path: Path) -> Model:
         h = json.loads(str(data["header"]))
         parts = [Part(name, data[f"v{i}"], data[f"f{i}"], data[f"c{i}"]) for i, name in enumerate(h["parts"])]
         hull = data["hull"] if "hull" in data.files else None
+    _used(path)
     volume = WoodVolume(**h["volume"]) if h["volume"] else None
     return Model(h["name"], parts, [Component(k, c) for k, c in h["components"]], volume,
                  h["meta"], hull)
