@@ -40,6 +40,7 @@ def test_example_runs(name, shared_render):
         assert "reoriented" in stdout and stdout.count("repaired ") == 4 and "treeid 4:" in stdout
     if name == "sensors.py":
         assert stdout.count("| RIEGL") == 3 and "Livox" in stdout and "ideal" in stdout
+        assert "| Leica ALS50-II | 300 m |" in stdout
 
 
 def test_custom_scene_plans(tmp_path):
