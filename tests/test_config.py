@@ -91,11 +91,17 @@ CASES = {
     "speed of 1e-300 m/s": (GOOD.replace("altitude: 30", "altitude: 30, speed: 1e-300"),
                             "survey.speed: leg 1 lasts 3e+301 s: 6e+306 pulses, more than the 4,294,967,296"),
     "speed of 1e300 m/s": (GOOD.replace("altitude: 30", "altitude: 30, speed: 1e300"), "survey: fires no pulse"),
+    "flight under the sensor's minimum range": (GOOD.replace("altitude: 30", "altitude: 2"),
+                                                "survey.altitude: 2 m is under the sensor's minimum range 3 m (RIEGL "
+                                                "VUX-1UAV22): it would see nothing; fly at least that high"),
     "flight beyond the sensor's range": (GOOD.replace("altitude: 30", "altitude: 2000"),
-                                         "survey.altitude: the plot's ground lies 2,000.0 m from leg 1 at the nearest, "
-                                         "beyond the sensor's range_max of 1,000 m"),
+                                         "survey.altitude: the plot's ground, and anything 150 m tall on it, lies "
+                                         "1,850.0 m from leg 1 at the nearest, beyond the sensor's range_max of 1,000 m"),
+    "a line across the plot beyond the sensor's range": (
+        GOOD.replace("altitude: 30", "altitude: 2000, lines: [[[5, -5], [5, 15]]]"),
+        "survey.altitude: the plot's ground, and anything 150 m tall on it, lies 1,850.0 m from leg 1"),
     "a billion trees without spacing": (GOOD.replace("trees: 1", "trees: 1000000000, min_spacing: 0"),
-                                        "forest.trees: 1000000000 trees in a 10 x 10 m plot is more than 1 a square metre"),
+                                        "forest.trees: 1000000000 trees in a 10 x 10 m plot is more than 10 a square metre"),
     "spacing of 1e300 m": (GOOD.replace("trees: 1", "trees: 2, min_spacing: 1e300"),
                            "forest.trees: 2 trees at min_spacing 1e+300 m do not fit"),
     "GNSS error of 1e300 m": (GOOD.replace("altitude: 30", "altitude: 30, navigation_errors: {gnss_sigma_m: 1e300}"),
@@ -313,3 +319,13 @@ def test_version(capsys):
         main(["--version"])
     assert e.value.code == 0
     assert capsys.readouterr().out.startswith("mitsuforest 0.")
+
+
+def test_a_flight_whose_ground_is_out_of_range_but_a_tall_tree_is_not_plans(tmp_path):
+    """From 1,100 m the VUX-1UAV22 (range_max 1,000 m) cannot reach the ground, but would reach the top of
+    a tree 100 m tall or more: not refused (from 1,200 m nothing 150 m tall is in reach, above)."""
+    (tmp_path / "scene.yaml").write_text(GOOD.replace("altitude: 30", "altitude: 1100"))
+    assert make_plan(load_scene(tmp_path / "scene.yaml")).legs
+    (tmp_path / "scene.yaml").write_text(GOOD.replace("altitude: 30", "altitude: 1200"))
+    with pytest.raises(ConfigError, match="lies 1,050.0 m from leg 1"):
+        make_plan(load_scene(tmp_path / "scene.yaml"))

@@ -111,6 +111,42 @@ def test_a_full_cache_drops_the_entries_read_longest_ago(model_cache, monkeypatc
     store(fit + 1)
 
 
+def test_one_process_evicts_at_a_time_and_an_entry_gone_meanwhile_counts_as_freed(model_cache, monkeypatch):
+    """Dask workers share a cache: a process that finds another evicting (the lock held) removes nothing
+    and counts again at its next store; an entry another process removed meanwhile counts as freed, so
+    the evictions together leave 80 % of the bound, not an empty cache."""
+    import fcntl
+    monkeypatch.setattr(cache, "_cache_bytes", {})
+    monkeypatch.setenv("MITSUFOREST_CACHE_SIZE", "unlimited")
+    values = np.zeros(5_000)
+    for seed in range(30):                                        # 1.2 MB, past the bound to come
+        cache._store({"value": values}, model_cache / f"e{seed:02d}.npz")
+        _aged(model_cache / f"e{seed:02d}.npz", 1000 - seed)
+    monkeypatch.setenv("MITSUFOREST_CACHE_SIZE", str(2 ** 20))
+    with open(model_cache / ".evict.lock", "a") as held:
+        fcntl.flock(held, fcntl.LOCK_EX)
+        cache._store({"value": values}, model_cache / "new.npz")
+        assert len(list(model_cache.glob("*.npz"))) == 31 and cache._cache_bytes[model_cache.parent / "models"][0] is None
+    gone = [(0, 200_000, model_cache / "removed-by-another.npz")]   # listed, then removed by another process
+    entries = cache._entries
+    monkeypatch.setattr(cache, "_entries", lambda root: gone + entries(root))
+    cache._store({"value": values}, model_cache / "newer.npz")
+    left = sum(f.stat().st_size for f in model_cache.glob("*.npz"))
+    assert cache.EVICT_TO * 2 ** 20 - 200_000 - 41_000 < left <= cache.EVICT_TO * 2 ** 20
+    assert (model_cache / "new.npz").exists() and (model_cache / "newer.npz").exists()
+
+
+def test_a_model_held_in_memory_is_not_built_again_when_its_entry_is_evicted(model_cache):
+    """Another process's eviction removes an entry this process holds in memory: the model is handed out
+    from memory and stored again, not built again."""
+    build = Builds()
+    cache.cached("rock", {"seed": 3}, build)
+    [entry] = model_cache.glob("rock-*.npz")
+    entry.unlink()
+    again = cache.cached("rock", {"seed": 3}, build)
+    assert build.calls == 1 and again.parts and entry.exists()
+
+
 @pytest.mark.parametrize("text, limit", [("20G", 20 * 2 ** 30), ("512m", 512 * 2 ** 20), ("1.5T", int(1.5 * 2 ** 40)),
                                          ("3000000", 3_000_000), ("20GB", 20 * 2 ** 30), ("unlimited", None),
                                          ("", 20 * 2 ** 30)])
@@ -119,7 +155,7 @@ def test_the_cache_bound_reads_sizes_with_units(monkeypatch, text, limit):
     assert cache.cache_limit() == limit
 
 
-@pytest.mark.parametrize("text", ["20X", "-5G", "lots", "100", "nanG", "infT"])
+@pytest.mark.parametrize("text", ["20X", "-5G", "lots", "100", "nanG", "infT", "B", "G"])
 def test_a_bad_cache_bound_is_refused_before_a_render_in_one_line(tmp_path, monkeypatch, capsys, text):
     from mitsuforest.cli import main
     monkeypatch.setenv("MITSUFOREST_CACHE_SIZE", text)

@@ -201,18 +201,25 @@ def test_twin_refuses_an_empty_or_damaged_file_in_one_line(tmp_path, capsys):
 
 
 def test_twin_sensor_by_its_built_in_name_is_written_by_that_name(tmp_path, capsys):
-    """``--sensor leica_als50-ii`` takes the built-in sensor, as a scene's ``sensor:`` does, and the twin's
-    scene names it so (it renders on another machine); a file's path is written whole."""
+    """``--sensor riegl_minivux-1uav`` takes the built-in sensor, as a scene's ``sensor:`` does, and the
+    twin's scene names it so (it renders on another machine); a file's path is written whole. The Leica
+    ALS50-II sees nothing nearer than 200 m: for this clip (no GPS time, so flown at the default 30 m) it is
+    refused in one line, before anything is written."""
     _shrubby_clip(tmp_path / "clip.las", 20.0)
     own = tmp_path / "own.yaml"
     own.write_text((ROOT / "sensors" / "ideal.yaml").read_text())
-    for sensor, written in (("leica_als50-ii", "leica_als50-ii"), (own, str(own.resolve()))):
+    for sensor, written in (("riegl_minivux-1uav", "riegl_minivux-1uav"), (own, str(own.resolve()))):
         r = _run(capsys, "twin", tmp_path / "clip.las", "-o", tmp_path / "out", "--sensor", sensor)
         assert r.returncode == 0, r.stderr
         scene = yaml.safe_load((tmp_path / "out" / "clip.yaml").read_text())
         assert scene["sensor"] == written
         assert json.loads((tmp_path / "out" / "twin.json").read_text())["survey"]["sensor"]["value"] == written
         shutil.rmtree(tmp_path / "out")
+    r = _run(capsys, "twin", tmp_path / "clip.las", "-o", tmp_path / "out", "--sensor", "leica_als50-ii")
+    assert r.returncode == 2 and r.stderr == ("mitsuforest: --sensor: Leica ALS50-II sees nothing nearer than 200 m, "
+                                              "and the scan was flown 30 m above its ground; give a sensor for that "
+                                              "range\n")
+    assert not (tmp_path / "out").exists()
 
 
 def test_twin_without_ground_points_or_gps_time_says_so_and_uses_named_fallbacks(tmp_path, capsys):
@@ -494,7 +501,7 @@ def test_an_oscillating_sensor_gets_half_the_scans_lines_per_second(tmp_path):
                            .replace("field_of_view: 360", "field_of_view: 60"))
     for sensor, hz in ((ROOT / "sensors" / "ideal.yaml", 80.0), (oscillating, 40.0)):
         report = {}
-        rates = _rates_of(sensor, 123_000.0, 80.0, report)
+        rates = _rates_of(sensor, 123_000.0, 80.0, 30.0, report)
         assert rates == {"pulse_frequency": 100_000, "scan_frequency": hz}
         assert ("oscillating" in report["sensor"]["source"]) == (hz == 40.0)
 

@@ -41,7 +41,7 @@ MAX_LEVER_ARM = 100.0   # m: the scanner's offset from the navigation reference 
 MAX_SCAN_RATE = 1e4     # Hz: scan lines or prism turns a second (polygon mirrors reach about 600)
 MIN_BIN = 1e-11         # s: a waveform digitiser's sample, or a pulse (the fastest sample at 0.1 ns, the shortest pulses last 0.3 ns)
 MAX_GNSS_SIGMA = 100.0  # m: a navigation solution this far off is no solution
-MAX_STEMS_PER_M2 = 1.0  # trees a square metre (10,000 a hectare: the densest plantations)
+MAX_STEMS_PER_M2 = 10.0  # trees a square metre: young stands regrown after fire hold up to 100,000 a hectare
 RSA_JAMMING = 0.547     # random sequential adsorption of discs fills at most this share of a plane
 MAX_OFFSET = 1e9   # m: beyond every projected CRS (eastings and northings are below 1e7 m); float64 keeps 0.1 mm to ~1e11 m
 MAX_LEGS = 65_535       # a point's point_source_id (16 bits) is its leg's number, from 1
@@ -604,7 +604,7 @@ def _check_scene(scene: dict, ctx: Context):
         most = max(1, int(MAX_STEMS_PER_M2 * w * h))
         if forest["trees"] > most:
             ctx.fail("forest.trees", f"{forest['trees']} trees in a {w:g} x {h:g} m plot is more than {MAX_STEMS_PER_M2:g} a "
-                     f"square metre (at most {most}; the densest plantations hold about 1)")
+                     f"square metre (at most {most}; the densest young stands hold about 10)")
     _check_understory_fits(understory_counts(scene["understory"], scene["area"]["size"]), scene["area"]["size"], ctx)
     cover = forest["canopy_cover"]
     lo, hi = FOREST_BANDS[forest["type"]]

@@ -23,7 +23,7 @@ from ..config import MAX_LEGS, scene_error
 from ..errors import UserError
 from ..specs.understory import CLEARANCE, SHRUB_FORMS, UNDERSTORY_COMPONENTS, UNDERSTORY_KEYS
 from ..specs.archetypes import Archetype, UniqueTrees, grown_to, nearest_template, unique_archetypes
-from ..specs.sources import MeshTree, QsmTree
+from ..specs.sources import MAX_HEIGHT, MeshTree, QsmTree
 from .cover import CoverGrid, PlacedOutlines, crown_outline
 from .flight import flight_legs
 from .ground_layer import place_ground_layer
@@ -101,6 +101,8 @@ def _plan(scene, tree_shape: TreeShape) -> Plan:
 
 
 MAX_LEG_PULSES = 2 ** 32     # time slots are numbered in 32 bits within a leg
+TALLEST = MAX_HEIGHT         # m: the tallest object a scene may hold (an imported tree), which a leg out of the
+                             # ground's range may still reach
 
 
 def _checked_legs(scene, legs: list[Leg], terrain: Terrain) -> list[Leg]:
@@ -124,11 +126,12 @@ def _checked_legs(scene, legs: list[Leg], terrain: Terrain) -> list[Leg]:
         if gap > reach:
             raise _Refusal(key, f"the leg passes {_amount(gap, 1)} m from the plot, beyond the sensor's reach of "
                            f"{reach:,.1f} m at this altitude")
-        nearest = math.hypot(gap, max(0.0, float(leg.positions()[:, 2].min()) - top))
+        nearest = math.hypot(gap, max(0.0, float(leg.positions()[:, 2].min()) - top - TALLEST))
         if nearest > scene.sensor.range_max:
-            where = "survey.altitude" if key == "survey" else key
-            raise _Refusal(where, f"the plot's ground lies {_amount(nearest, 1)} m from leg {i + 1} at the nearest, "
-                           f"beyond the sensor's range_max of {scene.sensor.range_max:,g} m: no pulse would reach it")
+            where = "survey.altitude" if key == "survey" or (gap == 0 and not leg.track) else key
+            raise _Refusal(where, f"the plot's ground, and anything {TALLEST:g} m tall on it, lies "
+                           f"{_amount(nearest, 1)} m from leg {i + 1} at the nearest, beyond the sensor's range_max "
+                           f"of {scene.sensor.range_max:,g} m: no pulse would reach it")
     if legs and not pulses:
         raise _Refusal("survey", f"fires no pulse: {len(legs)} leg(s) of {_amount(legs[-1].t1 - legs[0].t0, 3)} s "
                        f"at {scene.pulse_frequency:g} Hz; fly slower or give a higher pulse frequency")
@@ -152,6 +155,9 @@ def _check_ground_below_flight(scene, legs: list[Leg], terrain: Terrain) -> None
             raise _Refusal("survey.trajectory", f"the trajectory comes down to z {flight:,.1f} m, below the ground's "
                            f"highest point at {top:,.1f} m{plus}; its heights must be in the scene's local frame "
                            "(origin.offset subtracted)")
+        if scene.survey.altitude < clearance:      # flat ground too: the flight itself is too low
+            raise _Refusal("survey.altitude", f"{scene.survey.altitude:g} m is under the sensor's minimum range "
+                           f"{clearance:g} m ({scene.sensor.name}): it would see nothing; fly at least that high")
         key = "terrain.amplitude" if scene.terrain.type == "noise" else "survey.altitude"
         less = f" less the sensor's minimum range {clearance:g} m" if clearance else ""
         raise _Refusal(key, f"the ground rises {top - terrain.mean_height:,.1f} m above its mean height, higher than "

@@ -34,6 +34,11 @@ import sys
 import zipfile
 from pathlib import Path
 
+try:
+    import fcntl
+except ImportError:     # not POSIX: evictions are not serialised between processes
+    fcntl = None
+
 import numpy as np
 
 from .models import Component, Model, Part
@@ -54,10 +59,14 @@ _write_failed = False   # set once a write failed, so the warning is given once 
 SIZE_VARIABLE = "MITSUFOREST_CACHE_SIZE"
 DEFAULT_SIZE = "20G"
 EVICT_TO = 0.8          # an eviction leaves the cache at this share of its bound, so the next store does not scan
-UNITS = {"": 1, "K": 2 ** 10, "M": 2 ** 20, "G": 2 ** 30, "T": 2 ** 40}
-_cache_bytes: dict[Path, int] = {}   # per cache folder: its size as this process last counted it plus what it stored
+RECOUNT = 0.05          # a process counts the cache again once its own stores since the last count pass this share
+UNITS = {"K": 2 ** 10, "M": 2 ** 20, "G": 2 ** 30, "T": 2 ** 40}
+# Per cache folder: its size when this process last counted it (None: not yet, or another process was
+# evicting), and the bytes this process has stored since.
+_cache_bytes: dict[Path, tuple[int | None, int]] = {}
 MEMORY_ENTRIES = 64     # models kept in memory per process (see :func:`cached`)
-_in_memory: collections.OrderedDict[tuple, Model] = collections.OrderedDict()
+# Per entry path: the entry's state (path, modification time, size) when read or stored, and its model.
+_in_memory: collections.OrderedDict[str, tuple[tuple, Model]] = collections.OrderedDict()
 
 
 def cache_dir() -> Path:
@@ -73,9 +82,9 @@ def cache_limit() -> int | None:
     text = (os.environ.get(SIZE_VARIABLE, "").strip() or DEFAULT_SIZE).upper().removesuffix("B")
     if text == "UNLIMITED":
         return None
-    number, unit = (text[:-1], text[-1]) if text[-1:] in UNITS else (text, "")
+    number, unit = (text[:-1], UNITS[text[-1]]) if text[-1:] in UNITS else (text, 1)
     try:
-        size = float(number) * UNITS[unit]
+        size = float(number) * unit
     except ValueError:
         size = math.nan
     if not size >= 2 ** 20 or not math.isfinite(size):
@@ -116,7 +125,7 @@ def cached(kind: str, params: dict, build) -> Model:
     and hands out copies sharing them: a dataset worker renders plot after plot of the same
     archetypes without reading them again."""
     path = _entry_path(kind, params)
-    model = _in_memory.get(_entry_state(path))
+    model = _from_memory(path)
     if model is not None:
         _used(path)                             # still in use: not the first to go when the cache is full
     else:
@@ -154,8 +163,13 @@ def _read(path: Path, names: tuple[str, ...]) -> dict[str, np.ndarray] | None:
 def _used(path: Path) -> None:
     """Set the entry's access time to now, keeping its modification time (which keys the memory cache):
     the eviction removes the entries read longest ago first, whatever the folder's mount does with reads."""
-    with contextlib.suppress(OSError):
+    try:
         os.utime(path, ns=(time.time_ns(), path.stat().st_mtime_ns))
+    except PermissionError:     # another user's entry in a shared cache: only its owner may set the times
+        with contextlib.suppress(OSError):
+            os.utime(path)      # both: this process and others read it again, rather than build it
+    except OSError:
+        pass
 
 
 def _entry_state(path: Path) -> tuple | None:
@@ -168,6 +182,22 @@ def _entry_state(path: Path) -> tuple | None:
     return str(path), stat.st_mtime_ns, stat.st_size
 
 
+def _from_memory(path: Path) -> Model | None:
+    """The model this process holds for the entry ``path``: while the entry is as it was read or stored,
+    and where another process's eviction removed it (stored again, for the others); None where it was
+    replaced (read it again) or is not held."""
+    held = _in_memory.get(str(path))
+    if held is None:
+        return None
+    state, model = held
+    now = _entry_state(path)
+    if now is None:
+        _store(_model_arrays(model), path)
+    elif now != state:
+        return None
+    return model
+
+
 def _remember(key: tuple | None, model: Model, path: Path) -> None:
     if key is None:
         return
@@ -176,8 +206,8 @@ def _remember(key: tuple | None, model: Model, path: Path) -> None:
             array.flags.writeable = False
         if part.store is None:
             part.store = DerivedArrays(path.parent / "derived" / f"{path.stem}-part{i}")
-    _in_memory[key] = model
-    _in_memory.move_to_end(key)
+    _in_memory[str(path)] = (key, model)
+    _in_memory.move_to_end(str(path))
     while len(_in_memory) > MEMORY_ENTRIES:
         _in_memory.popitem(last=False)
 
@@ -264,9 +294,9 @@ def _store(arrays: dict[str, np.ndarray], path: Path) -> None:
 
 
 def _keep_within_limit(stored: Path) -> None:
-    """After ``stored`` was written: where the cache (as this process last counted it, plus what it stored
-    since) is past :func:`cache_limit`, count it again and remove the entries read longest ago until it
-    holds :data:`EVICT_TO` of the bound. Entries other processes are reading stay readable to them (POSIX)."""
+    """After ``stored`` was written: where the cache, as this process last counted it plus what it stored
+    since, is past :func:`cache_limit`, or its stores since pass :data:`RECOUNT` of the bound (other
+    processes store too), count it again and, past the bound, evict (:func:`_evict`)."""
     from ..errors import UserError
     try:
         limit = cache_limit()
@@ -275,22 +305,46 @@ def _keep_within_limit(stored: Path) -> None:
     if limit is None:
         return
     root = cache_dir()
-    counted = _cache_bytes.get(root)
+    counted, since = _cache_bytes.get(root, (None, 0))
     with contextlib.suppress(OSError):
-        size = stored.stat().st_size
-        if counted is not None and counted + size <= limit:
-            _cache_bytes[root] = counted + size
+        since += stored.stat().st_size
+        if counted is not None and counted + since <= limit and since <= RECOUNT * limit:
+            _cache_bytes[root] = (counted, since)
             return
-        entries = sorted(_entries(root))                 # (last read, size, path), longest ago first
+        _cache_bytes[root] = (_evict(root, stored, limit), 0)
+
+
+def _evict(root: Path, stored: Path, limit: int) -> int | None:
+    """Count the cache under ``root`` and, past ``limit``, remove the entries read longest ago until it
+    holds :data:`EVICT_TO` of it; returns the bytes left, or None where another process holds the
+    eviction's lock (it evicts; this one counts again at its next store). An entry read since it was
+    counted, and ``stored``, stay. A process reading an entry as it is removed keeps reading it on a local
+    disk; on NFS, from another node, it reads it again or builds it."""
+    with open(root / ".evict.lock", "a") as lock:
+        if fcntl is not None:
+            try:
+                fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                return None
+        entries = sorted(_entries(root))                  # (last read, size, path), longest ago first
         total = sum(e[1] for e in entries)
-        for _, entry_size, path in entries:
+        if total <= limit:
+            return total
+        for read, size, path in entries:
             if total <= EVICT_TO * limit:
                 break
-            if path != stored:
-                with contextlib.suppress(OSError):
-                    path.unlink()
-                    total -= entry_size
-        _cache_bytes[root] = total
+            if path == stored:
+                continue
+            try:
+                if path.stat().st_atime_ns > read:
+                    continue
+                path.unlink()
+            except FileNotFoundError:                     # removed meanwhile: freed all the same
+                pass
+            except OSError:
+                continue
+            total -= size
+        return total
 
 
 def _entries(root: Path) -> list[tuple[int, int, Path]]:

@@ -143,7 +143,7 @@ def make_twin(path, out_dir, species=(), sensor=None, name: str | None = None, l
         from ..config import load_sensor, sensor_file
         sensor = sensor_file(sensor)
         load_sensor(sensor)                     # a bad sensor file is refused before any work
-    if calibrate or variant is not None:       # not once the twin's files are written, naming its scene file
+    if calibrate:           # not once the twin's files are written, naming its scene file; unused without it
         _check_variant("auto" if variant is None else variant)
     scan = read_scan(path)
     stem = scene_stem(path)

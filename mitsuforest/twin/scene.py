@@ -98,7 +98,7 @@ def survey_plan(analysis: dict, sensor=None) -> tuple[dict, dict | str, dict]:
     spacing = _flight_lines(est, analysis["frame"], out, report)
     prf = _pulse_rate(est, analysis["pulse_density"], speed, spacing or DEFAULTS["line_spacing"], fired, report)
     if sensor is not None:
-        return out | _rates_of(sensor, prf, scan_frequency, report), _sensor_value(sensor), report
+        return out | _rates_of(sensor, prf, scan_frequency, altitude, report), _sensor_value(sensor), report
     mirror = round(scan_frequency / lines_per_cycle(deflector), 3)   # turns, or cycles there and back
     optics = twin_sensor(deflector)
     reach = sensor_reach(altitude, fov, optics["wavelength"])
@@ -215,11 +215,17 @@ def _sensor_value(sensor) -> str:
     return path.stem if path.parent == BUILTIN_SENSORS.resolve() and path.stem in builtin_sensors() else str(path)
 
 
-def _rates_of(sensor, prf: float, lines_per_second: float, report: dict) -> dict:
+def _rates_of(sensor, prf: float, lines_per_second: float, altitude: float, report: dict) -> dict:
     """``--sensor``'s listed pulse rate nearest ``prf``, and its scan rate for the scan's lines per second
-    within its range: an oscillating mirror's sweep there and back draws two lines, a turn one."""
+    within its range: an oscillating mirror's sweep there and back draws two lines, a turn one.
+
+    :raises UserError: where the sensor sees nothing from the survey's ``altitude`` (its ``range_min``)."""
     from ..config import load_sensor
+    from ..errors import UserError
     loaded = load_sensor(sensor)
+    if altitude < loaded.range_min:
+        raise UserError(f"--sensor: {loaded.name} sees nothing nearer than {loaded.range_min:g} m, and the "
+                        f"scan was flown {altitude:.0f} m above its ground; give a sensor for that range")
     prf_listed = min(loaded.pulse_frequencies, key=lambda f: abs(f - prf))
     lo, hi = loaded.scan_frequency_range
     per_cycle = lines_per_cycle(loaded.deflector)
