@@ -4,10 +4,12 @@ Location: ``$MITSUFOREST_CACHE`` or ``~/.cache/mitsuforest``. Delete the folder 
 the models, ``models/derived/`` keeps what the scan computes from a cached model's meshes
 (:class:`DerivedArrays`).
 
-Size: at most ``$MITSUFOREST_CACHE_SIZE`` (``20G`` unless set; ``unlimited`` for no bound). A process that
-stores an entry past the bound removes the entries used longest ago (a read sets an entry's access time)
-until the cache holds :data:`EVICT_TO` of it: the keys change with the code and with every calibrated or
-unique tree, so entries nobody reads again pile up (61 GB of them after a month of this project's work).
+Size: about ``$MITSUFOREST_CACHE_SIZE`` (``20G`` unless set; ``unlimited`` for no bound). A process that
+stores an entry past the bound removes the entries read longest ago (a read sets an entry's access time)
+until the cache holds :data:`EVICT_TO` of it, one process at a time (:func:`_evict`); each process counts the
+folder again once its own stores since pass :data:`RECOUNT` of the bound. The keys change with the code and
+with every calibrated or unique tree, so entries nobody reads again pile up (this project's cache reached
+61 GB).
 
 The key hashes the model's parameters together with :func:`code_hash`: the source of the
 generating modules and the versions of the libraries they call, so editing a generator or
