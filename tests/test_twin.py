@@ -412,6 +412,7 @@ def test_the_sweeps_of_the_real_scans_say_where_their_sensors_flew():
     est = survey.estimate(mixed, 0.0)
     assert est.tracks == () and est.line_sources == ("scan lines",) * 4
     assert est.altitude == pytest.approx(817.1, abs=0.5) and est.deflector == "oscillating"
+    assert est.scan_angle_side == "left"         # against LAS: the twin says so in its notes
     assert est.scan_frequency == pytest.approx(127.2, abs=0.1) and est.speed == pytest.approx(61.4, abs=0.1)
 
 

@@ -287,6 +287,19 @@ def test_a_first_return_file_s_flight_line_from_its_scan_angles(oscillating):
     assert "altitude" not in est.missing
 
 
+def test_the_side_of_the_flight_a_file_counts_its_scan_angles_positive_on():
+    """The airborne line above counts its angles positive to the right of its flight, as LAS does; the
+    same line with its angles negated (as some files keep them) counts them to the left. Its geometry
+    is the same either way: the sweeps place the line where it flew."""
+    heading, nadir = 72.0, (-100 * math.cos(math.radians(72.0)), 100 * math.sin(math.radians(72.0)))
+    scan = _first_returns_of_an_airborne_line(heading, nadir)
+    mirrored = RealScan(**{**scan.__dict__, "scan_angle": -scan.scan_angle})
+    est, flipped = survey.estimate(scan, 0.0), survey.estimate(mirrored, 0.0)
+    assert (est.scan_angle_side, flipped.scan_angle_side) == ("right", "left")
+    assert np.allclose(est.line_positions, flipped.line_positions, atol=0.5)
+    assert flipped.line_headings[0] == pytest.approx(heading, abs=0.5)
+
+
 @pytest.mark.parametrize("oscillating", [True, False])
 def test_a_twin_sensor_has_the_optics_of_a_scanner_with_its_files_mirror(tmp_path, oscillating):
     """The airborne line above: an oscillating mirror's twin gets the Leica ALS50-II's optics (1064 nm,

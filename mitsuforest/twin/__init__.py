@@ -82,6 +82,9 @@ def analyse(scan, settings: detection.DetectionSettings | None = None) -> dict:
     cells = understory.shrub_cells(scan.x, scan.y, h, cx, cy,
                                    (int(frame.size[1] / understory.CELL), int(frame.size[0] / understory.CELL)))
     estimate = survey.estimate(scan, float(np.mean(dem)))
+    if estimate.scan_angle_side == "left":
+        notes.append("scan angles: the file's grow to the left of the flight, where LAS counts them positive to "
+                     "the right; the twin's follow LAS, so compare shows them mirrored")
     unit = intensity.intensity_unit(scan, None if estimate.altitude is None else estimate.altitude + float(np.mean(dem)))
     from ..compare.metrics import pulse_count
     pulses = pulse_count(scan.return_number, scan.number_of_returns, scan.first_only)

@@ -73,6 +73,7 @@ class SurveyEstimate:
     deflector: str | None = None               # rotating | oscillating, from the sweeps' senses
     pulse_frequency: float | None = None       # Hz
     field_of_view: float | None = None         # deg, a lower bound
+    scan_angle_side: str | None = None         # right | left: the side of the flight positive scan angles lie on
     missing: dict = field(default_factory=dict)   # quantity: reason
 
 
@@ -419,13 +420,13 @@ def estimate(scan, ground_height: float) -> SurveyEstimate:
                   scan_frequency=1.0 / float(np.median(periods)) if periods else None,
                   pulse_frequency=float(np.median(rates)) if rates else None)
     if nadir is not None:
-        placed, sensor_z = nadir
+        placed, sensor_z, side = nadir
         strong = [ln for ln in placed if ln is not None and ln.sweeps >= NADIR_SWEEPS]
         return SurveyEstimate(
             **common, line_positions=tuple(ln.position for ln in placed if ln is not None),
             line_sources=tuple("scan lines" if ln is not None else "not placed" for ln in placed),
             line_headings=tuple(ln.heading for ln in placed if ln is not None),
-            altitude=sensor_z - ground_height, speed=float(np.median([ln.speed for ln in strong])),
+            altitude=sensor_z - ground_height, speed=float(np.median([ln.speed for ln in strong])), scan_angle_side=side,
             heading=_axis([ln.heading for ln in strong], [ln.sweeps for ln in strong]))
     heading = _heading(good) if good else None
     sensor_z = float(np.median([tr.position[2] for tr in good])) if good else None
@@ -437,9 +438,10 @@ def estimate(scan, ground_height: float) -> SurveyEstimate:
         heading=heading)
 
 
-def _nadir_lines(scan, groups: list[np.ndarray]) -> tuple[list, float] | None:
-    """Each flight line placed from its sweeps (``None`` where it has too few), and the sensor's height
-    (file z): the median of the lines with :data:`NADIR_SWEEPS` sweeps; ``None`` without such a line."""
+def _nadir_lines(scan, groups: list[np.ndarray]) -> tuple[list, float, str] | None:
+    """Each flight line placed from its sweeps (``None`` where it has too few), the sensor's height (file
+    z): the median of the lines with :data:`NADIR_SWEEPS` sweeps, and :func:`scan_angle_side`; ``None``
+    without such a line."""
     cols = (scan.x, scan.y, scan.z, scan.gps_time, scan.scan_angle)
     found = [nadir_line(*(c[g] for c in cols)) for g in groups]
     strong = [f[0] for f in found if f is not None and f[0].sweeps >= NADIR_SWEEPS]
@@ -448,7 +450,20 @@ def _nadir_lines(scan, groups: list[np.ndarray]) -> tuple[list, float] | None:
     sensor_z = float(np.median([ln.sensor_z for ln in strong]))
     placed = [None if f is None else place_nadir_line(*f, scan.x[g], scan.y[g], scan.z[g], scan.scan_angle[g], sensor_z)
               for f, g in zip(found, groups)]
-    return placed, sensor_z
+    return placed, sensor_z, scan_angle_side([f for f in found if f is not None])
+
+
+def scan_angle_side(found: list) -> str:
+    """Which side of the flight a file's positive scan angles lie on, ``right`` (as LAS counts them) or
+    ``left``: the vote, by returns, of the sweeps of each :func:`nadir_line` (``found``: its line and its
+    sweeps' indices and :class:`Sweep` s), each sweep's direction towards larger angles against the right of
+    its line's flight."""
+    votes = 0.0
+    for line, parts in found:
+        h = np.deg2rad(line.heading)
+        right = np.array([np.cos(h), -np.sin(h)])
+        votes += sum(len(b) * np.sign(sw.direction @ right) for b, sw in parts)
+    return "right" if votes >= 0 else "left"
 
 
 def _line_positions(lines: list[_Line], good: list[Track], heading, sensor_z) -> tuple[tuple, tuple]:
