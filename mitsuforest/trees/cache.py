@@ -31,8 +31,8 @@ import json
 import logging
 import math
 import os
-import time
 import sys
+import time
 import zipfile
 from pathlib import Path
 
@@ -43,6 +43,7 @@ except ImportError:     # not POSIX: evictions are not serialised between proces
 
 import numpy as np
 
+from ..errors import UserError
 from .models import Component, Model, Part
 from .volume import WoodVolume
 
@@ -90,7 +91,6 @@ def cache_limit() -> int | None:
     except ValueError:
         size = math.nan
     if not size >= 2 ** 20 or not math.isfinite(size):
-        from ..errors import UserError
         raise UserError(f"{SIZE_VARIABLE}: must be a size of 1M or more (bytes, or with K, M, G or T: 20G) or "
                         f"'unlimited', got {os.environ.get(SIZE_VARIABLE)!r}")
     return int(size)
@@ -299,7 +299,6 @@ def _keep_within_limit(stored: Path) -> None:
     """After ``stored`` was written: where the cache, as this process last counted it plus what it stored
     since, is past :func:`cache_limit`, or its stores since pass :data:`RECOUNT` of the bound (other
     processes store too), count it again and, past the bound, evict (:func:`_evict`)."""
-    from ..errors import UserError
     try:
         limit = cache_limit()
     except UserError:       # refused up front by the commands; the API's caller keeps an unbounded cache
