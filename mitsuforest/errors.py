@@ -14,6 +14,12 @@ def display_path(path) -> Path:
         return path
 
 
+def amount(value: float, decimals: int = 0) -> str:
+    """A measure for a message: with thousands separators, or in powers of ten when it is huge (300
+    digits of a leg of 1e300 m say nothing more)."""
+    return f"{value:,.{decimals}f}" if abs(value) < 1e15 else f"{value:.3g}"
+
+
 class UserError(Exception):
     """A problem with the user's input or environment, reported without a traceback."""
 

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import yaml
 
-from ..errors import ConfigError, UserError
+from ..errors import ConfigError, UserError, amount
 from ..fields import POINT_FORMATS
 from ..specs.archetypes import (DEFAULT_ARCHETYPES, FAMILY_ARCHETYPES, FIELDS as ARCHETYPE_FIELDS, MAX_UNIQUE, Archetype,
                                  UniqueTrees)
@@ -221,14 +221,18 @@ def names_builtin_sensor(value: str) -> bool:
     return "/" not in value and "\\" not in value and not value.endswith((".yaml", ".yml"))
 
 
+def _unknown_sensor(name: str) -> str:
+    return (f"unknown built-in sensor {name!r}; built-in sensors: {', '.join(builtin_sensors())} "
+            "(or give a sensor file's path)")
+
+
 def sensor_file(value) -> Path:
     """The file of a command line's sensor (``--sensor``): a built-in sensor's name (``leica_als50-ii``) or
     a sensor file's path; a name that is neither is refused listing the built-in sensors."""
     names = builtin_sensors()
     if names_builtin_sensor(str(value)) and not Path(value).exists():
         if str(value) not in names:
-            raise UserError(f"--sensor: unknown built-in sensor {str(value)!r}; built-in sensors: {', '.join(names)} "
-                            "(or give a sensor file's path)")
+            raise UserError(f"--sensor: {_unknown_sensor(str(value))}")
         return BUILTIN_SENSORS / f"{value}.yaml"
     return Path(value)
 
@@ -238,8 +242,7 @@ def _sensor_path(value: str, ctx: Context, key: str) -> Path:
     names = builtin_sensors()
     if names_builtin_sensor(value):
         if value not in names:
-            ctx.fail(key, f"unknown built-in sensor {value!r}; built-in sensors: {', '.join(names)} "
-                          "(or give a sensor file's path)")
+            ctx.fail(key, _unknown_sensor(value))
         return BUILTIN_SENSORS / f"{value}.yaml"
     path = (ctx.folder / Path(value).expanduser()).resolve()
     if not path.exists() and Path(value).stem in names:
@@ -635,8 +638,7 @@ def _check_scene(scene: dict, ctx: Context):
     if survey["trajectory"] is None and survey["lines"] is None:   # before the legs are laid: 1e-6 m would take hours
         lines = lawnmower_lines(scene["area"]["size"], survey["heading"], survey["line_spacing"])
         if lines > MAX_LEGS:
-            count = f"{lines:,.0f}" if lines < 1e15 else f"{lines:.3g}"
-            ctx.fail("survey.line_spacing", f"{survey['line_spacing']:g} m apart, {count} flight lines cross the "
+            ctx.fail("survey.line_spacing", f"{survey['line_spacing']:g} m apart, {amount(lines)} flight lines cross the "
                      f"plot, more than the {MAX_LEGS:,} that LAS point_source_id can number")
     waves = survey["attitude"].values()
     if survey["trajectory"] and any(w["mean_deg"] or w["amplitude_deg"] for w in waves):

@@ -20,7 +20,7 @@ import numpy as np
 from .. import seeds
 from ..classes import DEADWOOD_TREEID, GROUND_OBJECT_ID
 from ..config import MAX_LEGS, scene_error
-from ..errors import UserError
+from ..errors import UserError, amount
 from ..specs.understory import CLEARANCE, SHRUB_FORMS, UNDERSTORY_COMPONENTS, UNDERSTORY_KEYS
 from ..specs.archetypes import Archetype, UniqueTrees, grown_to, nearest_template, unique_archetypes
 from ..specs.sources import MAX_HEIGHT, MeshTree, QsmTree
@@ -118,30 +118,25 @@ def _checked_legs(scene, legs: list[Leg], terrain: Terrain) -> list[Leg]:
         seconds = leg.t1 - leg.t0
         if not seconds * scene.pulse_frequency < MAX_LEG_PULSES:   # inf and nan too: legs of 1e300 m
             raise _Refusal("survey.trajectory" if leg.track is not None else "survey.speed",   # the file's times
-                           f"leg {i + 1} lasts {_amount(seconds)} s: "
-                           f"{_amount(seconds * scene.pulse_frequency)} pulses, more than the {MAX_LEG_PULSES:,} a leg "
+                           f"leg {i + 1} lasts {amount(seconds)} s: "
+                           f"{amount(seconds * scene.pulse_frequency)} pulses, more than the {MAX_LEG_PULSES:,} a leg "
                            "can number; fly faster or split the leg")
         pulses += leg.pulse_count(scene.pulse_frequency)
         gap, reach = _leg_gap(leg, scene.area.size), _reach(scene, leg, terrain)
         if gap > reach:
-            raise _Refusal(key, f"the leg passes {_amount(gap, 1)} m from the plot, beyond the sensor's reach of "
+            raise _Refusal(key, f"the leg passes {amount(gap, 1)} m from the plot, beyond the sensor's reach of "
                            f"{reach:,.1f} m at this altitude")
         nearest = math.hypot(gap, max(0.0, float(leg.positions()[:, 2].min()) - top - TALLEST))
         if nearest > scene.sensor.range_max:
             where = "survey.altitude" if key == "survey" or (gap == 0 and not leg.track) else key
             raise _Refusal(where, f"the plot's ground, and anything {TALLEST:g} m tall on it, lies "
-                           f"{_amount(nearest, 1)} m from leg {i + 1} at the nearest, beyond the sensor's range_max "
+                           f"{amount(nearest, 1)} m from leg {i + 1} at the nearest, beyond the sensor's range_max "
                            f"of {scene.sensor.range_max:,g} m: no pulse would reach it")
     if legs and not pulses:
-        raise _Refusal("survey", f"fires no pulse: {len(legs)} leg(s) of {_amount(legs[-1].t1 - legs[0].t0, 3)} s "
+        raise _Refusal("survey", f"fires no pulse: {len(legs)} leg(s) of {amount(legs[-1].t1 - legs[0].t0, 3)} s "
                        f"at {scene.pulse_frequency:g} Hz; fly slower or give a higher pulse frequency")
     return legs
 
-
-def _amount(value: float, decimals: int = 0) -> str:
-    """A measure for a message: with thousands separators, or in powers of ten when it is huge (300
-    digits of a leg of 1e300 m say nothing more)."""
-    return f"{value:,.{decimals}f}" if abs(value) < 1e15 else f"{value:.3g}"
 
 
 def _check_ground_below_flight(scene, legs: list[Leg], terrain: Terrain) -> None:
