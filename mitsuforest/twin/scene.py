@@ -29,14 +29,9 @@ DEFAULT_SPECIES = "pinus_radiata"   # both real plots we twin are conifers
 # longer pulse, and keep up to 4 returns a pulse, as MixedConifer's file does: theirs are the Leica
 # ALS50-II's (sensors/leica_als50-ii.yaml). Uncalibrated, MixedConifer's twin had 39.6 % of its pulses
 # single-return with the VUX's optics against the file's 69.3 % (returns_tv 0.297); with these, 65.9 % (0.063).
-TWIN_OPTICS = {
-    "rotating": {"name": "RIEGL VUX-1UAV22", "source": "the RIEGL VUX-1UAV22 data sheet (2023)",
-                 "beam_divergence": 0.5e-3, "pulse_length": 4.0e-9, "wavelength": 1550e-9,
-                 "range_precision": 0.005, "range_accuracy": 0.010, "max_returns": 15},
-    "oscillating": {"name": "Leica ALS50-II", "source": "NERC-ARF's notes on the Leica ALS50-II and HELIOS++'s "
-                    "leica_als50-ii", "beam_divergence": 0.22e-3, "pulse_length": 10.0e-9, "wavelength": 1064e-9,
-                    "range_precision": 0.05, "range_accuracy": 0.0, "max_returns": 4, "echo_separation": 2.7},
-}
+TWIN_OPTICS = {"rotating": "riegl_vux-1uav22", "oscillating": "leica_als50-ii"}   # built-in sensors, by mirror
+OPTICS_KEYS = ("beam_divergence", "pulse_length", "wavelength", "range_precision", "range_accuracy", "max_returns",
+               "echo_separation")   # what a twin's sensor takes from them
 # The reach (m) and detection threshold of a UAV survey, the VUX-1UAV22's (a 20 % target detected at its
 # reach); sensor_reach raises the one and lowers the other for a far survey.
 TWIN_RANGE_MAX = 1000.0
@@ -100,7 +95,8 @@ def survey_plan(analysis: dict, sensor=None) -> tuple[dict, dict | str, dict]:
     if sensor is not None:
         return out | _rates_of(sensor, prf, scan_frequency, altitude, report), _sensor_value(sensor), report
     mirror = round(scan_frequency / lines_per_cycle(deflector), 3)   # turns, or cycles there and back
-    optics = twin_sensor(deflector)
+    scanner = built_in_optics(deflector)
+    optics = twin_sensor(deflector, scanner)
     reach = sensor_reach(altitude, fov, optics["wavelength"])
     sensor_map = {**optics, **reach, "field_of_view": fov, "pulse_frequencies": [prf],
                   "scan_frequency_range": [min(10.0, mirror), max(200.0, mirror)],
@@ -119,19 +115,28 @@ def survey_plan(analysis: dict, sensor=None) -> tuple[dict, dict | str, dict]:
                "reflectance": f"the linear reflectance x {sensor_map['intensity']['gain']:.4g}",
                "amplitude": f"the amplitude x {sensor_map['intensity']['gain']:.4g}"}[unit]
     report["sensor"] = {"value": sensor_map["name"], "source": f"estimated rates and field of view, {swept}, the "
-                        f"{TWIN_OPTICS[deflector]['name']}'s optics{longer}; intensity: {written}, as {why}"}
+                        f"{scanner.name}'s optics{longer}; intensity: {written}, as {why}"}
     return out, sensor_map, report
 
 
-def twin_sensor(deflector: str) -> dict:
-    """The twin sensor's keys but its rates, field of view and intensity: the optics of :data:`TWIN_OPTICS`
-    for the ``deflector`` (``rotating`` or ``oscillating``), the reach and threshold of a UAV survey."""
-    optics = dict(TWIN_OPTICS[deflector])
-    name, source = optics.pop("name"), optics.pop("source")
-    return {"name": f"twin sensor ({name} optics)", "deflector": deflector,
+def built_in_optics(deflector: str):
+    """The built-in :class:`~mitsuforest.config.types.Sensor` whose optics a twin of a ``deflector``
+    (``rotating`` or ``oscillating``) takes (:data:`TWIN_OPTICS`)."""
+    from ..config import BUILTIN_SENSORS, load_sensor
+    return load_sensor(BUILTIN_SENSORS / f"{TWIN_OPTICS[deflector]}.yaml")
+
+
+def twin_sensor(deflector: str, scanner) -> dict:
+    """The twin sensor's keys but its rates, field of view and intensity: the :data:`OPTICS_KEYS` the
+    built-in sensor ``scanner`` sets (:func:`built_in_optics`), the reach and threshold of a UAV survey."""
+    values = {k: getattr(scanner, k) for k in OPTICS_KEYS}
+    optics = {k: list(v) if isinstance(v, tuple) else v for k, v in values.items() if v is not None}   # YAML-safe
+    return {"name": f"twin sensor ({scanner.name} optics)", "deflector": deflector,
             "source": "mitsuforest twin: rates, field of view and mirror estimated from the scan, reach and "
-                      f"intensity set for the survey (twin.json), the optics of {source}",
-            **optics, "range_min": 3.0, "range_max": TWIN_RANGE_MAX, "detection_threshold": TWIN_THRESHOLD}
+                      f"intensity set for the survey (twin.json), the optics of the {scanner.name} "
+                      f"(sensors/{TWIN_OPTICS[deflector]}.yaml: {scanner.source})",
+            **optics,
+            "range_min": 3.0, "range_max": TWIN_RANGE_MAX, "detection_threshold": TWIN_THRESHOLD}
 
 
 def sensor_reach(altitude: float, field_of_view: float, wavelength: float = 1550e-9) -> dict:
