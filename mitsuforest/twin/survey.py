@@ -335,8 +335,7 @@ def nadir_line(x, y, z, t, angle) -> tuple[NadirLine, list] | None:
 def place_nadir_line(line: NadirLine, parts: list, x, y, z, angle, sensor_z: float) -> NadirLine:
     """``line`` with its position: across the flight, the median of its sweeps' nadirs for a sensor at
     ``sensor_z``; along it, its middle sweep's centroid."""
-    h = np.deg2rad(line.heading)
-    along, across = np.array([np.sin(h), np.cos(h)]), np.array([np.cos(h), -np.sin(h)])
+    along, across = flight_axes(line.heading)
     nadirs = np.array([nadir_offset(sw, x[b], y[b], z[b], angle[b], sensor_z) for b, sw in parts])
     centroids = np.array([sw.centroid for _, sw in parts])
     point = np.median(centroids @ along) * along + np.median(nadirs @ across) * across
@@ -460,8 +459,7 @@ def scan_angle_side(found: list) -> str:
     its line's flight."""
     votes = 0.0
     for line, parts in found:
-        h = np.deg2rad(line.heading)
-        right = np.array([np.cos(h), -np.sin(h)])
+        right = flight_axes(line.heading)[1]
         votes += sum(len(b) * np.sign(sw.direction @ right) for b, sw in parts)
     return "right" if votes >= 0 else "left"
 
@@ -470,7 +468,7 @@ def _line_positions(lines: list[_Line], good: list[Track], heading, sensor_z) ->
     """A point (x, y) each placed line passes through, and how it was placed (see :func:`estimate`)."""
     if heading is None:
         return (), ()
-    across = np.array([np.cos(np.deg2rad(heading)), -np.sin(np.deg2rad(heading))])
+    across = flight_axes(heading)[1]
     positions, sources = [], []
     for ln in lines:
         if ln.track is not None and ln.track in good:
@@ -491,6 +489,12 @@ def _heading(tracks) -> float:
     return _axis([np.rad2deg(np.arctan2(tr.velocity[0], tr.velocity[1])) for tr in tracks], [tr.rays for tr in tracks])
 
 
+def flight_axes(heading: float) -> tuple[np.ndarray, np.ndarray]:
+    """The (2,) unit vectors along a flight ``heading`` (deg clockwise from +y) and to its right."""
+    h = np.deg2rad(heading)
+    return np.array([np.sin(h), np.cos(h)]), np.array([np.cos(h), -np.sin(h)])
+
+
 def _axis(headings, weights) -> float:
     """The weighted axial mean (deg, 0-180) of ``headings`` (deg): a line flown either way counts alike."""
     doubled = np.angle(np.sum(np.asarray(weights, float) * np.exp(2j * np.deg2rad(headings)))) / 2
@@ -500,7 +504,7 @@ def _axis(headings, weights) -> float:
 def leg_ends(position, heading: float, bounds, margin: float) -> tuple[tuple[float, float], tuple[float, float]]:
     """A leg through ``position`` (x, y) along ``heading`` (deg), over the plot ``bounds``
     (xmin, ymin, xmax, ymax) projected on it, ``margin`` m beyond each end."""
-    axis = np.array([np.sin(np.deg2rad(heading)), np.cos(np.deg2rad(heading))])
+    axis = flight_axes(heading)[0]
     centre = np.array(position[:2], float)
     corners = np.array([[bounds[0], bounds[1]], [bounds[2], bounds[1]], [bounds[0], bounds[3]], [bounds[2], bounds[3]]])
     along = (corners - centre) @ axis
