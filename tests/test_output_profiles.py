@@ -2,28 +2,37 @@
 own loader (field names, dtypes, label values), never by our own code, and checked against our labels."""
 
 import csv
+import dataclasses
+import json
 
 import laspy
 import numpy as np
 import pytest
+import yaml
+from conftest import ROOT
 from helpers import scene_file
 
 from mitsuforest.classes import BUSH, DEADWOOD, GROUND, ROCK, STUMP, TREE_LEAVES, TREE_WOOD
 from mitsuforest.config.types import OUTPUT_PROFILES
+from mitsuforest.config.types import IntensityMapping
 from mitsuforest.pipeline import render
+from mitsuforest.scan.radiometry import RIEGL_DB_MAP, intensity_counts
 from mitsuforest.write.output_profiles import PROFILES, ForestFormer3DStream, TreeLearnStream, write_profile
 from mitsuforest.write.pcd import read_pcd
 
 OFFSET = [320000.0, 5812000.0, 100.0]
 TREES = (TREE_WOOD, TREE_LEAVES)
+DB = IntensityMapping(**RIEGL_DB_MAP)   # the plot's sensor writes RIEGL's reflectance in dB, as a twin of UAS_Clip does
 
 
 @pytest.fixture(scope="module")
 def plot(tmp_path_factory):
     """A 12 m plot with two trees and every understory kind, rendered with the FOR-instance profile into
-    a dataset-like folder: (folder, scene, our PCD points, stem object ids from _ids.csv)."""
+    a dataset-like folder: (folder, scene, our PCD points, stem object ids from _ids.csv); the sensor's
+    intensity is RIEGL's reflectance in dB (:data:`DB`)."""
     tmp = tmp_path_factory.mktemp("profiles")
-    path = scene_file(tmp, sensor="riegl_vux-1uav22.yaml", area={"size": [12, 12]},
+    sensor = yaml.safe_load((ROOT / "sensors" / "riegl_vux-1uav22.yaml").read_text()) | {"intensity": RIEGL_DB_MAP}
+    path = scene_file(tmp, sensor=sensor, area={"size": [12, 12]},
                       forest={"trees": 2, "min_spacing": 5.0},
                       origin={"offset": OFFSET, "crs": "EPSG:28355"},
                       understory={"bushes": 2, "rocks": 2, "deadwood": 2, "stumps": 1},
@@ -84,6 +93,25 @@ def test_for_instance_las_has_its_classes_and_tree_ids(plot):
     assert np.array_equal(classes, expected)
     assert set(np.unique(classes[np.isin(ours["classification"], (DEADWOOD, STUMP, BUSH))])) == {1}
     assert np.array_equal(np.asarray(las.height_above_ground), ours["height_above_ground"])
+
+
+def test_profiles_write_intensity_by_the_sensors_mapping(plot, tmp_path):
+    """The FOR-instance LAZ of the render and a ForestFormer3D PLY carry the sensor's counts (here
+    RIEGL's reflectance in dB, a ground echo near 44,000), not the default amplitude x 1e6, and the
+    LAZ's note says which mapping."""
+    folder, scene, ours, _ = plot
+    assert scene.sensor.intensity == DB
+    expected = intensity_counts(ours["intensity"], ours["reflectance"], DB)
+    ground = ours["classification"] == GROUND
+    assert 35_000 < np.median(expected[ground]) < 55_000
+    las = laspy.read(str(folder / "test_forinstance.laz"))
+    assert np.array_equal(np.asarray(las.intensity), expected)
+    assert json.loads(las.header.vlrs.get_by_id("mitsuforest", [2])[0].record_data)["intensity"] == dataclasses.asdict(DB)
+    write_profile(tmp_path / "t_ff3d.ply", "forestformer3d", ours, OFFSET, None, [], DB)
+    assert np.array_equal(read_forestformer3d(tmp_path / "t_ff3d.ply")[0]["intensity"], expected)
+    write_profile(tmp_path / "d_ff3d.ply", "forestformer3d", ours, OFFSET, None, [])
+    assert np.array_equal(read_forestformer3d(tmp_path / "d_ff3d.ply")[0]["intensity"],
+                          intensity_counts(ours["intensity"], None, IntensityMapping()))
 
 
 # --- ForestFormer3D -------------------------------------------------------------------------------------

@@ -119,6 +119,30 @@ def test_worker_processes_write_the_bytes_and_statistics_of_one_thread(tmp_path,
         assert np.allclose(las.x, np.concatenate(_batches())["x"] + offset[0], atol=1e-4)
 
 
+@pytest.mark.parametrize("threads, processes", [(1, 0), (2, 0), (1, 2)])
+def test_las_intensity_is_the_sensors_mapping_with_threads_and_processes(tmp_path, threads, processes):
+    """A sensor's own intensity mapping (RIEGL's reflectance in dB) reaches the LAS and LAZ records,
+    by one thread, several or the worker processes: the threads once wrote amplitude x 1e6 whatever
+    the sensor said, while the header's note and the processes used the sensor's mapping."""
+    import dataclasses as dc
+    from mitsuforest.config.types import IntensityMapping
+    from mitsuforest.scan.radiometry import RIEGL_DB_MAP, intensity_counts
+    scene = _scene(OFFSET, ("pcd", "las", "laz") if processes == 0 else ("pcd", "laz"))
+    mapping = IntensityMapping(**RIEGL_DB_MAP)
+    scene = scene.with_({"sensor": dc.replace(scene.sensor, intensity=mapping)})
+    staging = Staging(tmp_path / "w", scene.name)
+    writer = PointWriter(staging, scene, threads=threads, processes=processes)
+    for batch in _batches():
+        writer.add(batch)
+    writer.close()
+    points = np.concatenate(_batches())
+    expected = intensity_counts(points["intensity"], points["reflectance"], mapping)
+    assert 20_000 < np.median(expected) < 65535          # counts of -25 to +5 dB, not amplitude x 1e6
+    for suffix in ("las", "laz") if processes == 0 else ("laz",):
+        las = laspy.read(staging.path / f"{scene.name}.{suffix}")
+        assert np.array_equal(np.asarray(las.intensity), expected), suffix
+
+
 def test_parts_of_a_large_plot_come_back_through_shared_memory_with_the_bytes_of_one_thread(tmp_path,
                                                                                            monkeypatch):
     """Over a 200 m plot the side tile keeps a few points, and every part's results fit in its rows of

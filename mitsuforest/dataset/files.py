@@ -249,7 +249,8 @@ def write_tile(root, scene, tiles, labels: TileLabels, i: int, j: int, points: n
     written = [point_file]
     if labels.stems is not None:
         written.append(out_dir / f"{tile_id}{PROFILES[scene.output.profile].suffix}")
-        write_profile(written[-1], scene.output.profile, points, offset, scene.origin.crs, labels.stems)
+        write_profile(written[-1], scene.output.profile, points, offset, scene.origin.crs, labels.stems,
+                      scene.sensor.intensity)
     rows = _tree_rows(points, labels, tiling.tile_extent(i, j, area, tiles.size, tiles.buffer))
     table = out_dir / f"{tile_id}_trees.csv"
     write_text(table, csv_text(["instance", "kind", "treeid", "volume_union_m3", "points", "whole_inside"], rows))

@@ -133,7 +133,7 @@ def las_records(header: laspy.LasHeader, points: np.ndarray, out: np.ndarray | N
         for name in _unfilled(out.dtype):
             out[name] = 0
     names = points.dtype.names
-    reflectance = _reflectance(points)
+    reflectance = point_reflectance(points)
     for field in LAS_FIELDS:
         if field.name == "reflectance":
             value = reflectance
@@ -176,7 +176,7 @@ def _encode(out: np.ndarray, dimension: LasDimension, value: np.ndarray, header:
         out[name] = value
 
 
-def _reflectance(points: np.ndarray) -> np.ndarray:
+def point_reflectance(points: np.ndarray) -> np.ndarray:
     """The points' reflectance (dB): their own, or from amplitude and range, or NaN without a range."""
     names = points.dtype.names
     if "reflectance" in names:

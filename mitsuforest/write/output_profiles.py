@@ -35,14 +35,14 @@ from ..fields import LAS_DIMENSION, SCAN_ANGLE_UNIT
 from ..scan.radiometry import intensity_counts
 from .atomic import atomic_path, naming_errors
 from .closing import Closing
-from .las import LAS_MAX_RETURNS, LasStream, extra_bytes, format6_header
+from .las import LAS_MAX_RETURNS, LasStream, extra_bytes, format6_header, point_reflectance
 
 TREE_CLASSES = (TREE_WOOD, TREE_LEAVES)
 
 
-def default_intensity(points: np.ndarray) -> np.ndarray:
-    """(N,) uint16 intensity by the default mapping (amplitude × 1e6), as our LAS files' without a sensor's."""
-    return intensity_counts(points["intensity"], None, IntensityMapping())
+def sensor_intensity(points: np.ndarray, intensity: IntensityMapping | None) -> np.ndarray:
+    """(N,) uint16 intensity by the sensor's mapping (by default amplitude × 1e6), as in our LAS files."""
+    return intensity_counts(points["intensity"], point_reflectance(points), intensity or IntensityMapping())
 
 
 def _lookup(mapping: dict, default: int) -> np.ndarray:
@@ -75,12 +75,12 @@ def for_instance_classes(points: np.ndarray, stems: np.ndarray) -> np.ndarray:
     return np.where(stem, FOR_INSTANCE_STEM, out).astype(np.uint8)
 
 
-def for_instance_header(offset, crs: str | None) -> laspy.LasHeader:
+def for_instance_header(offset, crs: str | None, intensity: IntensityMapping | None = None) -> laspy.LasHeader:
     """LAS 1.4 point format 6 with the extra dimensions ``treeID`` (int32), ``label`` (our class) and
     ``height_above_ground``; offsets, scales, the CRS, the creation date and the intensity mapping as in
     our LAS files."""
     note = {"profile": "for-instance", "classification": FOR_INSTANCE_NAMES,
-            "intensity": dataclasses.asdict(IntensityMapping())}
+            "intensity": dataclasses.asdict(intensity or IntensityMapping())}
     return format6_header(offset, crs, [
         laspy.ExtraBytesParams("treeID", np.int32, "tree id, 0 for non-tree"),
         extra_bytes(LAS_DIMENSION["label"]),                      # as in our own LAS files
@@ -88,14 +88,15 @@ def for_instance_header(offset, crs: str | None) -> laspy.LasHeader:
     ], laspy.VLR("mitsuforest", 2, "FOR-instance classes", json.dumps(note).encode()))
 
 
-def for_instance_points(header: laspy.LasHeader, points: np.ndarray, stems: np.ndarray) -> laspy.ScaleAwarePointRecord:
-    """Georeferenced points as FOR-instance records of ``header``."""
+def for_instance_points(header: laspy.LasHeader, points: np.ndarray, stems: np.ndarray,
+                        intensity: IntensityMapping | None = None) -> laspy.ScaleAwarePointRecord:
+    """Georeferenced points as FOR-instance records of ``header``, their intensity by the sensor's mapping."""
     las = laspy.ScaleAwarePointRecord.zeros(len(points), header=header)
     las.x, las.y, las.z = points["x"], points["y"], points["z"]
     las.classification = for_instance_classes(points, stems)
     las.return_number = np.minimum(points["return_number"], LAS_MAX_RETURNS)
     las.number_of_returns = np.minimum(points["number_of_returns"], LAS_MAX_RETURNS)
-    las.intensity = default_intensity(points)
+    las.intensity = sensor_intensity(points, intensity)
     las.gps_time = points["gps_time"]
     las.scan_angle = np.round(points["scan_angle"] / SCAN_ANGLE_UNIT).astype(np.int16)
     las.treeID = tree_ids(points)
@@ -108,12 +109,13 @@ class ForInstanceStream(LasStream):
     """A FOR-instance style ``.las``/``.laz`` written batch by batch (:func:`for_instance_header`); closing,
     aborting and error reports as our own LAS stream's."""
 
-    def __init__(self, path, offset, crs: str | None, stems: np.ndarray):
-        super().__init__(path, offset, crs, threads=1, header=for_instance_header(offset, crs))
+    def __init__(self, path, offset, crs: str | None, stems: np.ndarray, intensity: IntensityMapping | None = None):
+        super().__init__(path, offset, crs, threads=1, header=for_instance_header(offset, crs, intensity),
+                         intensity=intensity)
         self.stems = np.asarray(stems)
 
     def write(self, points: np.ndarray) -> None:
-        self.write_records(for_instance_points(self.header, points, self.stems).array)
+        self.write_records(for_instance_points(self.header, points, self.stems, self.intensity).array)
 
 
 # --- ForestFormer3D (binary PLY) ---------------------------------------------------------------------
@@ -165,9 +167,10 @@ class _CountedFile(Closing):
 class ForestFormer3DStream(Closing):
     """A ForestFormer3D PLY (:data:`FF3D_FIELDS`), written batch by batch; x, y, z georeferenced."""
 
-    def __init__(self, path, offset, crs: str | None, stems: np.ndarray):
+    def __init__(self, path, offset, crs: str | None, stems: np.ndarray, intensity: IntensityMapping | None = None):
         self._file = _CountedFile(path, ply_header)
         self.path = self._file.path
+        self.intensity = intensity
 
     def write(self, points: np.ndarray) -> None:
         self._refuse_if_closed()
@@ -176,7 +179,7 @@ class ForestFormer3DStream(Closing):
             out[axis] = points[axis]
         out["semantic_seg"] = FF3D_CLASS[points["classification"]]
         out["treeID"] = tree_ids(points)
-        out["intensity"] = default_intensity(points)
+        out["intensity"] = sensor_intensity(points, self.intensity)
         out["return_number"] = np.minimum(points["return_number"], 255)
         out["number_of_returns"] = np.minimum(points["number_of_returns"], 255)
         out["height_above_ground"] = points["height_above_ground"]
@@ -205,7 +208,7 @@ class TreeLearnStream(Closing):
     """A TreeLearn ``.npy``: float64 rows ``x, y, z, label`` (local frame; label 0 for non-tree points,
     the tree's id from 1 on), written batch by batch."""
 
-    def __init__(self, path, offset, crs: str | None, stems: np.ndarray):
+    def __init__(self, path, offset, crs: str | None, stems: np.ndarray, intensity: IntensityMapping | None = None):
         self.offset = np.asarray(offset, np.float64)
         self._file = _CountedFile(path, npy_header)
         self.path = self._file.path
@@ -228,7 +231,7 @@ class TreeLearnStream(Closing):
 @dataclass(frozen=True)
 class Profile:
     suffix: str        # after the render's or tile's name
-    stream: type       # (path, offset, crs, stems) -> a stream with write (a :class:`~.closing.Closing`)
+    stream: type       # (path, offset, crs, stems, intensity) -> a stream with write (a :class:`~.closing.Closing`)
 
 
 PROFILES = {
@@ -239,9 +242,11 @@ PROFILES = {
 PROFILE_SUFFIXES = tuple(p.suffix for p in PROFILES.values())
 
 
-def write_profile(path, name: str, points: np.ndarray, offset, crs: str | None, stems) -> None:
-    """Write ``points`` (georeferenced) at once as profile ``name``'s file, atomically."""
-    with atomic_path(path) as tmp, PROFILES[name].stream(tmp, offset, crs, stems) as stream:
+def write_profile(path, name: str, points: np.ndarray, offset, crs: str | None, stems,
+                  intensity: IntensityMapping | None = None) -> None:
+    """Write ``points`` (georeferenced) at once as profile ``name``'s file, atomically, their intensity by
+    the sensor's mapping ``intensity`` (by default amplitude × 1e6)."""
+    with atomic_path(path) as tmp, PROFILES[name].stream(tmp, offset, crs, stems, intensity) as stream:
         stream.write(points)
 
 

@@ -68,7 +68,8 @@ class PointWriter(Closing):
             self._others.append(CopcStream(staging.file(POINT_FORMATS["copc"]), self.offset, scene.origin.crs,
                                            scene.sensor.intensity))
         if profile:
-            self._others.append(profile.stream(staging.file(profile.suffix), self.offset, scene.origin.crs, stems))
+            self._others.append(profile.stream(staging.file(profile.suffix), self.offset, scene.origin.crs, stems,
+                                               scene.sensor.intensity))
         self._kept = [] if keep else None
         self.count = 0
         self.classes = np.zeros(256, np.int64)
@@ -169,7 +170,7 @@ class PointWriter(Closing):
             write_pcd_rows(self._pcd_file.fileno(), self._pcd_file.name, self._pcd_record,
                            self._pcd_end + start * self._pcd_record.itemsize, geo)
         for las, rows in zip(self._las, records):
-            las_records(las.header, geo, rows[start:stop])
+            las_records(las.header, geo, rows[start:stop], las.intensity)
         return tallies(points, self.counts, self.side, self._tiles)
 
     def _finish(self) -> None:
