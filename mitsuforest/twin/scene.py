@@ -79,7 +79,7 @@ def survey_plan(analysis: dict, sensor=None) -> tuple[dict, dict | str, dict]:
 
     altitude = pick("altitude", est.altitude)
     speed = pick("speed", est.speed)
-    fov_seen = None if est.field_of_view is None else min(360.0, 5 * math.ceil(est.field_of_view / 5))
+    fov_seen = field_of_view_seen(est.field_of_view)
     deflector = est.deflector or "rotating"
     fired = (fov_seen or DEFAULTS["field_of_view"]) / 360.0 if deflector == "rotating" else 1.0   # pulses in the FOV
     if est.speed is None and est.pulse_frequency is not None:   # fly as fast as the file's pulse density asks
@@ -153,6 +153,13 @@ def sensor_reach(altitude: float, field_of_view: float, wavelength: float = 1550
     ground = _ground_reflectance(wavelength)
     threshold = min(TWIN_THRESHOLD, GROUND_THRESHOLD * ground / max(altitude, 1.0) ** 2)
     return {"range_max": reach, "detection_threshold": float(f"{threshold:.4g}")}
+
+
+def field_of_view_seen(widest: float | None) -> float | None:
+    """The twin's field of view (deg) from ``widest``, twice the file's largest scan angle: to the nearest
+    degree, within 1-360°. Whole-degree scan angles (LAS 1.2's rank) make 18° stand for 17.5-18.5°;
+    rounding up (to 5°, as before) widened a swath whose edge the file shows inside the plot."""
+    return None if widest is None else float(min(360, max(1, round(widest))))
 
 
 def _ground_reflectance(wavelength: float) -> float:
