@@ -191,7 +191,9 @@ def test_twin_refuses_an_empty_or_damaged_file_in_one_line(tmp_path, capsys):
     las.write(str(good))
     for args, words in ((["--species", "oak"], "--species: must be one of eucalyptus, acacia, pinus_radiata, got 'oak'"),
                         (["--name", ".hidden"], "--name: must not start with a dot"),
-                        (["--calibrate", "-1"], "--calibrate: must be >= 0, got -1"),
+                        (["--calibrate", "-1"], "--calibrate: must be within 0-20 (each is a render of the twin; "
+                                                "calibration converges in 2-4), got -1"),
+                        (["--calibrate", "1000"], "--calibrate: must be within 0-20 (each is a render of"),
                         (["--sensor", tmp_path / "none.yaml"], "none.yaml: file not found"),
                         (["--sensor", "leica_als50"], "--sensor: unknown built-in sensor 'leica_als50'; built-in "
                                                       "sensors: ideal, leica_als50-ii, livox_mid-70,")):

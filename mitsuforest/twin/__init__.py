@@ -20,6 +20,7 @@ from .points import read_scan
 __all__ = ["make_twin", "TwinFrame", "DEM_CELL"]
 
 DEM_CELL = 1.0     # m
+MAX_CALIBRATIONS = 20   # --calibrate: each is a full render, and the loop converges in 2-4
 
 
 @dataclass(frozen=True)
@@ -138,8 +139,9 @@ def make_twin(path, out_dir, species=(), sensor=None, name: str | None = None, l
     for s in species:
         if s not in TREE_SPECIES:
             raise UserError(f"--species: must be one of {', '.join(TREE_SPECIES)}, got {s!r}")
-    if calibrate < 0:
-        raise UserError(f"--calibrate: must be >= 0, got {calibrate}")
+    if not 0 <= calibrate <= MAX_CALIBRATIONS:
+        raise UserError(f"--calibrate: must be within 0-{MAX_CALIBRATIONS} (each is a render of the twin; "
+                        f"calibration converges in 2-4), got {calibrate:,}")
     if name is not None and (problem := name_problem(name)):
         raise UserError(f"--name: {problem}")
     if sensor is not None:
