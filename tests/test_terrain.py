@@ -185,6 +185,16 @@ def test_dem_needs_a_path(tmp_path):
         load_scene(scene_file(tmp_path, terrain={"type": "dem"}))
 
 
+@pytest.mark.parametrize("kind", [None, "flat", "noise"])
+def test_a_terrain_path_is_refused_where_the_terrain_type_reads_none(tmp_path, kind):
+    """``terrain: {path: dem.tif}`` without ``type: dem`` planned flat ground, the file unread."""
+    dem = write_dem(tmp_path / "dem.tif", plane)
+    terrain = {"path": str(dem), **({"type": kind} if kind else {})}
+    with pytest.raises(ConfigError, match=r"scene.yaml: terrain.path: is read only with terrain.type dem \(a GeoTIFF\) "
+                                          rf"or mesh; terrain.type is {kind or 'flat'}"):
+        load_scene(scene_file(tmp_path, terrain=terrain))
+
+
 def test_mesh_heights_are_barycentric_and_gaps_are_refused():
     # An irregular triangulation of a tilted plane: every grid point gets the plane's height.
     rng = np.random.default_rng(3)

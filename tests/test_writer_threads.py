@@ -266,6 +266,23 @@ def test_writer_processes_from_eight_cores_or_the_variable(monkeypatch):
             writer_processes(2)
 
 
+@pytest.mark.parametrize("threads", [3, None])
+def test_a_dataset_worker_writes_with_threads_whether_or_not_threads_are_given(monkeypatch, threads):
+    """README: "a dataset's workers use none unless it is set, since the plots already share the cores",
+    also on a scheduler's workers without ``--threads`` (``threads`` None), on a machine of 16 cores."""
+    import os
+
+    from mitsuforest.dataset.tasks import set_threads
+    for name in (PROCESSES_VARIABLE, THREADS_VARIABLE):
+        monkeypatch.setenv(name, "1")       # so that the test's end removes what set_threads sets
+        monkeypatch.delenv(name)
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: set(range(16)), raising=False)
+    monkeypatch.setattr("drjit.set_thread_count", lambda n: None)
+    set_threads(threads)
+    assert writer_processes() == 0
+    assert writer_threads() == (threads or 16)
+
+
 def test_outputs_the_processes_do_not_write_keep_the_threads(tmp_path):
     """LAS, COPC, an output profile or points kept in memory: the threads write them."""
     for formats, keep in ((("pcd", "las"), False), (("pcd", "laz"), True)):

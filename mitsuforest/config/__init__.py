@@ -625,6 +625,9 @@ def _check_scene(scene: dict, ctx: Context):
         ctx.fail("forest.models", f"at most {MAX_TREE_MODELS:,} archetypes and models together (treeid is 16 bits)")
     if scene["terrain"]["type"] in ("mesh", "dem") and not scene["terrain"]["path"]:
         ctx.fail("terrain.path", f"is required when terrain.type is {scene['terrain']['type']}")
+    if scene["terrain"]["type"] not in ("mesh", "dem") and scene["terrain"]["path"]:
+        ctx.fail("terrain.path", f"is read only with terrain.type dem (a GeoTIFF) or mesh; terrain.type is "
+                 f"{scene['terrain']['type']}")
     freqs = sensor.pulse_frequencies
     if survey["pulse_frequency"] is not None and survey["pulse_frequency"] not in freqs:
         ctx.fail("survey.pulse_frequency", f"{survey['pulse_frequency']:g} Hz is not one of the sensor's "
