@@ -152,3 +152,20 @@ def test_copc_keeps_the_intensity_mapping_with_a_crs_given_as_long_wkt(tmp_path)
         assert reader.header.parse_crs().equals(pyproj.CRS(wkt))
     assert note == {k: v for k, v in las_note.items() if k != "crs"} and note["intensity"] == dataclasses.asdict(mapping)
     assert intensity_mapping(tmp_path / "w.copc.laz") == dataclasses.asdict(mapping)
+
+
+def test_copc_header_has_the_las_files_creation_date(tmp_path, monkeypatch):
+    """The COPC header's creation date is our LAS files' (2000-01-01, or the day of SOURCE_DATE_EPOCH),
+    not copc-lib's day 0 of year 0 (since the COPC output), which laspy reads as none."""
+    import datetime
+    p = np.zeros(10, POINT_DTYPE)
+    p["x"], p["y"], p["z"] = (np.linspace(0, 1, len(p)) + o for o in OFFSET)
+    p["return_number"], p["number_of_returns"] = 1, 1
+    for epoch, day in ((None, datetime.date(2000, 1, 1)), ("1718841600", datetime.date(2024, 6, 20))):
+        if epoch:
+            monkeypatch.setenv("SOURCE_DATE_EPOCH", epoch)
+        stream = copc.CopcStream(tmp_path / f"{day}.copc.laz", OFFSET)
+        stream.write(p)
+        stream.close()
+        with laspy.open(str(tmp_path / f"{day}.copc.laz")) as reader:
+            assert reader.header.creation_date == day == stream.header.creation_date

@@ -105,6 +105,8 @@ class CopcStream(Closing):
         writer = copclib.FileWriter(str(self.path), config)
         header = writer.copc_config.las_header
         header.min, header.max = copclib.Vector3(*lo), copclib.Vector3(*hi)
+        day = self.header.creation_date                 # our LAS files' date (copc-lib writes day 0 of year 0)
+        header.creation_day, header.creation_year = day.timetuple().tm_yday, day.year
         info = writer.copc_config.copc_info
         info.center_x, info.center_y, info.center_z = centre
         info.halfsize, info.spacing = half, 2 * half / GRID
