@@ -126,3 +126,46 @@ def test_copc_intensity_follows_the_sensor_mapping(tmp_path):
         q = _sorted(reader.query())
     assert np.array_equal(np.asarray(q.intensity), intensity_counts(p["intensity"], None, mapping))
     assert np.asarray(q.intensity).max() == 40000
+
+
+def test_copc_keeps_the_intensity_mapping_with_a_crs_given_as_long_wkt(tmp_path):
+    """With ``origin.crs`` given as WKT too long for the room our note has in the COPC file (a compound
+    CRS, 2,900 characters), the note keeps the sensor's intensity mapping and class codes, without the CRS
+    text, which the file holds in its WKT record: the note was blank (since the COPC output), so compare
+    and ``mitsuforest info`` took the default amplitude × 1e6 for a Livox's reflectivity."""
+    import dataclasses
+    import pyproj
+    from mitsuforest.config.types import IntensityMapping
+    from mitsuforest.write.info import intensity_mapping
+    from mitsuforest.write.las import las_header
+    wkt = pyproj.CRS("EPSG:25832+5703").to_wkt()
+    mapping = IntensityMapping(source="reflectance", gain=38400, saturation=65280)
+    p = np.zeros(100, POINT_DTYPE)
+    p["x"], p["y"], p["z"] = (np.linspace(0, 10, len(p)) + o for o in OFFSET)
+    p["gps_time"], p["return_number"], p["number_of_returns"] = np.arange(len(p)), 1, 1
+    stream = copc.CopcStream(tmp_path / "w.copc.laz", OFFSET, wkt, intensity=mapping)
+    stream.write(p)
+    stream.close()
+    las_note = json.loads(next(v for v in las_header(OFFSET, wkt, mapping).vlrs if v.user_id == "mitsuforest").record_data)
+    with laspy.open(str(tmp_path / "w.copc.laz")) as reader:
+        note = json.loads(next(v for v in reader.header.vlrs if v.user_id == "mitsuforest").record_data)
+        assert reader.header.parse_crs().equals(pyproj.CRS(wkt))
+    assert note == {k: v for k, v in las_note.items() if k != "crs"} and note["intensity"] == dataclasses.asdict(mapping)
+    assert intensity_mapping(tmp_path / "w.copc.laz") == dataclasses.asdict(mapping)
+
+
+def test_copc_header_has_the_las_files_creation_date(tmp_path, monkeypatch):
+    """The COPC header's creation date is our LAS files' (2000-01-01, or the day of SOURCE_DATE_EPOCH),
+    not copc-lib's day 0 of year 0 (since the COPC output), which laspy reads as none."""
+    import datetime
+    p = np.zeros(10, POINT_DTYPE)
+    p["x"], p["y"], p["z"] = (np.linspace(0, 1, len(p)) + o for o in OFFSET)
+    p["return_number"], p["number_of_returns"] = 1, 1
+    for epoch, day in ((None, datetime.date(2000, 1, 1)), ("1718841600", datetime.date(2024, 6, 20))):
+        if epoch:
+            monkeypatch.setenv("SOURCE_DATE_EPOCH", epoch)
+        stream = copc.CopcStream(tmp_path / f"{day}.copc.laz", OFFSET)
+        stream.write(p)
+        stream.close()
+        with laspy.open(str(tmp_path / f"{day}.copc.laz")) as reader:
+            assert reader.header.creation_date == day == stream.header.creation_date

@@ -149,7 +149,7 @@ def test_gnss_white_noise_and_the_trajectory_file_hold_the_believed_trajectory(t
     errors = table[:, 8:11] - table[:, 1:4]                  # believed minus true, at the 10 Hz epochs
     assert np.std(errors, axis=0) == pytest.approx(sigma, rel=0.35)
     assert np.allclose(table[:, 11:14], table[:, 4:7]) and (table[:, 7] == 1).all()
-    points = points[points["gps_time"] <= table[-1, 0]]       # the table's last row is at 2.9 s
+    assert points["gps_time"].max() <= table[-1, 0]           # the table's last row is at the leg's end, 3.0 s
     err = np.column_stack([np.interp(points["gps_time"], table[:, 0], errors[:, k]) for k in range(3)])
     flat = np.column_stack([points["x"] - X - H * np.tan(np.radians(points["scan_angle"].astype(float))),
                             points["y"] - 5.0 - 10.0 * points["gps_time"], points["z"]])
@@ -225,14 +225,32 @@ def test_a_curved_trajectory_file_is_flown_smoothly_with_lines_and_slerped_attit
     from mitsuforest.write.tables import write_trajectory
     write_trajectory(tmp_path / "again.csv", scene, flown)
     again = read_trajectory(tmp_path / "again.csv")
-    assert [len(tr.time) for tr in again] == [30, 30]
+    assert [len(tr.time) for tr in again] == [31, 31]      # 10 a second from 0 and 10 s, and the ends 3 and 13 s
     rows = np.array(rows)[4:]
     at = np.isin(np.round(rows[:, 0], 6), np.round(again[1].time, 6))
-    assert at.sum() == 6          # the file's rows at 10.0, 10.5 ... 12.5 s
+    assert at.sum() == 7          # the file's rows at 10.0, 10.5 ... 13.0 s
     assert np.allclose(again[1].position[np.isin(np.round(again[1].time, 6), np.round(rows[at, 0], 6))],
                        rows[at, 1:4], atol=1e-4)
     assert np.allclose(again[1].attitude[np.isin(np.round(again[1].time, 6), np.round(rows[at, 0], 6))],
                        rows[at, 4:7], atol=1e-3)
+
+
+def test_the_trajectory_file_holds_each_leg_to_its_end_and_flies_the_same_legs_again(tmp_path):
+    """The render's trajectory file has a row at each leg's end, where its last pulse is fired (it stopped
+    at the last tenth of a second before it, so the points of each leg's last 0.1 s, 1 m at 10 m/s, were
+    past the file's end and a render flying the file again flew every leg 0.1 s shorter)."""
+    from mitsuforest.plan.trajectory import read_trajectory
+    from mitsuforest.write.tables import write_trajectory
+    points, _, plan = flat_scan(tmp_path, lines=[[[X, 5.0], [X, 35.0]], [[X + 5, 35.0], [X + 5, 8.0]]])
+    write_trajectory(tmp_path / "t.csv", load_scene(tmp_path / "scene.yaml"), plan)
+    again = read_trajectory(tmp_path / "t.csv")
+    assert len(again) == len(plan.legs) == 2
+    for number, (track, leg) in enumerate(zip(again, plan.legs), start=1):
+        assert (track.time[0], track.time[-1]) == pytest.approx((leg.t0, leg.t1), abs=1e-6)
+        assert np.allclose(track.position[[0, -1]], [leg.position(np.array([leg.t0]))[0], leg.end], atol=1e-4)
+        times = points["gps_time"][points["point_source_id"] == number]
+        assert track.time[0] - 1e-6 <= times.min() and times.max() <= track.time[-1] + 1e-6
+        assert np.allclose(np.diff(track.time)[:-1], 0.1)
 
 
 def test_a_lever_arm_and_boresight_move_the_beam(tmp_path):

@@ -95,6 +95,20 @@ def test_for_instance_las_has_its_classes_and_tree_ids(plot):
     assert np.array_equal(np.asarray(las.height_above_ground), ours["height_above_ground"])
 
 
+def test_for_instance_las_keeps_the_pulse_fields_of_our_las(plot):
+    """The FOR-instance LAZ holds each point's return numbers, GPS time, scan angle and flight line
+    (``point_source_id``) as our LAS file does, not the format's zeros (its flight line was 0 on every
+    point from issue 27, which put the flight line in our PCD and LAS files, until the audit of outputs)."""
+    folder, _, ours, _ = plot
+    las = laspy.read(str(folder / "test_forinstance.laz"))
+    assert set(np.unique(ours["point_source_id"])) == {1}       # the plot's one flight line
+    assert np.array_equal(np.asarray(las.point_source_id), ours["point_source_id"])
+    assert np.array_equal(np.asarray(las.gps_time), ours["gps_time"])
+    assert np.array_equal(np.asarray(las.scan_angle), np.round(ours["scan_angle"] / 0.006).astype(np.int16))
+    assert np.array_equal(np.asarray(las.return_number), ours["return_number"])
+    assert np.array_equal(np.asarray(las.number_of_returns), ours["number_of_returns"])
+
+
 def test_profiles_write_intensity_by_the_sensors_mapping(plot, tmp_path):
     """The FOR-instance LAZ of the render and a ForestFormer3D PLY carry the sensor's counts (here
     RIEGL's reflectance in dB, a ground echo near 44,000), not the default amplitude x 1e6, and the

@@ -17,6 +17,7 @@ an even thinning of the cloud.
 
 from __future__ import annotations
 
+import json
 import os
 import struct
 from pathlib import Path
@@ -104,6 +105,8 @@ class CopcStream(Closing):
         writer = copclib.FileWriter(str(self.path), config)
         header = writer.copc_config.las_header
         header.min, header.max = copclib.Vector3(*lo), copclib.Vector3(*hi)
+        day = self.header.creation_date                 # our LAS files' date (copc-lib writes day 0 of year 0)
+        header.creation_day, header.creation_year = day.timetuple().tm_yday, day.year
         info = writer.copc_config.copc_info
         info.center_x, info.center_y, info.center_z = centre
         info.halfsize, info.spacing = half, 2 * half / GRID
@@ -281,8 +284,8 @@ def name_extra_bytes(path, header) -> None:
 
     copc-lib's Python API describes the extra bytes as one unnamed byte each (192 bytes of VLR per
     byte); ours describe one field each, so they are shorter. The rest of the slot becomes our
-    ``mitsuforest`` VLR of the LAS file (intensity scale and class codes; padded with spaces), so no
-    offset in the file moves.
+    ``mitsuforest`` VLR of the LAS file (intensity mapping and class codes; padded with spaces,
+    :func:`fitting_note`), so no offset in the file moves.
     """
     ours = header.vlrs.get("ExtraBytesVlr")[0].record_data_bytes()
     note = next(v for v in header.vlrs if v.user_id == "mitsuforest")
@@ -303,7 +306,7 @@ def name_extra_bytes(path, header) -> None:
                 f.write(struct.pack("<H", len(ours)))
                 f.seek(at + 54)
                 f.write(ours)
-                data = note.record_data if len(note.record_data) <= spare else b""
+                data = fitting_note(note.record_data, spare)
                 f.write(struct.pack("<H16sHH32s", 0, b"mitsuforest", note.record_id, spare,
                                     note.description.encode()[:32]))
                 f.write(data.ljust(spare))
@@ -312,3 +315,16 @@ def name_extra_bytes(path, header) -> None:
                 return
             at += 54 + length
     raise ValueError(f"{path}: no extra bytes VLR")
+
+
+def fitting_note(data: bytes, room: int) -> bytes:
+    """Our ``mitsuforest`` note (:func:`~.las.las_header`'s JSON) in at most ``room`` bytes: as it is, or
+    without its ``crs`` (the scene's ``origin.crs`` as given: WKT can take thousands of bytes), which the
+    file holds in its own WKT record, so that the intensity mapping and the class codes stay; empty
+    only when even they do not fit."""
+    if len(data) <= room:
+        return data
+    note = json.loads(data)
+    note.pop("crs", None)
+    data = json.dumps(note).encode()
+    return data if len(data) <= room else b""

@@ -90,7 +90,8 @@ def for_instance_header(offset, crs: str | None, intensity: IntensityMapping | N
 
 def for_instance_points(header: laspy.LasHeader, points: np.ndarray, stems: np.ndarray,
                         intensity: IntensityMapping | None = None) -> laspy.ScaleAwarePointRecord:
-    """Georeferenced points as FOR-instance records of ``header``, their intensity by the sensor's mapping."""
+    """Georeferenced points as FOR-instance records of ``header``: their intensity by the sensor's mapping, and
+    return numbers, GPS time, scan angle and flight line (``point_source_id``) as in our LAS files."""
     las = laspy.ScaleAwarePointRecord.zeros(len(points), header=header)
     las.x, las.y, las.z = points["x"], points["y"], points["z"]
     las.classification = for_instance_classes(points, stems)
@@ -99,6 +100,7 @@ def for_instance_points(header: laspy.LasHeader, points: np.ndarray, stems: np.n
     las.intensity = sensor_intensity(points, intensity)
     las.gps_time = points["gps_time"]
     las.scan_angle = np.round(points["scan_angle"] / SCAN_ANGLE_UNIT).astype(np.int16)
+    las.point_source_id = points["point_source_id"]
     las.treeID = tree_ids(points)
     las.label = points["classification"]
     las.height_above_ground = points["height_above_ground"]

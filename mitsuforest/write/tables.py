@@ -83,8 +83,16 @@ def write_ids(path, plan, models, offset) -> None:
 TRAJECTORY_RATE = 10.0   # Hz
 
 
+def leg_times(t0: float, t1: float, rate: float = TRAJECTORY_RATE) -> np.ndarray:
+    """The times of a leg's trajectory rows: every ``1 / rate`` s from its start ``t0``, and its end ``t1``
+    (its last pulse is fired just before it), so that a file of them flies the leg again whole."""
+    t = np.arange(t0, t1, 1 / rate)
+    return np.append(t[t < t1 - 1e-9], t1)
+
+
 def trajectory(legs, platform, navigation=None, rate: float = TRAJECTORY_RATE) -> np.ndarray:
-    """The platform's trajectory as flown, ``rate`` rows a second on each leg: (n, 8) time, x, y, z,
+    """The platform's trajectory as flown, ``rate`` rows a second on each leg and one at its end
+    (:func:`leg_times`): (n, 8) time, x, y, z,
     roll, pitch, yaw (deg, yaw clockwise from north; plan/trajectory.py has the frames) and the leg's
     number from 1 (the points' ``point_source_id``); with a
     :class:`~mitsuforest.scan.navigation.NavigationModel`, six more columns: the believed x, y, z, roll,
@@ -95,7 +103,7 @@ def trajectory(legs, platform, navigation=None, rate: float = TRAJECTORY_RATE) -
     from ..plan.trajectory import ENU_FROM_NED, matrix_euler
     rows = []
     for number, leg in enumerate(legs, start=1):
-        t = np.arange(leg.t0, leg.t1, 1 / rate)
+        t = leg_times(leg.t0, leg.t1, rate)
         table = platform.table(leg)
         position, body = platform.body_pose(leg, table, t)
         columns = [t, position, matrix_euler(ENU_FROM_NED.T @ body), np.full(len(t), number)]
