@@ -155,11 +155,11 @@ def sensor_reach(altitude: float, field_of_view: float, wavelength: float = 1550
     return {"range_max": reach, "detection_threshold": float(f"{threshold:.4g}")}
 
 
-def field_of_view_seen(widest: float | None) -> float | None:
-    """The twin's field of view (deg) from ``widest``, twice the file's largest scan angle: to the nearest
-    degree, within 1-360°. Whole-degree scan angles (LAS 1.2's rank) make 18° stand for 17.5-18.5°;
+def field_of_view_seen(widest: float | None) -> int | None:
+    """The twin's field of view (whole degrees) from ``widest``, twice the file's largest scan angle: to the
+    nearest degree, within 1-360°. Whole-degree scan angles (LAS 1.2's rank) make 18° stand for 17.5-18.5°;
     rounding up (to 5°, as before) widened a swath whose edge the file shows inside the plot."""
-    return None if widest is None else float(min(360, max(1, round(widest))))
+    return None if widest is None else int(min(360, max(1, round(widest))))
 
 
 def _ground_reflectance(wavelength: float) -> float:
