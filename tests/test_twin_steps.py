@@ -487,3 +487,18 @@ def test_a_leg_runs_along_its_heading_over_the_plot_and_its_margin():
     north = np.array(survey.leg_ends((5.0, 0.0), 0.0, (0, 0, 20, 10), 10.0))
     assert east == pytest.approx(np.array([[-10.0, 5.0], [30.0, 5.0]]), abs=1e-9)
     assert north == pytest.approx(np.array([[5.0, -10.0], [5.0, 20.0]]), abs=1e-9)
+
+
+def test_a_rotating_mirror_s_scan_lines_cut_in_pieces_are_counted_once():
+    """A UAV at 60 m, its mirror turning 60 times a second, whose returns between -5 and +8° of scan angle
+    are lost (0.6 ms of each turn: a crown beyond a clipped plot's ground is seen apart from the rest of its
+    scan line): each scan line is two bursts, whose starts had said 786 scan lines a second; the sweeps'
+    nadir crossings say 60."""
+    line = _first_returns_of_an_airborne_line(72.0, (0.0, 0.0), oscillating=False, height=60.0, speed=8.0)
+    lost = (line.scan_angle >= -5) & (line.scan_angle < 8)
+    cut = RealScan(**{**line.__dict__, **{k: getattr(line, k)[~lost] for k in
+                                          ("x", "y", "z", "return_number", "number_of_returns", "gps_time", "scan_angle")}})
+    assert 1 / survey.scan_period(survey.bursts(cut.gps_time)) > 700
+    est = survey.estimate(cut, 0.0)
+    assert est.deflector == "rotating" and est.scan_frequency == pytest.approx(60.0, rel=0.001)
+    assert survey.crossing_period(cut.gps_time, cut.scan_angle) == pytest.approx(1 / 60, rel=0.001)

@@ -11,8 +11,11 @@
   along it and their scan angles give the sensor's height ``h`` (least squares in the angles, which a
   file rounds); the flight runs square to the sweeps, its speed the sweeps' progress over time, and each
   line lies where its sweeps' nadirs do at the flight lines' median height (:func:`nadir_line`).
-* Scan rate: a rotating or oscillating mirror crosses the plot once per scan line, so the returns come
-  in bursts one scan period apart: the period is the median spacing of burst starts.
+* Scan rate: a rotating mirror crosses the nadir once a turn, at a steady rate: where a line has sweeps,
+  each sweep's time at scan angle 0 is its scan line's, and the period is the median spacing of those
+  (:func:`crossing_period`); the pieces of one scan line (a crown beyond a clipped plot's ground seen
+  apart from it) cross it together. Without sweeps, a mirror crosses the plot once per scan line, so the
+  returns come in bursts one scan period apart: the period is the median spacing of burst starts.
 * Deflector: a rotating mirror sweeps every scan line one way, an oscillating one there and back; where a
   quarter of the sweeps or more run against the others, the mirror oscillates, its scan lines half the
   spacing of sweeps that run the same way (:func:`deflector_of`).
@@ -219,6 +222,28 @@ def sweep_senses(t, angle) -> list[tuple[float, int]]:
     return [(start, 1 if slope > 0 else -1) for start, slope in slopes]
 
 
+def crossing_period(t, angle) -> float | None:
+    """The scan-line period (s) of a flight line's (n,) returns with GPS times ``t`` and scan angles ``angle``
+    (deg) from a rotating mirror: each sweep (:func:`sweep_parts`) crosses the nadir at its mean time less
+    its mean angle over the line's sweep rate (the median of its sweeps' ``|d angle / dt|``: a mirror turns
+    at one rate), and crossings within :data:`BURST_GAP` are one scan line's (its pieces, where a stretch of its
+    returns is lost: a crown beyond the clipped plot's ground, seen apart from it, had made the bursts of a
+    rotating mirror's 40 scan lines a second say 566). :func:`scan_period` of the crossings; ``None`` with
+    fewer than 4 sweeps. UAS_Clip's five lines with sweeps say 83.04 Hz each, its bursts 82.75-83.06 Hz.
+    (An oscillating mirror's sweep off the nadir, not linear in time, misses its crossing by a part of its
+    period that alternates with its sense: MixedConifer's crossings are 6.7 and 9.0 ms apart in turn.)"""
+    parts = sweep_parts(t, angle)
+    if len(parts) < 4:
+        return None
+    slopes = np.array([np.polyfit(t[b] - t[b].mean(), angle[b], 1)[0] for b in parts])
+    rate = float(np.median(np.abs(slopes)))
+    if not rate > 0:
+        return None
+    crossings = np.sort([t[b].mean() - np.mean(angle[b]) / (rate * np.sign(s)) for b, s in zip(parts, slopes) if s])
+    crossings = crossings[np.r_[True, np.diff(crossings) > BURST_GAP]]
+    return scan_period([np.array([c]) for c in crossings])
+
+
 def deflector_of(senses: list[list[tuple[float, int]]]) -> tuple[str | None, list[float]]:
     """The deflector that the flight lines' sweeps (:func:`sweep_senses`, one list a line) say, and for an
     oscillating one the scan-line periods (s) of its lines with 4 sweeps each way or more: half the period
@@ -394,6 +419,9 @@ def estimate(scan, ground_height: float) -> SurveyEstimate:
         periods = line_periods
         if not periods and t is not None:
             missing["scan_frequency"] = "an oscillating mirror with no line of 4 sweeps each way"
+    elif crossed := [p for g in groups if scan.scan_angle is not None
+                     and (p := crossing_period(t[g], scan.scan_angle[g])) is not None]:
+        periods = crossed               # a turn's nadir crossings: its bursts may be pieces of one scan line
     lines = [_line(scan, g, xyz) for g in groups]
     tracks = [ln.track for ln in lines if ln.track is not None]
     good = [tr for tr in tracks if tr.residual <= GOOD_TRACK]
