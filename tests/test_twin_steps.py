@@ -502,3 +502,29 @@ def test_a_rotating_mirror_s_scan_lines_cut_in_pieces_are_counted_once():
     est = survey.estimate(cut, 0.0)
     assert est.deflector == "rotating" and est.scan_frequency == pytest.approx(60.0, rel=0.001)
     assert survey.crossing_period(cut.gps_time, cut.scan_angle) == pytest.approx(1 / 60, rel=0.001)
+
+
+def test_a_risley_rosette_s_sweeps_say_no_mirror_scan_rate_or_flight():
+    """First returns of a Livox Mid-70's rosette (prisms of 17.6° at 121.57 and -77.73 turns a second, the
+    scan angle off the nadir: never negative) from 35 m, flying north at 6 m/s over a 24 m plot: cut where
+    its angle turns back, its petals are sweeps that fit, but they run every way, not parallel as a line
+    scanner's scan lines do (a render of the Mid-70's had its twin flown by an oscillating mirror at 108
+    cycles a second, 2 m/s where it flew 6 m/s, one line 7 m off): the mirror, scan rate, line, speed and
+    altitude are missing, saying why."""
+    t = np.arange(0.0, 8.0, 1e-5)
+    a1, a2 = 2 * np.pi * 121.57 * t, -2 * np.pi * 77.73 * t
+    ax, ay = np.radians(17.6) * (np.cos(a1) + np.cos(a2)), np.radians(17.6) * (np.sin(a1) + np.sin(a2))
+    off = np.hypot(ax, ay)
+    z = np.random.default_rng(3).uniform(0.0, 10.0, len(t))
+    reach = (35.0 - z) * np.tan(off) / np.maximum(off, 1e-12)
+    x, y = 12.0 + reach * ax, -12.0 + 6.0 * t + reach * ay
+    keep = (x >= 0) & (x <= 24) & (y >= 0) & (y <= 24)
+    ones = np.ones(int(keep.sum()), np.int16)
+    scan = RealScan("synthetic", x[keep], y[keep], z[keep], None, ones, ones.copy(), np.round(t[keep], 6),
+                    np.round(np.degrees(off[keep]), 3), None, None, None, first_only=True)
+    est = survey.estimate(scan, 0.0)
+    assert est.deflector is None and est.scan_frequency is None
+    assert "sweeps run every way" in est.missing["deflector"] and "sweeps run every way" in est.missing["scan_frequency"]
+    assert est.line_positions == () and est.speed is None and est.altitude is None
+    assert "sweeps run every way" in est.missing["speed"]
+    assert est.pulse_frequency == pytest.approx(100_000, rel=0.01) and est.field_of_view == pytest.approx(70.0, abs=1)

@@ -23,6 +23,9 @@
   to tell pulses apart, they are stamps a fixed step apart, and a stamp inside a burst holds every pulse
   fired in it: the fullest stamps hold the pulse rate times the step (:func:`stamped_pulse_rate`).
 * Field of view: at least twice the largest scan angle seen.
+* A line scanner's sweeps run parallel, across its flight; a line whose sweeps run every way (a Risley
+  prism pair's rosette, whose scan angle is off the nadir, never negative) says neither its flight, its
+  mirror nor its scan rate (:func:`sweep_alignment`).
 
 What cannot be estimated (no GPS time, no pulse with two returns, too few bursts) is left ``None``
 and named in ``missing`` with the reason.
@@ -46,6 +49,7 @@ NADIR_SWEEPS = 20       # sweeps a flight line needs for its sensor height from 
 SWEEP_ITERATIONS = 4    # Gauss-Newton steps of a sweep's fit (:func:`sweep`)
 SWEEP_MISS = 1.0        # deg: RMS miss of a sweep's fitted angles above which it is not used (whole degrees: 0.29)
 MIN_LINE_SPEED = 0.5    # m/s over the ground a nadir line must make
+PARALLEL_SWEEPS = 0.9   # alignment of a line's sweeps (:func:`sweep_alignment`) under which they are no scan lines
 
 
 @dataclass(frozen=True)
@@ -244,6 +248,22 @@ def crossing_period(t, angle) -> float | None:
     return scan_period([np.array([c]) for c in crossings])
 
 
+def sweep_alignment(x, y, t, angle) -> float | None:
+    """How parallel a flight line's sweeps (:func:`sweep_parts`) run, from 0 (every way) to 1: the mean
+    resultant length of their principal directions (doubled angles: a direction is an axis), weighted by
+    their returns; ``None`` with fewer than 3 sweeps. A line scanner's are 0.99 or more (UAS_Clip,
+    MixedConifer, renders of the VUX-1UAV22 and ALS50-II); a render of a Livox Mid-70's rosette 0.1-0.3."""
+    parts = sweep_parts(t, angle)
+    if len(parts) < 3:
+        return None
+    sums = np.zeros(2, complex)
+    for b in parts:
+        q = np.column_stack([x[b], y[b]]) - [np.mean(x[b]), np.mean(y[b])]
+        d = np.linalg.eigh(q.T @ q)[1][:, 1]
+        sums += len(b) * np.array([np.exp(2j * np.arctan2(d[1], d[0])), 1.0])
+    return float(abs(sums[0]) / sums[1].real)
+
+
 def deflector_of(senses: list[list[tuple[float, int]]]) -> tuple[str | None, list[float]]:
     """The deflector that the flight lines' sweeps (:func:`sweep_senses`, one list a line) say, and for an
     oscillating one the scan-line periods (s) of its lines with 4 sweeps each way or more: half the period
@@ -334,7 +354,8 @@ class NadirLine:
 def nadir_line(x, y, z, t, angle) -> tuple[NadirLine, list] | None:
     """The flight line of (n,) points with GPS times ``t`` and scan angles ``angle`` (deg), and its sweeps'
     point indices and :class:`Sweep`; ``None`` with fewer than three usable sweeps (:func:`sweep_parts`,
-    :attr:`Sweep.usable`) or a progress under :data:`MIN_LINE_SPEED`. The flight is square to the sweeps'
+    :attr:`Sweep.usable`), sweeps that do not run parallel (:data:`PARALLEL_SWEEPS`) or a progress under
+    :data:`MIN_LINE_SPEED`. The flight is square to the sweeps'
     mean direction; its sense and speed are the sweeps' centroids' progress along it over time (a
     least-squares slope)."""
     found = [(b, sweep(x[b], y[b], z[b], angle[b])) for b in sweep_parts(t, angle)]
@@ -342,6 +363,9 @@ def nadir_line(x, y, z, t, angle) -> tuple[NadirLine, list] | None:
     if len(found) < 3:
         return None
     parts, sweeps = [b for b, _ in found], [sw for _, sw in found]
+    doubled = [len(b) * np.exp(2j * np.arctan2(sw.direction[1], sw.direction[0])) for b, sw in found]
+    if abs(np.sum(doubled)) < PARALLEL_SWEEPS * sum(len(b) for b in parts):
+        return None
     across = np.sum([sw.direction * len(b) for sw, b in zip(sweeps, parts)], axis=0)
     if np.linalg.norm(across) == 0:
         return None
@@ -413,14 +437,22 @@ def estimate(scan, ground_height: float) -> SurveyEstimate:
             periods.append(p)
         if (r := pulse_rate(bursts(t[g][scan.return_number[g] == 1]))) is not None:
             rates.append(r)
-    senses = [sweep_senses(t[g], scan.scan_angle[g]) for g in groups] if scan.scan_angle is not None else []
+    aligned = [sweep_alignment(scan.x[g], scan.y[g], t[g], scan.scan_angle[g]) for g in groups] \
+        if scan.scan_angle is not None else []
+    scanned = [g for g, a in zip(groups, aligned) if a is not None and a >= PARALLEL_SWEEPS]
+    senses = [sweep_senses(t[g], scan.scan_angle[g]) for g in scanned]
     deflector, line_periods = deflector_of(senses)
-    if deflector == "oscillating":      # burst spacings of a mirror there and back are not its scan lines'
+    every_way = None
+    if not scanned and any(a is not None for a in aligned):
+        why = every_way = (f"the file's sweeps run every way (aligned {max(a for a in aligned if a is not None):.2f}, a line "
+               f"scanner's {PARALLEL_SWEEPS:g} or more): not a mirror's scan lines (a Risley prism pair's rosette?)")
+        missing.update({"deflector": why, "scan_frequency": why})
+        periods = []
+    elif deflector == "oscillating":      # burst spacings of a mirror there and back are not its scan lines'
         periods = line_periods
         if not periods and t is not None:
             missing["scan_frequency"] = "an oscillating mirror with no line of 4 sweeps each way"
-    elif crossed := [p for g in groups if scan.scan_angle is not None
-                     and (p := crossing_period(t[g], scan.scan_angle[g])) is not None]:
+    elif crossed := [p for g in scanned if (p := crossing_period(t[g], scan.scan_angle[g])) is not None]:
         periods = crossed               # a turn's nadir crossings: its bursts may be pieces of one scan line
     lines = [_line(scan, g, xyz) for g in groups]
     tracks = [ln.track for ln in lines if ln.track is not None]
@@ -432,7 +464,7 @@ def estimate(scan, ground_height: float) -> SurveyEstimate:
                "(return numbers and GPS times of one pulse are needed), nor "
                + (f"{NADIR_SWEEPS} sweeps (bursts of {SWEEP_POINTS} returns or more over {SWEEP_ANGLES:g}° of scan "
                   f"angle or more, fitted within {SWEEP_MISS:g}°) moving at {MIN_LINE_SPEED:g} m/s or more"
-                  if scan.scan_angle is not None else "scan angles"))
+                  if scan.scan_angle is not None else "scan angles")) + (f"; {every_way}" if every_way else "")
         missing.update({k: why for k in ("lines", "altitude", "speed")})
     if t is not None and not periods and "scan_frequency" not in missing:
         missing["scan_frequency"] = "too few scan-line bursts in the GPS times"
