@@ -528,3 +528,19 @@ def test_a_risley_rosette_s_sweeps_say_no_mirror_scan_rate_or_flight():
     assert est.line_positions == () and est.speed is None and est.altitude is None
     assert "sweeps run every way" in est.missing["speed"]
     assert est.pulse_frequency == pytest.approx(100_000, rel=0.01) and est.field_of_view == pytest.approx(70.0, abs=1)
+
+
+def test_a_line_placed_on_its_track_is_flown_the_way_its_track_flew():
+    """The climbing line above turned to head 30° (clockwise from +y) and, flown back, 210°: the line's
+    track says which way, and the twin's leg runs that way (lines on tracks had all been flown along the
+    lines' axis, 0-180°: a lawnmower's every other line backwards, its scan angles mirrored). Line 2,
+    placed by scan angle, has no track to say: it keeps the axis."""
+    scan = _two_line_scan()
+    for heading in (30.0, 210.0):
+        h = np.radians(heading)
+        x, y = scan.x * np.cos(h) + scan.y * np.sin(h), -scan.x * np.sin(h) + scan.y * np.cos(h)
+        est = survey.estimate(RealScan(**{**scan.__dict__, "x": x, "y": y}), 500.0)
+        assert est.heading == pytest.approx(30.0, abs=1e-6)
+        assert est.line_headings == pytest.approx((heading, 30.0), abs=1e-6)
+        a, b = survey.leg_ends(est.line_positions[0], est.line_headings[0], (-50, -50, 50, 50), 10.0)
+        assert np.degrees(np.arctan2(b[0] - a[0], b[1] - a[1])) % 360 == pytest.approx(heading, abs=1e-6)

@@ -489,9 +489,9 @@ def estimate(scan, ground_height: float) -> SurveyEstimate:
             heading=_axis([ln.heading for ln in strong], [ln.sweeps for ln in strong]))
     heading = _heading(good) if good else None
     sensor_z = float(np.median([tr.position[2] for tr in good])) if good else None
-    positions, sources = _line_positions(lines, good, heading, sensor_z)
+    positions, sources, headings = _line_positions(lines, good, heading, sensor_z)
     return SurveyEstimate(
-        **common, line_positions=positions, line_sources=sources, line_headings=(heading,) * len(positions),
+        **common, line_positions=positions, line_sources=sources, line_headings=headings,
         altitude=sensor_z - ground_height if good else None,
         speed=float(np.median([np.hypot(*tr.velocity[:2]) for tr in good])) if good else None,
         heading=heading)
@@ -524,24 +524,29 @@ def scan_angle_side(found: list) -> str:
     return "right" if votes >= 0 else "left"
 
 
-def _line_positions(lines: list[_Line], good: list[Track], heading, sensor_z) -> tuple[tuple, tuple]:
-    """A point (x, y) each placed line passes through, and how it was placed (see :func:`estimate`)."""
+def _line_positions(lines: list[_Line], good: list[Track], heading, sensor_z) -> tuple[tuple, tuple, tuple]:
+    """A point (x, y) each placed line passes through, how it was placed (see :func:`estimate`) and its
+    heading: the lines' axis ``heading`` the way its track flew (a line placed by scan angle has no track
+    to say which way: the axis as it is)."""
     if heading is None:
-        return (), ()
+        return (), (), ()
     across = flight_axes(heading)[1]
-    positions, sources = [], []
+    positions, sources, headings = [], [], []
+    along = flight_axes(heading)[0]
     for ln in lines:
         if ln.track is not None and ln.track in good:
             positions.append(tuple(map(float, ln.track.position[:2])))
             sources.append("track")
+            headings.append(heading if np.dot(ln.track.velocity[:2], along) >= 0 else (heading + 180.0) % 360)
         elif ln.towards_scanner is not None and ln.scan_angle is not None:
             side = 1.0 if ln.towards_scanner @ across >= 0 else -1.0
             distance = max(sensor_z - ln.centroid[2], 0.0) * np.tan(np.deg2rad(ln.scan_angle))
             positions.append(tuple(map(float, ln.centroid[:2] + side * distance * across)))
             sources.append("scan angle")
+            headings.append(heading)
         else:
             sources.append("not placed")
-    return tuple(positions), tuple(sources)
+    return tuple(positions), tuple(sources), tuple(headings)
 
 
 def _heading(tracks) -> float:
