@@ -487,3 +487,60 @@ def test_a_leg_runs_along_its_heading_over_the_plot_and_its_margin():
     north = np.array(survey.leg_ends((5.0, 0.0), 0.0, (0, 0, 20, 10), 10.0))
     assert east == pytest.approx(np.array([[-10.0, 5.0], [30.0, 5.0]]), abs=1e-9)
     assert north == pytest.approx(np.array([[5.0, -10.0], [5.0, 20.0]]), abs=1e-9)
+
+
+def test_a_rotating_mirror_s_scan_lines_cut_in_pieces_are_counted_once():
+    """A UAV at 60 m, its mirror turning 60 times a second, whose returns between -5 and +8° of scan angle
+    are lost (0.6 ms of each turn: a crown beyond a clipped plot's ground is seen apart from the rest of its
+    scan line): each scan line is two bursts, whose starts had said 786 scan lines a second; the sweeps'
+    nadir crossings say 60."""
+    line = _first_returns_of_an_airborne_line(72.0, (0.0, 0.0), oscillating=False, height=60.0, speed=8.0)
+    lost = (line.scan_angle >= -5) & (line.scan_angle < 8)
+    cut = RealScan(**{**line.__dict__, **{k: getattr(line, k)[~lost] for k in
+                                          ("x", "y", "z", "return_number", "number_of_returns", "gps_time", "scan_angle")}})
+    assert 1 / survey.scan_period(survey.bursts(cut.gps_time)) > 700
+    est = survey.estimate(cut, 0.0)
+    assert est.deflector == "rotating" and est.scan_frequency == pytest.approx(60.0, rel=0.001)
+    assert survey.crossing_period(cut.gps_time, cut.scan_angle) == pytest.approx(1 / 60, rel=0.001)
+
+
+def test_a_risley_rosette_s_sweeps_say_no_mirror_scan_rate_or_flight():
+    """First returns of a Livox Mid-70's rosette (prisms of 17.6° at 121.57 and -77.73 turns a second, the
+    scan angle off the nadir: never negative) from 35 m, flying north at 6 m/s over a 24 m plot: cut where
+    its angle turns back, its petals are sweeps that fit, but they run every way, not parallel as a line
+    scanner's scan lines do (a render of the Mid-70's had its twin flown by an oscillating mirror at 108
+    cycles a second, 2 m/s where it flew 6 m/s, one line 7 m off): the mirror, scan rate, line, speed and
+    altitude are missing, saying why."""
+    t = np.arange(0.0, 8.0, 1e-5)
+    a1, a2 = 2 * np.pi * 121.57 * t, -2 * np.pi * 77.73 * t
+    ax, ay = np.radians(17.6) * (np.cos(a1) + np.cos(a2)), np.radians(17.6) * (np.sin(a1) + np.sin(a2))
+    off = np.hypot(ax, ay)
+    z = np.random.default_rng(3).uniform(0.0, 10.0, len(t))
+    reach = (35.0 - z) * np.tan(off) / np.maximum(off, 1e-12)
+    x, y = 12.0 + reach * ax, -12.0 + 6.0 * t + reach * ay
+    keep = (x >= 0) & (x <= 24) & (y >= 0) & (y <= 24)
+    ones = np.ones(int(keep.sum()), np.int16)
+    scan = RealScan("synthetic", x[keep], y[keep], z[keep], None, ones, ones.copy(), np.round(t[keep], 6),
+                    np.round(np.degrees(off[keep]), 3), None, None, None, first_only=True)
+    est = survey.estimate(scan, 0.0)
+    assert est.deflector is None and est.scan_frequency is None
+    assert "sweeps run every way" in est.missing["deflector"] and "sweeps run every way" in est.missing["scan_frequency"]
+    assert est.line_positions == () and est.speed is None and est.altitude is None
+    assert "sweeps run every way" in est.missing["speed"]
+    assert est.pulse_frequency == pytest.approx(100_000, rel=0.01) and est.field_of_view == pytest.approx(70.0, abs=1)
+
+
+def test_a_line_placed_on_its_track_is_flown_the_way_its_track_flew():
+    """The climbing line above turned to head 30° (clockwise from +y) and, flown back, 210°: the line's
+    track says which way, and the twin's leg runs that way (lines on tracks had all been flown along the
+    lines' axis, 0-180°: a lawnmower's every other line backwards, its scan angles mirrored). Line 2,
+    placed by scan angle, has no track to say: it keeps the axis."""
+    scan = _two_line_scan()
+    for heading in (30.0, 210.0):
+        h = np.radians(heading)
+        x, y = scan.x * np.cos(h) + scan.y * np.sin(h), -scan.x * np.sin(h) + scan.y * np.cos(h)
+        est = survey.estimate(RealScan(**{**scan.__dict__, "x": x, "y": y}), 500.0)
+        assert est.heading == pytest.approx(30.0, abs=1e-6)
+        assert est.line_headings == pytest.approx((heading, 30.0), abs=1e-6)
+        a, b = survey.leg_ends(est.line_positions[0], est.line_headings[0], (-50, -50, 50, 50), 10.0)
+        assert np.degrees(np.arctan2(b[0] - a[0], b[1] - a[1])) % 360 == pytest.approx(heading, abs=1e-6)

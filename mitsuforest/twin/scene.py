@@ -109,7 +109,7 @@ def survey_plan(analysis: dict, sensor=None) -> tuple[dict, dict | str, dict]:
     longer = f", its reach {reach['range_max']:g} m for a {altitude:.0f} m survey" \
         if reach["range_max"] > TWIN_RANGE_MAX else ""
     swept = (f"an oscillating mirror (sweeps both ways: {mirror:g} cycles a second)" if deflector == "oscillating"
-             else "a rotating mirror" + ("" if est.deflector else " (default)"))
+             else "a rotating mirror" + ("" if est.deflector else f" (default: {est.missing.get('deflector', 'not estimated')})"))
     unit, why = analysis["intensity_unit"]
     written = {"reflectance_db": "the reflectance in dB, -25 to +5 dB onto 0-65535 (PDAL's map of RIEGL's reflectance)",
                "reflectance": f"the linear reflectance x {sensor_map['intensity']['gain']:.4g}",

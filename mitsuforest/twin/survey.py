@@ -11,8 +11,11 @@
   along it and their scan angles give the sensor's height ``h`` (least squares in the angles, which a
   file rounds); the flight runs square to the sweeps, its speed the sweeps' progress over time, and each
   line lies where its sweeps' nadirs do at the flight lines' median height (:func:`nadir_line`).
-* Scan rate: a rotating or oscillating mirror crosses the plot once per scan line, so the returns come
-  in bursts one scan period apart: the period is the median spacing of burst starts.
+* Scan rate: a rotating mirror crosses the nadir once a turn, at a steady rate: where a line has sweeps,
+  each sweep's time at scan angle 0 is its scan line's, and the period is the median spacing of those
+  (:func:`crossing_period`); the pieces of one scan line (a crown beyond a clipped plot's ground seen
+  apart from it) cross it together. Without sweeps, a mirror crosses the plot once per scan line, so the
+  returns come in bursts one scan period apart: the period is the median spacing of burst starts.
 * Deflector: a rotating mirror sweeps every scan line one way, an oscillating one there and back; where a
   quarter of the sweeps or more run against the others, the mirror oscillates, its scan lines half the
   spacing of sweeps that run the same way (:func:`deflector_of`).
@@ -20,6 +23,9 @@
   to tell pulses apart, they are stamps a fixed step apart, and a stamp inside a burst holds every pulse
   fired in it: the fullest stamps hold the pulse rate times the step (:func:`stamped_pulse_rate`).
 * Field of view: at least twice the largest scan angle seen.
+* A line scanner's sweeps run parallel, across its flight; a line whose sweeps run every way (a Risley
+  prism pair's rosette, whose scan angle is off the nadir, never negative) says neither its flight, its
+  mirror nor its scan rate (:func:`sweep_alignment`).
 
 What cannot be estimated (no GPS time, no pulse with two returns, too few bursts) is left ``None``
 and named in ``missing`` with the reason.
@@ -43,6 +49,7 @@ NADIR_SWEEPS = 20       # sweeps a flight line needs for its sensor height from 
 SWEEP_ITERATIONS = 4    # Gauss-Newton steps of a sweep's fit (:func:`sweep`)
 SWEEP_MISS = 1.0        # deg: RMS miss of a sweep's fitted angles above which it is not used (whole degrees: 0.29)
 MIN_LINE_SPEED = 0.5    # m/s over the ground a nadir line must make
+PARALLEL_SWEEPS = 0.9   # alignment of a line's sweeps (:func:`sweep_alignment`) under which they are no scan lines
 
 
 @dataclass(frozen=True)
@@ -219,6 +226,44 @@ def sweep_senses(t, angle) -> list[tuple[float, int]]:
     return [(start, 1 if slope > 0 else -1) for start, slope in slopes]
 
 
+def crossing_period(t, angle) -> float | None:
+    """The scan-line period (s) of a flight line's (n,) returns with GPS times ``t`` and scan angles ``angle``
+    (deg) from a rotating mirror: each sweep (:func:`sweep_parts`) crosses the nadir at its mean time less
+    its mean angle over the line's sweep rate (the median of its sweeps' ``|d angle / dt|``: a mirror turns
+    at one rate), and crossings within :data:`BURST_GAP` are one scan line's (its pieces, where a stretch of its
+    returns is lost: a crown beyond the clipped plot's ground, seen apart from it, had made the bursts of a
+    rotating mirror's 40 scan lines a second say 566). :func:`scan_period` of the crossings; ``None`` with
+    fewer than 4 sweeps. UAS_Clip's five lines with sweeps say 83.04 Hz each, its bursts 82.75-83.06 Hz.
+    (An oscillating mirror's sweep off the nadir, not linear in time, misses its crossing by a part of its
+    period that alternates with its sense: MixedConifer's crossings are 6.7 and 9.0 ms apart in turn.)"""
+    parts = sweep_parts(t, angle)
+    if len(parts) < 4:
+        return None
+    slopes = np.array([np.polyfit(t[b] - t[b].mean(), angle[b], 1)[0] for b in parts])
+    rate = float(np.median(np.abs(slopes)))
+    if not rate > 0:
+        return None
+    crossings = np.sort([t[b].mean() - np.mean(angle[b]) / (rate * np.sign(s)) for b, s in zip(parts, slopes) if s])
+    crossings = crossings[np.r_[True, np.diff(crossings) > BURST_GAP]]
+    return scan_period([np.array([c]) for c in crossings])
+
+
+def sweep_alignment(x, y, t, angle) -> float | None:
+    """How parallel a flight line's sweeps (:func:`sweep_parts`) run, from 0 (every way) to 1: the mean
+    resultant length of their principal directions (doubled angles: a direction is an axis), weighted by
+    their returns; ``None`` with fewer than 3 sweeps. A line scanner's are 0.99 or more (UAS_Clip,
+    MixedConifer, renders of the VUX-1UAV22 and ALS50-II); a render of a Livox Mid-70's rosette 0.1-0.3."""
+    parts = sweep_parts(t, angle)
+    if len(parts) < 3:
+        return None
+    sums = np.zeros(2, complex)
+    for b in parts:
+        q = np.column_stack([x[b], y[b]]) - [np.mean(x[b]), np.mean(y[b])]
+        d = np.linalg.eigh(q.T @ q)[1][:, 1]
+        sums += len(b) * np.array([np.exp(2j * np.arctan2(d[1], d[0])), 1.0])
+    return float(abs(sums[0]) / sums[1].real)
+
+
 def deflector_of(senses: list[list[tuple[float, int]]]) -> tuple[str | None, list[float]]:
     """The deflector that the flight lines' sweeps (:func:`sweep_senses`, one list a line) say, and for an
     oscillating one the scan-line periods (s) of its lines with 4 sweeps each way or more: half the period
@@ -309,7 +354,8 @@ class NadirLine:
 def nadir_line(x, y, z, t, angle) -> tuple[NadirLine, list] | None:
     """The flight line of (n,) points with GPS times ``t`` and scan angles ``angle`` (deg), and its sweeps'
     point indices and :class:`Sweep`; ``None`` with fewer than three usable sweeps (:func:`sweep_parts`,
-    :attr:`Sweep.usable`) or a progress under :data:`MIN_LINE_SPEED`. The flight is square to the sweeps'
+    :attr:`Sweep.usable`), sweeps that do not run parallel (:data:`PARALLEL_SWEEPS`) or a progress under
+    :data:`MIN_LINE_SPEED`. The flight is square to the sweeps'
     mean direction; its sense and speed are the sweeps' centroids' progress along it over time (a
     least-squares slope)."""
     found = [(b, sweep(x[b], y[b], z[b], angle[b])) for b in sweep_parts(t, angle)]
@@ -317,6 +363,9 @@ def nadir_line(x, y, z, t, angle) -> tuple[NadirLine, list] | None:
     if len(found) < 3:
         return None
     parts, sweeps = [b for b, _ in found], [sw for _, sw in found]
+    doubled = [len(b) * np.exp(2j * np.arctan2(sw.direction[1], sw.direction[0])) for b, sw in found]
+    if abs(np.sum(doubled)) < PARALLEL_SWEEPS * sum(len(b) for b in parts):
+        return None
     across = np.sum([sw.direction * len(b) for sw, b in zip(sweeps, parts)], axis=0)
     if np.linalg.norm(across) == 0:
         return None
@@ -388,12 +437,23 @@ def estimate(scan, ground_height: float) -> SurveyEstimate:
             periods.append(p)
         if (r := pulse_rate(bursts(t[g][scan.return_number[g] == 1]))) is not None:
             rates.append(r)
-    senses = [sweep_senses(t[g], scan.scan_angle[g]) for g in groups] if scan.scan_angle is not None else []
+    aligned = [sweep_alignment(scan.x[g], scan.y[g], t[g], scan.scan_angle[g]) for g in groups] \
+        if scan.scan_angle is not None else []
+    scanned = [g for g, a in zip(groups, aligned) if a is not None and a >= PARALLEL_SWEEPS]
+    senses = [sweep_senses(t[g], scan.scan_angle[g]) for g in scanned]
     deflector, line_periods = deflector_of(senses)
-    if deflector == "oscillating":      # burst spacings of a mirror there and back are not its scan lines'
+    every_way = None
+    if not scanned and any(a is not None for a in aligned):
+        why = every_way = (f"the file's sweeps run every way (aligned {max(a for a in aligned if a is not None):.2f}, a line "
+               f"scanner's {PARALLEL_SWEEPS:g} or more): not a mirror's scan lines (a Risley prism pair's rosette?)")
+        missing.update({"deflector": why, "scan_frequency": why})
+        periods = []
+    elif deflector == "oscillating":      # burst spacings of a mirror there and back are not its scan lines'
         periods = line_periods
         if not periods and t is not None:
             missing["scan_frequency"] = "an oscillating mirror with no line of 4 sweeps each way"
+    elif crossed := [p for g in scanned if (p := crossing_period(t[g], scan.scan_angle[g])) is not None]:
+        periods = crossed               # a turn's nadir crossings: its bursts may be pieces of one scan line
     lines = [_line(scan, g, xyz) for g in groups]
     tracks = [ln.track for ln in lines if ln.track is not None]
     good = [tr for tr in tracks if tr.residual <= GOOD_TRACK]
@@ -404,7 +464,7 @@ def estimate(scan, ground_height: float) -> SurveyEstimate:
                "(return numbers and GPS times of one pulse are needed), nor "
                + (f"{NADIR_SWEEPS} sweeps (bursts of {SWEEP_POINTS} returns or more over {SWEEP_ANGLES:g}° of scan "
                   f"angle or more, fitted within {SWEEP_MISS:g}°) moving at {MIN_LINE_SPEED:g} m/s or more"
-                  if scan.scan_angle is not None else "scan angles"))
+                  if scan.scan_angle is not None else "scan angles")) + (f"; {every_way}" if every_way else "")
         missing.update({k: why for k in ("lines", "altitude", "speed")})
     if t is not None and not periods and "scan_frequency" not in missing:
         missing["scan_frequency"] = "too few scan-line bursts in the GPS times"
@@ -429,9 +489,9 @@ def estimate(scan, ground_height: float) -> SurveyEstimate:
             heading=_axis([ln.heading for ln in strong], [ln.sweeps for ln in strong]))
     heading = _heading(good) if good else None
     sensor_z = float(np.median([tr.position[2] for tr in good])) if good else None
-    positions, sources = _line_positions(lines, good, heading, sensor_z)
+    positions, sources, headings = _line_positions(lines, good, heading, sensor_z)
     return SurveyEstimate(
-        **common, line_positions=positions, line_sources=sources, line_headings=(heading,) * len(positions),
+        **common, line_positions=positions, line_sources=sources, line_headings=headings,
         altitude=sensor_z - ground_height if good else None,
         speed=float(np.median([np.hypot(*tr.velocity[:2]) for tr in good])) if good else None,
         heading=heading)
@@ -464,24 +524,29 @@ def scan_angle_side(found: list) -> str:
     return "right" if votes >= 0 else "left"
 
 
-def _line_positions(lines: list[_Line], good: list[Track], heading, sensor_z) -> tuple[tuple, tuple]:
-    """A point (x, y) each placed line passes through, and how it was placed (see :func:`estimate`)."""
+def _line_positions(lines: list[_Line], good: list[Track], heading, sensor_z) -> tuple[tuple, tuple, tuple]:
+    """A point (x, y) each placed line passes through, how it was placed (see :func:`estimate`) and its
+    heading: the lines' axis ``heading`` the way its track flew (a line placed by scan angle has no track
+    to say which way: the axis as it is)."""
     if heading is None:
-        return (), ()
+        return (), (), ()
     across = flight_axes(heading)[1]
-    positions, sources = [], []
+    positions, sources, headings = [], [], []
+    along = flight_axes(heading)[0]
     for ln in lines:
         if ln.track is not None and ln.track in good:
             positions.append(tuple(map(float, ln.track.position[:2])))
             sources.append("track")
+            headings.append(heading if np.dot(ln.track.velocity[:2], along) >= 0 else (heading + 180.0) % 360)
         elif ln.towards_scanner is not None and ln.scan_angle is not None:
             side = 1.0 if ln.towards_scanner @ across >= 0 else -1.0
             distance = max(sensor_z - ln.centroid[2], 0.0) * np.tan(np.deg2rad(ln.scan_angle))
             positions.append(tuple(map(float, ln.centroid[:2] + side * distance * across)))
             sources.append("scan angle")
+            headings.append(heading)
         else:
             sources.append("not placed")
-    return tuple(positions), tuple(sources)
+    return tuple(positions), tuple(sources), tuple(headings)
 
 
 def _heading(tracks) -> float:
