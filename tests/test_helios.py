@@ -278,3 +278,41 @@ def test_a_missing_material_file_is_named(tmp_path, monkeypatch, capsys):
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "scene: no part is ground" in err, err
     assert err.rstrip().endswith(f"material file not found, faces unclassified: {tmp_path / 'assets/parts/ground.mtl'}")
+
+
+def _read_toy(tmp_path, monkeypatch, *changes):
+    """The demo-like survey with ``(file in data/, old text, new text)`` changes, read and converted
+    (not flown)."""
+    from mitsuforest.helios.render import survey_scene
+    from mitsuforest.helios.survey import read_survey
+    _demo_like_survey(tmp_path)
+    for file, old, new in changes:
+        path = tmp_path / "data" / file
+        assert old in path.read_text()
+        path.write_text(path.read_text().replace(old, new, 1))
+    monkeypatch.chdir(tmp_path)
+    return survey_scene(read_survey("data/survey.xml", assets=["assets"]))
+
+
+@pytest.mark.parametrize("effective, scan_angle, fov", [("165", "180", 330), ("165", "60", 120), ("180", "180", 360)])
+def test_a_rotating_mirror_fires_within_its_effective_scan_angle(tmp_path, monkeypatch, effective, scan_angle, fov):
+    """HELIOS++'s rotating mirror (PolygonMirrorBeamDeflector) fires within the smaller of the scanner's
+    scanAngleEffectiveMax_deg and the leg's scanAngle_deg; its VUX-1UAV (180, 165) flown at 180 scans
+    330°, not 360°."""
+    scene, *_ = _read_toy(tmp_path, monkeypatch,
+                          ("scanners.xml", 'scanAngleEffectiveMax_deg="180"', f'scanAngleEffectiveMax_deg="{effective}"'),
+                          ("survey.xml", 'scanAngle_deg="60"', f'scanAngle_deg="{scan_angle}"'))
+    assert scene.sensor.field_of_view == fov
+
+
+@pytest.mark.parametrize("old, new, message", [
+    ('scanAngleMax_deg="180"', 'scanAngleMax_deg="45"',
+     "scanner[vux].scanAngleMax_deg: a rotating mirror sweeping 90° a scan line is not supported"),
+    ('scanAngleEffectiveMax_deg="180"', "", "scanner[vux].scanAngleEffectiveMax_deg: is required"),
+])
+def test_a_rotating_mirror_we_cannot_fly_is_refused(tmp_path, monkeypatch, old, new, message):
+    """Our rotating mirror turns 360° a scan line: HELIOS++'s LMS-Q560 (scanAngleMax_deg 45: 90° a line,
+    four times our pulses per degree) is refused, and so is a rotating scanner without
+    scanAngleEffectiveMax_deg (HELIOS++ fires none of its pulses)."""
+    with pytest.raises(ConfigError, match=re.escape(message)):
+        _read_toy(tmp_path, monkeypatch, ("scanners.xml", old, new))

@@ -32,7 +32,7 @@ IGNORED = {
                  "base_pitch_deg", "roll_speed_deg", "pitch_speed_deg", "yaw_speed_deg", "roll_offset_deg",
                  "pitch_offset_deg", "slowdown_distance"},
     "scanner": {"id", "name", "averagePower_w", "beamQualityFactor", "opticalEfficiency", "receiverDiameter_m",
-                "atmosphericVisibility_km", "scanAngleEffectiveMax_deg", "refrIndex_air", "scanProduct"},
+                "atmosphericVisibility_km", "refrIndex_air", "scanProduct"},
 }
 PLATFORM_TYPES = ("linearpath", "multicopter")
 MAX_BEAM_SAMPLE_QUALITY = 100   # 31,087 HELIOS++ sub-rays; above 5 (62) we cast our maximum anyway
@@ -253,7 +253,8 @@ def _scanner(reader, node) -> dict:
     """The scanner definition as our sensor file's keys."""
     where = f"scanner[{node.get('id')}]"
     known = {"optics", "accuracy_m", "beamDivergence_rad", "pulseFreqs_Hz", "pulseLength_ns", "rangeMin_m",
-             "rangeMax_m", "scanAngleMax_deg", "scanFreqMin_Hz", "scanFreqMax_Hz", "wavelength_nm", "maxNOR"}
+             "rangeMax_m", "scanAngleMax_deg", "scanAngleEffectiveMax_deg", "scanFreqMin_Hz", "scanFreqMax_Hz",
+             "wavelength_nm", "maxNOR"}
     _check_attributes(reader, node, where, known | IGNORED["scanner"])
     for child in node:
         if child.tag not in ("beamOrigin", "headRotateAxis", "FWFSettings"):
@@ -271,7 +272,7 @@ def _scanner(reader, node) -> dict:
         "name": node.get("name") or node.get("id"),
         "source": f"HELIOS++ scanner {node.get('id')}",
         "deflector": OPTICS[optics],
-        "field_of_view": min(2 * _number(reader, node, "scanAngleMax_deg", where), 360.0),
+        "field_of_view": min(2 * _half_field_of_view(reader, node, where), 360.0),
         "pulse_frequencies": freqs,
         "scan_frequency_range": [_number(reader, node, "scanFreqMin_Hz", where, 0.0),
                                  _number(reader, node, "scanFreqMax_Hz", where, 0.0)],
@@ -285,6 +286,19 @@ def _scanner(reader, node) -> dict:
     if node.get("rangeMax_m"):
         sensor["range_max"] = _number(reader, node, "rangeMax_m", where)
     return sensor
+
+
+def _half_field_of_view(reader, node, where: str) -> float:
+    """Half the scanner's field of view (deg): an oscillating mirror's ``scanAngleMax_deg``; a rotating
+    mirror's ``scanAngleEffectiveMax_deg`` (HELIOS++ fires only within it), its ``scanAngleMax_deg`` (half
+    the sweep of one scan line) 180, a full turn a line as ours."""
+    half = _number(reader, node, "scanAngleMax_deg", where)
+    if node.get("optics") != "rotating":
+        return half
+    if half != 180:
+        reader.fail(f"{where}.scanAngleMax_deg", f"a rotating mirror sweeping {2 * half:g}° a scan line is not "
+                                                 "supported (ours turns 360° a line: scanAngleMax_deg 180)")
+    return min(half, _number(reader, node, "scanAngleEffectiveMax_deg", where))
 
 
 def _scanner_beam_samples(reader, node) -> int | None:
