@@ -316,3 +316,13 @@ def test_a_rotating_mirror_we_cannot_fly_is_refused(tmp_path, monkeypatch, old, 
     scanAngleEffectiveMax_deg (HELIOS++ fires none of its pulses)."""
     with pytest.raises(ConfigError, match=re.escape(message)):
         _read_toy(tmp_path, monkeypatch, ("scanners.xml", old, new))
+
+
+def test_the_survey_full_waveform_settings_helios_reads_are_taken_or_ignored(tmp_path, monkeypatch):
+    """HELIOS++ reads FWFSettings binSize_ns, beamSampleQuality, winSize_ns, maxFullwaveRange_ns and
+    apertureDiameter_m (XmlAssetsLoader::createFWFSettingsFromXml); the energy model's aperture changes
+    no hit here, so it is ignored, not refused."""
+    scene, *_ = _read_toy(tmp_path, monkeypatch, ("survey.xml", '<FWFSettings beamSampleQuality="2"/>',
+                                                  '<FWFSettings beamSampleQuality="2" binSize_ns="0.25" winSize_ns="1" '
+                                                  'maxFullwaveRange_ns="0" apertureDiameter_m="0.1"/>'))
+    assert scene.simulation.beam_samples == 7

@@ -27,7 +27,7 @@ IGNORED = {
     "survey": {"name"},
     "platformSettings": {"id", "template", "stopAndTurn", "smoothTurn", "slowdownEnabled", "yawAtDeparture_deg"},
     "scannerSettings": {"id", "template", "headRotateStart_deg", "headRotateStop_deg", "trajectoryTimeInterval_s"},
-    "FWFSettings": {"binSize_ns", "winSize_ns", "maxFullwaveRange_ns", "apertureDiameter"},
+    "FWFSettings": {"binSize_ns", "winSize_ns", "maxFullwaveRange_ns", "apertureDiameter_m"},
     "platform": {"id", "name", "type", "drag", "engine_max_force", "speedup_magnitude", "slowdown_magnitude",
                  "base_pitch_deg", "roll_speed_deg", "pitch_speed_deg", "yaw_speed_deg", "roll_offset_deg",
                  "pitch_offset_deg", "slowdown_distance"},
