@@ -326,3 +326,24 @@ def test_the_survey_full_waveform_settings_helios_reads_are_taken_or_ignored(tmp
                                                   '<FWFSettings beamSampleQuality="2" binSize_ns="0.25" winSize_ns="1" '
                                                   'maxFullwaveRange_ns="0" apertureDiameter_m="0.1"/>'))
     assert scene.simulation.beam_samples == 7
+
+
+def test_a_part_without_an_id_loading_several_files_is_one_part_a_file(tmp_path, monkeypatch):
+    """HELIOS++ numbers a part without an id by its index and splits one whose objloader loads several
+    files into one part a file, numbered on from that index; later parts without an id move on with
+    them (XmlSceneLoader, ScenePart::splitSubparts). Two boxes matched by one efilepath (the third part),
+    then a ground without an id: ids 2 and 3 for the boxes, 4 for the ground (HELIOS++'s hitObjectId)."""
+    from mitsuforest.helios.survey import read_survey
+    _demo_like_survey(tmp_path, '<part><filter type="objloader"><param type="string" key="efilepath" '
+                                'value="parts/bo.\\.obj"/></filter></part>'
+                                '<part><filter type="objloader"><param type="string" key="filepath" '
+                                'value="parts/ground.obj"/></filter></part>')
+    parts = tmp_path / "assets" / "parts"
+    (parts / "box.obj").rename(parts / "boa.obj")
+    (parts / "bob.obj").write_text((parts / "boa.obj").read_text())
+    scene = tmp_path / "data" / "scene.xml"
+    scene.write_text(scene.read_text().replace("parts/box\\.obj", "parts/boa\\.obj"))
+    monkeypatch.chdir(tmp_path)
+    survey = read_survey("data/survey.xml", assets=["assets"])
+    assert [(p.part_id, [f.name for f in p.files]) for p in survey.parts] == [
+        (1, ["ground.obj"]), (7, ["boa.obj"]), (2, ["boa.obj"]), (3, ["bob.obj"]), (4, ["ground.obj"])]

@@ -10,6 +10,7 @@ with ``FILE: element: reason``; nothing is skipped silently.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import re
 import xml.etree.ElementTree as ET
@@ -195,7 +196,7 @@ def read_survey(path, assets=()) -> HeliosSurvey:
     waypoints = tuple(_waypoint(reader, leg, i, here) for i, leg in enumerate(survey.findall("leg")))
     if len(waypoints) < 2:
         reader.fail("survey.leg", "a survey needs at least two legs (waypoints)")
-    parts = tuple(_part(reader, node, i) for i, node in enumerate(_scene_parts(reader, scene_node, scene_path)))
+    parts = _numbered_parts(reader, list(_scene_parts(reader, scene_node, scene_path)))
     return HeliosSurvey(name, Path(path).resolve(), scanner, beam_samples,
                         waypoints, parts, int(seed) if seed.isdigit() else None)
 
@@ -369,10 +370,28 @@ def _scene_parts(reader, scene, path: Path):
         yield child
 
 
-def _part(reader, node, index: int) -> Part:
+def _numbered_parts(reader, nodes) -> tuple[Part, ...]:
+    """The scene's parts with HELIOS++'s ids: a part without an id is numbered by a running index, and
+    one that loads several files becomes one part a file numbered on from it, the index moving on past
+    them (``XmlSceneLoader``, ``ScenePart::splitSubparts``; files in the order :meth:`_Reader.mesh_files`
+    lists them)."""
+    parts, index = [], 0
+    for i, node in enumerate(nodes):
+        part = _part(reader, node, i, index)
+        if node.get("id") is None and len(part.files) > 1:
+            parts += [dataclasses.replace(part, part_id=part.part_id + k, files=(f,)) for k, f in enumerate(part.files)]
+            index += len(part.files) - 1
+        else:
+            parts.append(part)
+        index += 1
+    return tuple(parts)
+
+
+def _part(reader, node, index: int, number: int) -> Part:
+    """The ``index``-th part, ``number`` its id when it has none."""
     where = f"scene.part[{index}]"
     _check_attributes(reader, node, where, {"id"})
-    part_id = node.get("id", str(index))
+    part_id = node.get("id", str(number))
     if not part_id.lstrip("-").isdigit() or not 0 <= int(part_id) <= MAX_PART_ID:
         reader.fail(f"{where}.id", f"must be a whole number from 0 to {MAX_PART_ID} (it becomes the points' "
                                    f"object_id), got {part_id!r}")
