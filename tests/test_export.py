@@ -183,3 +183,18 @@ def test_two_scenes_exported_into_one_folder_keep_their_own_meshes(tmp_path):
     for mesh in ("deadwood001_c000_deadwood.obj", "ground.obj"):
         assert ((tmp_path / "out" / "demo_models" / mesh).read_bytes()
                 != (tmp_path / "out" / "other_models" / mesh).read_bytes())
+
+
+def test_a_rotating_mirror_is_exported_as_a_full_turn_per_scan_line(tmp_path):
+    """HELIOS++'s rotating mirror sweeps 2 x scanAngleMax_deg each scan line and fires within
+    scanAngleEffectiveMax_deg (its own VUX-1UAV: 180 and 165); ours turns 360° a line. A 330° sensor
+    exported with scanAngleMax_deg 165 had HELIOS++ sweep 330° a line, pulses 8 % closer and all fired."""
+    from helpers import scene_file
+    path = scene_file(tmp_path, sensor="riegl_vux-1uav.yaml")
+    assert main(["export", str(path), "-o", str(tmp_path / "out")]) == 0
+    scanner = ET.parse(tmp_path / "out" / "test_helios_scanner.xml").getroot().find("scanner")
+    assert scanner.get("optics") == "rotating"
+    assert float(scanner.get("scanAngleMax_deg")) == 180
+    assert float(scanner.get("scanAngleEffectiveMax_deg")) == 165
+    legs = ET.parse(tmp_path / "out" / "test_helios_survey.xml").getroot().iter("scannerSettings")
+    assert {float(s.get("scanAngle_deg")) for s in legs} == {165}

@@ -278,3 +278,72 @@ def test_a_missing_material_file_is_named(tmp_path, monkeypatch, capsys):
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "scene: no part is ground" in err, err
     assert err.rstrip().endswith(f"material file not found, faces unclassified: {tmp_path / 'assets/parts/ground.mtl'}")
+
+
+def _read_toy(tmp_path, monkeypatch, *changes):
+    """The demo-like survey with ``(file in data/, old text, new text)`` changes, read and converted
+    (not flown)."""
+    from mitsuforest.helios.render import survey_scene
+    from mitsuforest.helios.survey import read_survey
+    _demo_like_survey(tmp_path)
+    for file, old, new in changes:
+        path = tmp_path / "data" / file
+        assert old in path.read_text()
+        path.write_text(path.read_text().replace(old, new, 1))
+    monkeypatch.chdir(tmp_path)
+    return survey_scene(read_survey("data/survey.xml", assets=["assets"]))
+
+
+@pytest.mark.parametrize("effective, scan_angle, fov", [("165", "180", 330), ("165", "60", 120), ("180", "180", 360)])
+def test_a_rotating_mirror_fires_within_its_effective_scan_angle(tmp_path, monkeypatch, effective, scan_angle, fov):
+    """HELIOS++'s rotating mirror (PolygonMirrorBeamDeflector) fires within the smaller of the scanner's
+    scanAngleEffectiveMax_deg and the leg's scanAngle_deg; its VUX-1UAV (180, 165) flown at 180 scans
+    330°, not 360°."""
+    scene, *_ = _read_toy(tmp_path, monkeypatch,
+                          ("scanners.xml", 'scanAngleEffectiveMax_deg="180"', f'scanAngleEffectiveMax_deg="{effective}"'),
+                          ("survey.xml", 'scanAngle_deg="60"', f'scanAngle_deg="{scan_angle}"'))
+    assert scene.sensor.field_of_view == fov
+
+
+@pytest.mark.parametrize("old, new, message", [
+    ('scanAngleMax_deg="180"', 'scanAngleMax_deg="45"',
+     "scanner[vux].scanAngleMax_deg: a rotating mirror sweeping 90° a scan line is not supported"),
+    ('scanAngleEffectiveMax_deg="180"', "", "scanner[vux].scanAngleEffectiveMax_deg: is required"),
+])
+def test_a_rotating_mirror_we_cannot_fly_is_refused(tmp_path, monkeypatch, old, new, message):
+    """Our rotating mirror turns 360° a scan line: HELIOS++'s LMS-Q560 (scanAngleMax_deg 45: 90° a line,
+    four times our pulses per degree) is refused, and so is a rotating scanner without
+    scanAngleEffectiveMax_deg (HELIOS++ fires none of its pulses)."""
+    with pytest.raises(ConfigError, match=re.escape(message)):
+        _read_toy(tmp_path, monkeypatch, ("scanners.xml", old, new))
+
+
+def test_the_survey_full_waveform_settings_helios_reads_are_taken_or_ignored(tmp_path, monkeypatch):
+    """HELIOS++ reads FWFSettings binSize_ns, beamSampleQuality, winSize_ns, maxFullwaveRange_ns and
+    apertureDiameter_m (XmlAssetsLoader::createFWFSettingsFromXml); the energy model's aperture changes
+    no hit here, so it is ignored, not refused."""
+    scene, *_ = _read_toy(tmp_path, monkeypatch, ("survey.xml", '<FWFSettings beamSampleQuality="2"/>',
+                                                  '<FWFSettings beamSampleQuality="2" binSize_ns="0.25" winSize_ns="1" '
+                                                  'maxFullwaveRange_ns="0" apertureDiameter_m="0.1"/>'))
+    assert scene.simulation.beam_samples == 7
+
+
+def test_a_part_without_an_id_loading_several_files_is_one_part_a_file(tmp_path, monkeypatch):
+    """HELIOS++ numbers a part without an id by its index and splits one whose objloader loads several
+    files into one part a file, numbered on from that index; later parts without an id move on with
+    them (XmlSceneLoader, ScenePart::splitSubparts). Two boxes matched by one efilepath (the third part),
+    then a ground without an id: ids 2 and 3 for the boxes, 4 for the ground (HELIOS++'s hitObjectId)."""
+    from mitsuforest.helios.survey import read_survey
+    _demo_like_survey(tmp_path, '<part><filter type="objloader"><param type="string" key="efilepath" '
+                                'value="parts/bo.\\.obj"/></filter></part>'
+                                '<part><filter type="objloader"><param type="string" key="filepath" '
+                                'value="parts/ground.obj"/></filter></part>')
+    parts = tmp_path / "assets" / "parts"
+    (parts / "box.obj").rename(parts / "boa.obj")
+    (parts / "bob.obj").write_text((parts / "boa.obj").read_text())
+    scene = tmp_path / "data" / "scene.xml"
+    scene.write_text(scene.read_text().replace("parts/box\\.obj", "parts/boa\\.obj"))
+    monkeypatch.chdir(tmp_path)
+    survey = read_survey("data/survey.xml", assets=["assets"])
+    assert [(p.part_id, [f.name for f in p.files]) for p in survey.parts] == [
+        (1, ["ground.obj"]), (7, ["boa.obj"]), (2, ["boa.obj"]), (3, ["bob.obj"]), (4, ["ground.obj"])]

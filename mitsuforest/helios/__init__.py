@@ -17,7 +17,9 @@ HELIOS++ facts these modules rely on (HELIOS++ 2.x source, ``src/assetloading``)
   ``helios_classification`` and ``helios_isGround`` are HELIOS++'s material keys;
 - a part's rotate filters compose in order, its last scale and last translate win, and a vertex
   becomes ``R · (s · v) + t``; ``<rot axis angle_deg>`` is a right-handed rotation;
-- ``scanAngle_deg`` and ``scanAngleMax_deg`` are half the field of view; ``beamSampleQuality`` q casts
+- ``scanAngle_deg`` is half the field of view, as is an oscillating mirror's ``scanAngleMax_deg``; a
+  rotating mirror sweeps 2 x ``scanAngleMax_deg`` each scan line and fires only within
+  ``scanAngleEffectiveMax_deg`` (and ``scanAngle_deg``) of nadir; ``beamSampleQuality`` q casts
   ``1 + Σ_{i<q} floor(2π i)`` sub-rays (1, 7, 19, 37, 62 ...);
 - legs are waypoints: the platform flies from leg i to leg i+1 with leg i's scanner settings.
 """

@@ -120,6 +120,9 @@ def scanner_xml(sensor, pulse_frequency: float) -> str:
     """Our sensor as a HELIOS++ scanner: optics, pulse frequencies, scan frequencies, half field of
     view, divergence, pulse length, wavelength, ranges, ranging noise and returns per pulse.
 
+    A rotating mirror's ``scanAngleMax_deg`` is 180 (a full turn each scan line, as ours) and its half
+    field of view ``scanAngleEffectiveMax_deg``: HELIOS++ sweeps 2 x ``scanAngleMax_deg`` a line.
+
     ``beamDivergence_rad`` is our full angle, as in HELIOS++'s own scanner files; HELIOS++'s energy
     model takes it as the 1/e² half angle, so its footprint is wider than ours (README, "Comparing
     with HELIOS++", has the echo counts this gives)."""
@@ -132,12 +135,13 @@ def scanner_xml(sensor, pulse_frequency: float) -> str:
                         f"{across:g} x {along:g} rad")
     freqs = sorted({int(round(f)) for f in (*sensor.pulse_frequencies, pulse_frequency)})
     lo, hi = sensor.scan_frequency_range
+    half = sensor.field_of_view / 2
     node = ET.Element(
         "scanner", id=SCANNER_ID, name=sensor.name, optics=OPTICS[sensor.deflector],
         accuracy_m=_g(sensor.range_precision), beamDivergence_rad=_g(across),
         pulseFreqs_Hz=",".join(str(f) for f in freqs), pulseLength_ns=_g(sensor.pulse_length * 1e9),
         rangeMin_m=_g(sensor.range_min), rangeMax_m=_g(sensor.range_max),
-        scanAngleMax_deg=_g(sensor.field_of_view / 2), scanAngleEffectiveMax_deg=_g(sensor.field_of_view / 2),
+        scanAngleMax_deg=_g(_mirror_half_sweep(sensor)), scanAngleEffectiveMax_deg=_g(half),
         scanFreqMin_Hz=_g(lo), scanFreqMax_Hz=_g(hi), wavelength_nm=str(int(round(sensor.wavelength * 1e9))),
         maxNOR=str(sensor.max_returns))
     origin = ET.SubElement(node, "beamOrigin", x="0", y="0", z="0")
@@ -145,6 +149,13 @@ def scanner_xml(sensor, pulse_frequency: float) -> str:
     ET.SubElement(origin, "rot", axis="z", angle_deg="90")   # beam sweeps the x-z plane of the mount
     ET.SubElement(node, "headRotateAxis", x="0", y="0", z="1")
     return _document(node)
+
+
+def _mirror_half_sweep(sensor) -> float:
+    """HELIOS++'s ``scanAngleMax_deg``: half the angle its mirror sweeps in one scan line. Our rotating
+    mirror turns 360° a line (180; the field of view is ``scanAngleEffectiveMax_deg``), an oscillating
+    one sweeps the field of view."""
+    return 180.0 if sensor.deflector == "rotating" else sensor.field_of_view / 2
 
 
 def scanner_notes(sensor) -> list[str]:

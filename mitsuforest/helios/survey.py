@@ -10,6 +10,7 @@ with ``FILE: element: reason``; nothing is skipped silently.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import re
 import xml.etree.ElementTree as ET
@@ -27,12 +28,12 @@ IGNORED = {
     "survey": {"name"},
     "platformSettings": {"id", "template", "stopAndTurn", "smoothTurn", "slowdownEnabled", "yawAtDeparture_deg"},
     "scannerSettings": {"id", "template", "headRotateStart_deg", "headRotateStop_deg", "trajectoryTimeInterval_s"},
-    "FWFSettings": {"binSize_ns", "winSize_ns", "maxFullwaveRange_ns", "apertureDiameter"},
+    "FWFSettings": {"binSize_ns", "winSize_ns", "maxFullwaveRange_ns", "apertureDiameter_m"},
     "platform": {"id", "name", "type", "drag", "engine_max_force", "speedup_magnitude", "slowdown_magnitude",
                  "base_pitch_deg", "roll_speed_deg", "pitch_speed_deg", "yaw_speed_deg", "roll_offset_deg",
                  "pitch_offset_deg", "slowdown_distance"},
     "scanner": {"id", "name", "averagePower_w", "beamQualityFactor", "opticalEfficiency", "receiverDiameter_m",
-                "atmosphericVisibility_km", "scanAngleEffectiveMax_deg", "refrIndex_air", "scanProduct"},
+                "atmosphericVisibility_km", "refrIndex_air", "scanProduct"},
 }
 PLATFORM_TYPES = ("linearpath", "multicopter")
 MAX_BEAM_SAMPLE_QUALITY = 100   # 31,087 HELIOS++ sub-rays; above 5 (62) we cast our maximum anyway
@@ -195,7 +196,7 @@ def read_survey(path, assets=()) -> HeliosSurvey:
     waypoints = tuple(_waypoint(reader, leg, i, here) for i, leg in enumerate(survey.findall("leg")))
     if len(waypoints) < 2:
         reader.fail("survey.leg", "a survey needs at least two legs (waypoints)")
-    parts = tuple(_part(reader, node, i) for i, node in enumerate(_scene_parts(reader, scene_node, scene_path)))
+    parts = _numbered_parts(reader, list(_scene_parts(reader, scene_node, scene_path)))
     return HeliosSurvey(name, Path(path).resolve(), scanner, beam_samples,
                         waypoints, parts, int(seed) if seed.isdigit() else None)
 
@@ -253,7 +254,8 @@ def _scanner(reader, node) -> dict:
     """The scanner definition as our sensor file's keys."""
     where = f"scanner[{node.get('id')}]"
     known = {"optics", "accuracy_m", "beamDivergence_rad", "pulseFreqs_Hz", "pulseLength_ns", "rangeMin_m",
-             "rangeMax_m", "scanAngleMax_deg", "scanFreqMin_Hz", "scanFreqMax_Hz", "wavelength_nm", "maxNOR"}
+             "rangeMax_m", "scanAngleMax_deg", "scanAngleEffectiveMax_deg", "scanFreqMin_Hz", "scanFreqMax_Hz",
+             "wavelength_nm", "maxNOR"}
     _check_attributes(reader, node, where, known | IGNORED["scanner"])
     for child in node:
         if child.tag not in ("beamOrigin", "headRotateAxis", "FWFSettings"):
@@ -271,7 +273,7 @@ def _scanner(reader, node) -> dict:
         "name": node.get("name") or node.get("id"),
         "source": f"HELIOS++ scanner {node.get('id')}",
         "deflector": OPTICS[optics],
-        "field_of_view": min(2 * _number(reader, node, "scanAngleMax_deg", where), 360.0),
+        "field_of_view": min(2 * _half_field_of_view(reader, node, where), 360.0),
         "pulse_frequencies": freqs,
         "scan_frequency_range": [_number(reader, node, "scanFreqMin_Hz", where, 0.0),
                                  _number(reader, node, "scanFreqMax_Hz", where, 0.0)],
@@ -285,6 +287,19 @@ def _scanner(reader, node) -> dict:
     if node.get("rangeMax_m"):
         sensor["range_max"] = _number(reader, node, "rangeMax_m", where)
     return sensor
+
+
+def _half_field_of_view(reader, node, where: str) -> float:
+    """Half the scanner's field of view (deg): an oscillating mirror's ``scanAngleMax_deg``; a rotating
+    mirror's ``scanAngleEffectiveMax_deg`` (HELIOS++ fires only within it), its ``scanAngleMax_deg`` (half
+    the sweep of one scan line) 180, a full turn a line as ours."""
+    half = _number(reader, node, "scanAngleMax_deg", where)
+    if node.get("optics") != "rotating":
+        return half
+    if half != 180:
+        reader.fail(f"{where}.scanAngleMax_deg", f"a rotating mirror sweeping {2 * half:g}° a scan line is not "
+                                                 "supported (ours turns 360° a line: scanAngleMax_deg 180)")
+    return min(half, _number(reader, node, "scanAngleEffectiveMax_deg", where))
 
 
 def _scanner_beam_samples(reader, node) -> int | None:
@@ -355,10 +370,28 @@ def _scene_parts(reader, scene, path: Path):
         yield child
 
 
-def _part(reader, node, index: int) -> Part:
+def _numbered_parts(reader, nodes) -> tuple[Part, ...]:
+    """The scene's parts with HELIOS++'s ids: a part without an id is numbered by a running index, and
+    one that loads several files becomes one part a file numbered on from it, the index moving on past
+    them (``XmlSceneLoader``, ``ScenePart::splitSubparts``; files in the order :meth:`_Reader.mesh_files`
+    lists them)."""
+    parts, index = [], 0
+    for i, node in enumerate(nodes):
+        part = _part(reader, node, i, index)
+        if node.get("id") is None and len(part.files) > 1:
+            parts += [dataclasses.replace(part, part_id=part.part_id + k, files=(f,)) for k, f in enumerate(part.files)]
+            index += len(part.files) - 1
+        else:
+            parts.append(part)
+        index += 1
+    return tuple(parts)
+
+
+def _part(reader, node, index: int, number: int) -> Part:
+    """The ``index``-th part, ``number`` its id when it has none."""
     where = f"scene.part[{index}]"
     _check_attributes(reader, node, where, {"id"})
-    part_id = node.get("id", str(index))
+    part_id = node.get("id", str(number))
     if not part_id.lstrip("-").isdigit() or not 0 <= int(part_id) <= MAX_PART_ID:
         reader.fail(f"{where}.id", f"must be a whole number from 0 to {MAX_PART_ID} (it becomes the points' "
                                    f"object_id), got {part_id!r}")
