@@ -104,6 +104,22 @@ CASES = {
                                         "forest.trees: 1000000000 trees in a 10 x 10 m plot is more than 10 a square metre"),
     "spacing of 1e300 m": (GOOD.replace("trees: 1", "trees: 2, min_spacing: 1e300"),
                            "forest.trees: 2 trees at min_spacing 1e+300 m do not fit"),
+    # Found by fuzzing: a traceback (OverflowError, TypeError, ValueError, ZeroDivisionError), exit 1 or two lines
+    "an integer of 400 digits": (GOOD.replace("altitude: 30", "altitude: " + "9" * 400),
+                                 "survey.altitude: must be within ±1.8e+308 (float64), got an integer of about 401 digits"),
+    "a count of 400 digits": (GOOD.replace("bushes: 0", "bushes: " + "9" * 400), "understory.bushes: must be within"),
+    "an integer of 5,000 digits": ("seed: " + "9" * 5000 + "\n" + GOOD,
+                                   "YAML syntax error: line 1, column 7: an integer of 5,000 digits is too long"),
+    "a list as a key": (GOOD + "? [a, b]\n: 1\n", "YAML syntax error: line 8, column 3: found unhashable key"),
+    "a mapping as a key": (GOOD.replace("survey: {", "survey: {? {a: 1}: 2, "), "found unhashable key"),
+    "a NUL byte": (GOOD.replace("name: t", "name: t\0"),
+                   "YAML syntax error: line 2: unacceptable character #x0000: special characters are not allowed"),
+    "UTF-16 without a byte order mark": (GOOD.encode("utf-16-le"), "scene.yaml: YAML syntax error: line 2: "
+                                         "unacceptable character #x0000"),
+    "spacing under 1e-160 m": (GOOD.replace("trees: 1", "trees: 2000, min_spacing: 1e-320"),
+                               "forest.trees: 2000 trees in a 10 x 10 m plot is more than 10 a square metre"),
+    "a model path too long for the file system": (GOOD.replace("trees: 1", "trees: 1, models: [{qsm: " + "x" * 5000 + "}]"),
+                                                  "forest.models[0].qsm: cannot be read (File name too long): "),
     "GNSS error of 1e300 m": (GOOD.replace("altitude: 30", "altitude: 30, navigation_errors: {gnss_sigma_m: 1e300}"),
                               "survey.navigation_errors.gnss_sigma_m: must be <= 100, got 1e+300"),
 }

@@ -132,6 +132,9 @@ BAD_TABLES = {   # the file's text, and the error: its real line (comments and b
                    "nan,1,0,0,2,0,0,1\n", "line 5: a value is not finite"),
     "inf axis": ("radius start_x start_y start_z end_x end_y end_z\n# stem\n0.1 0 0 0 0 0 inf\n",
                  "line 3: a value is not finite"),
+    "a coordinate of 1e308": ("radius,start_x,start_y,start_z,end_x,end_y,end_z\n0.1,0,0,0,0,0,1\n0.1,0,1e308,1,0,0,2\n",
+                              "line 3: start_y 1e+308 is beyond ±1e+09: no tree's size or coordinate (even in millimetres on a "
+                              "map grid)"),   # was numpy's overflow warnings, then "the tree is 1e+308 m tall"
     "long row": ("radius,start_x,start_y,start_z,end_x,end_y,end_z\n0.1,0,0,0,0,0,1,7\n",
                  "line 2: 8 values, the header names 7 columns"),
     "binary": (b"MATLAB 5.0 MAT-file\x00\xff\xfe\x80", "not a text table (a binary file; TreeQSM's .mat models"),

@@ -330,6 +330,25 @@ def test_tree_list_in_other_separators_is_refused_saying_so(tmp_path, text, mess
     assert e.value.key == "forest.trees_file" and message in e.value.reason
 
 
+@pytest.mark.parametrize("text, message", [
+    ("x,y,height,crown_radius\n" + "1" * 200_000 + "\n", "not a CSV tree list (field larger than field limit"),
+    # a quote left open runs to the end of the file: the header named every line of it
+    ('"x,y,height,crown_radius\n5,5,12,2\n6,6,12,2\n', "the tree list lacks the column(s) x, y, height, crown_radius "
+                                                       "(header: 'x,y,height,crown_radius\\n5,5,12,2\\n6,6,12,2')"),
+])
+def test_a_tree_list_that_is_no_csv_is_refused_in_one_line(tmp_path, text, message):
+    """Found by fuzzing: a cell over 128 kB ended in csv.Error's traceback, and a header holding line breaks
+    (an open quote, a binary file) was printed over several lines."""
+    from mitsuforest.config import load_scene
+    from mitsuforest.errors import ConfigError
+    from mitsuforest.survey import make_plan
+    (tmp_path / "trees.csv").write_text(text)
+    (tmp_path / "s.yaml").write_text("area: {size: [20, 20]}\nsensor: ideal\nforest: {trees_file: trees.csv}\n")
+    with pytest.raises(ConfigError) as e:
+        make_plan(load_scene(tmp_path / "s.yaml"))
+    assert e.value.key == "forest.trees_file" and message in e.value.reason and "\n" not in str(e.value)
+
+
 def test_trees_command_on_a_tree_list_scene_says_it_shows_the_templates(tmp_path, capsys, monkeypatch):
     from mitsuforest.cli import main
     monkeypatch.chdir(tmp_path)

@@ -11,6 +11,7 @@ naming the file, the key path and the reason; an edit (``scene.with_(...)``,
 
 from __future__ import annotations
 
+import collections.abc
 import dataclasses
 import math
 from pathlib import Path
@@ -373,6 +374,8 @@ class _UniqueKeys:
         seen = set()
         for key_node, _ in node.value:
             key = self.construct_object(key_node, deep=deep)
+            if not isinstance(key, collections.abc.Hashable):   # a list or mapping as a key: PyYAML's own error
+                raise yaml.constructor.ConstructorError(None, None, "found unhashable key", key_node.start_mark)
             if key in seen:
                 raise yaml.constructor.ConstructorError(None, None, f"duplicate key {key!r}", key_node.start_mark)
             seen.add(key)
@@ -397,6 +400,20 @@ class _CheckedLoader(_UniqueKeys, yaml.SafeLoader):
 
 
 _FastLoader = type("_FastLoader", (_UniqueKeys, yaml.CSafeLoader), {}) if yaml.__with_libyaml__ else None
+
+
+def _integer(loader, node):
+    """YAML's integer, refused in the file's terms where Python will not convert it (over 4,300 digits)."""
+    try:
+        return yaml.SafeLoader.construct_yaml_int(loader, node)
+    except ValueError:
+        raise yaml.constructor.ConstructorError(None, None, f"an integer of {len(node.value):,} digits is too long",
+                                                node.start_mark) from None
+
+
+for _loader in (_CheckedLoader, _FastLoader):
+    if _loader is not None:
+        _loader.add_constructor("tag:yaml.org,2002:int", _integer)
 
 
 def _parse_yaml(text: str):
@@ -464,6 +481,10 @@ def read_yaml(path) -> tuple[object, Context]:
         raise ConfigError(display_path(path), "", _not_utf8(data, e)) from None
     try:
         data = _parse_yaml(text)
+    except yaml.reader.ReaderError as e:   # its text runs over two lines
+        line = text.count("\n", 0, e.position) + 1
+        raise ConfigError(display_path(path), "", f"YAML syntax error: line {line}: unacceptable character "
+                          f"#x{e.character:04x}: {e.reason}") from None
     except yaml.YAMLError as e:
         mark = getattr(e, "problem_mark", None)
         where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark else ""
@@ -595,9 +616,9 @@ def _check_scene(scene: dict, ctx: Context):
                  f"{ground_layer:g}, more than 1")
     if forest["canopy_cover"] is not None and forest["trees"] is not None:
         ctx.fail("forest.trees", "give either forest.canopy_cover or forest.trees, not both")
-    if forest["trees"] and forest["min_spacing"] > 0:
+    disc = math.pi * (forest["min_spacing"] / 2) * (forest["min_spacing"] / 2)   # inf, not OverflowError, for 1e300
+    if forest["trees"] and disc > 0:   # 0 for a spacing under 1e-160 m as for none
         w, h = scene["area"]["size"]
-        disc = math.pi * (forest["min_spacing"] / 2) * (forest["min_spacing"] / 2)   # inf, not OverflowError, for 1e300
         fit = int(RSA_JAMMING * w * h / disc) + 1
         if forest["trees"] > fit:
             ctx.fail("forest.trees", f"{forest['trees']} trees at min_spacing {forest['min_spacing']:g} m do not fit "

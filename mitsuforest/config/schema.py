@@ -9,6 +9,7 @@ from __future__ import annotations
 import copy
 import difflib
 import math
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
@@ -16,6 +17,7 @@ from typing import Any, Callable
 from ..errors import ConfigError
 
 REQUIRED = object()
+_FLOAT_MAX = sys.float_info.max
 
 
 @dataclass
@@ -60,6 +62,9 @@ class Number:
                     ctx.fail(key, f"must be {kind}, got {value!r}")
             else:
                 ctx.fail(key, f"must be {kind}, got {_type_name(value)}")
+        if isinstance(value, int) and abs(value) > _FLOAT_MAX:   # YAML reads 400 digits as an int, beyond float64
+            ctx.fail(key, f"must be within ±{_FLOAT_MAX:.1e} (float64), got an integer of about "
+                          f"{int(value.bit_length() * math.log10(2)) + 1} digits")
         if not math.isfinite(value):
             ctx.fail(key, f"must be finite, got {value}")
         if self.integer:
@@ -115,10 +120,13 @@ class FilePath(Text):
         if not value.strip():
             ctx.fail(key, "must name a file, got an empty path")
         path = (ctx.folder / Path(value).expanduser()).resolve()
-        if self.must_exist and not path.exists():
-            ctx.fail(key, f"file not found: {path}")
-        if self.must_exist and not path.is_file():
-            ctx.fail(key, f"not a file ({'a folder' if path.is_dir() else 'a device, pipe or socket'}): {path}")
+        try:
+            if self.must_exist and not path.exists():
+                ctx.fail(key, f"file not found: {path}")
+            if self.must_exist and not path.is_file():
+                ctx.fail(key, f"not a file ({'a folder' if path.is_dir() else 'a device, pipe or socket'}): {path}")
+        except OSError as e:   # a name too long for the file system, say
+            ctx.fail(key, f"cannot be read ({e.strerror or e}): {path}")
         return str(path)
 
 

@@ -44,6 +44,8 @@ def read_tree_list(path, offset=(0.0, 0.0, 0.0)) -> list[ListedTree]:
         rows = list(csv.reader(io.StringIO(read_text(path), newline="")))
     except (OSError, NotTextError) as e:
         raise UserError(f"cannot read the tree list {path}: {e}") from None
+    except csv.Error as e:   # a cell over 128 kB (a quote left open, a binary file)
+        raise UserError(f"{path}: not a CSV tree list ({e})") from None
     if not rows:
         raise UserError(f"{path}: the tree list is empty (it needs a header {','.join(COLUMNS)})")
     header = [h.strip().lower() for h in rows[0]]
@@ -51,7 +53,7 @@ def read_tree_list(path, offset=(0.0, 0.0, 0.0)) -> list[ListedTree]:
     if missing and semicolon_separated(header):
         raise UserError(f"{path}: the tree list is {SEMICOLONS}")
     if missing:
-        raise UserError(f"{path}: the tree list lacks the column(s) {', '.join(missing)} (header: {','.join(header)})")
+        raise UserError(f"{path}: the tree list lacks the column(s) {', '.join(missing)} (header: {','.join(header)[:200]!r})")
     read = (*COLUMNS, "species", "leaf_area", "crown_ratio")
     if twice := repeated(header, read):
         raise UserError(f"{path}: the tree list has the column {twice} {header.count(twice)} times; keep one")

@@ -202,6 +202,10 @@ def _numbers(path, rows, sep, width, exact) -> np.ndarray:
     return out
 
 
+MAX_VALUE = 1e9   # as origin.offset: beyond every projected CRS
+GEOMETRY = {"radius", "length", *(f"{p}_{a}" for p in ("start", "end", "axis") for a in "xyz")}
+
+
 def _cylinders(path, col: dict, line: np.ndarray) -> Cylinders:
     def need(*names):
         missing = [n for n in names if n not in col]
@@ -210,6 +214,11 @@ def _cylinders(path, col: dict, line: np.ndarray) -> Cylinders:
                                  "a QSM needs radius, start x y z, and axis x y z with length or end x y z")
         return [col[n] for n in names]
 
+    for name, values in col.items():   # 1e308 overflowed the lengths and sums below, with numpy's warnings
+        if name in GEOMETRY and np.any(np.abs(values) > MAX_VALUE):
+            i = int(np.argmax(np.abs(values) > MAX_VALUE))
+            raise ModelFileError(path, f"line {line[i]}", f"{name} {values[i]:g} is beyond ±{MAX_VALUE:g}: no tree's "
+                                 "size or coordinate (even in millimetres on a map grid)")
     (radius,) = need("radius")
     start = np.column_stack(need("start_x", "start_y", "start_z"))
     if all(f"end_{a}" in col for a in "xyz"):
