@@ -310,6 +310,12 @@ def test_tree_list_refuses_a_tree_outside_the_plot_and_a_count_beside_it(tmp_pat
     (tmp_path / "s.yaml").write_text(base + "forest: {trees_file: trees.csv, trees: 3}\n")
     with pytest.raises(ConfigError, match="forest.trees_file: places the trees it lists"):
         load_scene(tmp_path / "s.yaml")
+    # more than 10 a square metre, as forest.trees: 4,001 rows in a 20 m plot (each would build its own crown)
+    (tmp_path / "trees.csv").write_text("x,y,height,crown_radius\n" + "5,5,12,0.3\n" * 4001)
+    (tmp_path / "s.yaml").write_text(base + "forest: {trees_file: trees.csv}\n")
+    with pytest.raises(ConfigError, match=r"forest.trees_file: 4,001 trees in a 20 x 20 m plot is more than 10 a "
+                                          r"square metre \(at most 4,000;"):
+        make_plan(load_scene(tmp_path / "s.yaml"))
 
 
 @pytest.mark.parametrize("text, message", [

@@ -19,7 +19,7 @@ import numpy as np
 
 from .. import seeds
 from ..classes import DEADWOOD_TREEID, GROUND_OBJECT_ID
-from ..config import MAX_LEGS, scene_error
+from ..config import MAX_LEGS, MAX_STEMS_PER_M2, scene_error
 from ..errors import UserError, amount
 from ..specs.understory import CLEARANCE, SHRUB_FORMS, UNDERSTORY_COMPONENTS, UNDERSTORY_KEYS
 from ..specs.archetypes import Archetype, UniqueTrees, grown_to, nearest_template, unique_archetypes
@@ -211,6 +211,9 @@ def _tree_list(scene) -> list:
     if len(listed) > MAX_TREE_MODELS:
         raise _Refusal("forest.trees_file", f"{len(listed):,} trees, at most {MAX_TREE_MODELS:,} (treeid is 16 bits)")
     w, h = scene.area.size
+    if len(listed) > (most := max(1, int(MAX_STEMS_PER_M2 * w * h))):   # as forest.trees: each row builds a crown
+        raise _Refusal("forest.trees_file", f"{len(listed):,} trees in a {w:g} x {h:g} m plot is more than "
+                       f"{MAX_STEMS_PER_M2:g} a square metre (at most {most:,}; the densest young stands hold about 10)")
     for i, t in enumerate(listed):
         if not (0 <= t.x <= w and 0 <= t.y <= h):
             raise _Refusal("forest.trees_file", f"tree {i + 1} stands at local x {t.x:.2f}, y {t.y:.2f}, outside the "
