@@ -119,6 +119,20 @@ def test_a_thinned_copy_has_half_the_density():
     assert dist["density_ratio"] == 0.5
 
 
+@pytest.mark.parametrize("canopy_m", [10.0, 2.0, 0.2])
+def test_the_same_forest_on_a_high_datum_is_at_distance_zero(canopy_m):
+    """The same points 2,287.31 m up (UAS_Clip's ground) measure as at 0 m: heights are z less a ground
+    model, whose float noise (1e-13 m at that datum) split the forest's tied heights, so that height_ks read
+    0.1 (canopy at 2 m: 0.1; at 0.2 m: 0.4) with an earth mover's distance of 1e-13 m."""
+    points = _forest(canopy_m=canopy_m)
+    high = points.copy()
+    high["z"] += 2287.31
+    result = compare_clouds(points, high)
+    assert result["distance"]["height_ks"] == 0 and result["distance"]["height_emd_m"] == 0
+    for key in ("canopy_cover_2m", "near_ground_share", "height_profile"):
+        assert result["b"][key] == result["a"][key]
+
+
 def test_without_ground_classes_the_lowest_point_filter_finds_a_sloped_ground():
     """A 20 % slope and no classes: the filter's ground gives the canopy its 10 m, as the classes do."""
     points = _forest(slope=0.2)
