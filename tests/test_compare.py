@@ -890,6 +890,30 @@ def test_a_file_in_feet_is_measured_in_metres_and_one_in_degrees_is_refused(tmp_
                                        "projected CRS (such as its UTM zone) first\n")
 
 
+def test_a_crs_record_that_cannot_be_read_is_said_in_the_notes(tmp_path):
+    """A LAS 1.2 whose GeoTIFF keys name a user-defined projection in feet (ProjectedCSTypeGeoKey 32767,
+    ProjLinearUnitsGeoKey 9002), which laspy cannot make a CRS of, is measured in its own units as metres:
+    said in its notes (before, silently: a density per square foot read as per m²); a file without any CRS
+    record gets no such note."""
+    from laspy.vlrs.known import GeoKeyDirectoryVlr, GeoKeyEntryStruct
+    path = _foreign_las(tmp_path / "user_defined_feet.las", _forest(), point_format=1)
+    las = laspy.read(str(path))
+    keys = GeoKeyDirectoryVlr()
+    keys.geo_keys = []
+    for key, value in ((1024, 1), (3072, 32767), (3076, 9002)):     # projected model; user-defined; feet
+        entry = GeoKeyEntryStruct()
+        entry.id, entry.tiff_tag_location, entry.count, entry.value_offset = key, 0, 1, value
+        keys.geo_keys.append(entry)
+    keys.geo_keys_header.number_of_keys = len(keys.geo_keys)
+    las.header.vlrs.append(keys)
+    las.write(str(path))
+    assert laspy.read(str(path)).header.parse_crs() is None
+    notes = load_cloud(path).notes
+    assert notes[0] == ("its CRS record (GeoTIFF keys) cannot be read: its coordinates are taken as metres; "
+                        "give the file a CRS that names its units (such as its EPSG code)")
+    assert load_cloud(_foreign_las(tmp_path / "none.las", _forest(), point_format=1)).notes == []
+
+
 def test_another_tools_label_dimension_is_not_taken_for_our_classes(tmp_path):
     """A foreign LAS with its own extra ``label`` (a segmentation's, here 7 everywhere) keeps its ASPRS
     classes: ground class 2, 1,200 points (before, its labels were read as our classes, none of them our
