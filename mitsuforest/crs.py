@@ -59,6 +59,24 @@ def file_crs(path) -> str | None:
     return crs.to_wkt() if crs is not None else None
 
 
+CRS_RECORDS = {34735: "GeoTIFF keys", 2112: "WKT"}    # LASF_Projection record ids of a CRS
+
+
+def unread_crs_record(path) -> str | None:
+    """The kind of CRS record (``"GeoTIFF keys"``, ``"WKT"``) a LAS/LAZ file holds that :func:`file_crs` could
+    not read (a user-defined projection's GeoTIFF keys), or None: a PCD, a file without one, one whose CRS reads."""
+    if str(path).lower().endswith(".pcd") or file_crs(path) is not None:
+        return None
+    import laspy
+    try:
+        with laspy.open(str(path)) as reader:
+            records = [*reader.header.vlrs, *(getattr(reader.header, "evlrs", None) or [])]
+    except Exception:
+        return None
+    return next((CRS_RECORDS[r.record_id] for r in records
+                 if r.user_id == "LASF_Projection" and r.record_id in CRS_RECORDS), None)
+
+
 def length_units(wkt: str) -> tuple[str, str, float, float]:
     """The name of the CRS ``wkt``, its units in words (``"metre"``, ``"foot"``, ``"metre, heights in US
     survey foot"``), and the metres per unit of its x and y and of its heights (0.3048 for feet). Heights

@@ -119,6 +119,20 @@ def test_a_thinned_copy_has_half_the_density():
     assert dist["density_ratio"] == 0.5
 
 
+@pytest.mark.parametrize("canopy_m", [10.0, 2.0, 0.2])
+def test_the_same_forest_on_a_high_datum_is_at_distance_zero(canopy_m):
+    """The same points 2,287.31 m up (UAS_Clip's ground) measure as at 0 m: heights are z less a ground
+    model, whose float noise (1e-13 m at that datum) split the forest's tied heights, so that height_ks read
+    0.1 (canopy at 2 m: 0.1; at 0.2 m: 0.4) with an earth mover's distance of 1e-13 m."""
+    points = _forest(canopy_m=canopy_m)
+    high = points.copy()
+    high["z"] += 2287.31
+    result = compare_clouds(points, high)
+    assert result["distance"]["height_ks"] == 0 and result["distance"]["height_emd_m"] == 0
+    for key in ("canopy_cover_2m", "near_ground_share", "height_profile"):
+        assert result["b"][key] == result["a"][key]
+
+
 def test_without_ground_classes_the_lowest_point_filter_finds_a_sloped_ground():
     """A 20 % slope and no classes: the filter's ground gives the canopy its 10 m, as the classes do."""
     points = _forest(slope=0.2)
@@ -874,6 +888,30 @@ def test_a_file_in_feet_is_measured_in_metres_and_one_in_degrees_is_refused(tmp_
     assert capsys.readouterr().err == (f"mitsuforest: {tmp_path / 'degrees.las'}: its CRS (WGS 84) is geographic: its x "
                                        "and y are in degree; compare measures in metres: reproject the file to a "
                                        "projected CRS (such as its UTM zone) first\n")
+
+
+def test_a_crs_record_that_cannot_be_read_is_said_in_the_notes(tmp_path):
+    """A LAS 1.2 whose GeoTIFF keys name a user-defined projection in feet (ProjectedCSTypeGeoKey 32767,
+    ProjLinearUnitsGeoKey 9002), which laspy cannot make a CRS of, is measured in its own units as metres:
+    said in its notes (before, silently: a density per square foot read as per m²); a file without any CRS
+    record gets no such note."""
+    from laspy.vlrs.known import GeoKeyDirectoryVlr, GeoKeyEntryStruct
+    path = _foreign_las(tmp_path / "user_defined_feet.las", _forest(), point_format=1)
+    las = laspy.read(str(path))
+    keys = GeoKeyDirectoryVlr()
+    keys.geo_keys = []
+    for key, value in ((1024, 1), (3072, 32767), (3076, 9002)):     # projected model; user-defined; feet
+        entry = GeoKeyEntryStruct()
+        entry.id, entry.tiff_tag_location, entry.count, entry.value_offset = key, 0, 1, value
+        keys.geo_keys.append(entry)
+    keys.geo_keys_header.number_of_keys = len(keys.geo_keys)
+    las.header.vlrs.append(keys)
+    las.write(str(path))
+    assert laspy.read(str(path)).header.parse_crs() is None
+    notes = load_cloud(path).notes
+    assert notes[0] == ("its CRS record (GeoTIFF keys) cannot be read: its coordinates are taken as metres; "
+                        "give the file a CRS that names its units (such as its EPSG code)")
+    assert load_cloud(_foreign_las(tmp_path / "none.las", _forest(), point_format=1)).notes == []
 
 
 def test_another_tools_label_dimension_is_not_taken_for_our_classes(tmp_path):

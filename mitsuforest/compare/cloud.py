@@ -58,7 +58,7 @@ def load_cloud(path) -> Cloud:
     if len(columns["x"]) == 0:
         raise UserError(f"{path}: the file holds no points")
     wkt = file_crs(path)
-    columns, unit_note = in_metres(columns, wkt, path) if wkt else (columns, None)
+    columns, unit_note = in_metres(columns, wkt, path) if wkt else (columns, unread_crs_note(path))
     from ..write.formats import format_of
     if (angle := scan_angle_degrees(columns, pcd=format_of(path) == "pcd")) is not None:
         columns = {**columns, "scan_angle": angle}
@@ -103,6 +103,15 @@ def scan_angle_degrees(columns: dict, pcd: bool) -> np.ndarray | None:
     if "scan_angle_rank" in columns:
         return np.asarray(columns["scan_angle_rank"], np.float64)
     return None
+
+
+def unread_crs_note(path) -> str | None:
+    """The note on a file whose CRS record cannot be read (:func:`~mitsuforest.crs.unread_crs_record`), whose
+    units are then unknown and taken as metres; None for a file without one."""
+    from ..crs import unread_crs_record
+    kind = unread_crs_record(path)
+    return None if kind is None else (f"its CRS record ({kind}) cannot be read: its coordinates are taken as "
+                                      "metres; give the file a CRS that names its units (such as its EPSG code)")
 
 
 def in_metres(columns: dict, wkt: str, path) -> tuple[dict, str | None]:

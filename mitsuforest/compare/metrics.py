@@ -20,6 +20,7 @@ FILTER_WINDOW = 5         # ... kept when within FILTER_RISE_M of the lowest in 
 FILTER_RISE_M = 1.5
 FILTER_BAND_M = 0.3       # ... and points within this of the surface through the kept points are ground
 PROFILE_RANGE_M = (-20.0, 200.0)  # the vertical profile's bins span at most this
+HEIGHT_DIGITS = 6         # heights above the ground are rounded to the micrometre (the float noise of z less ground)
 MAX_GRID_CELLS = 4_000_000  # the ground model's grid coarsens beyond this many cells (a very wide file)
 ISOLATION_CELL_M = 5.0    # a point is isolated when the 3 x 3 x 3 cubes of this size around it ...
 ISOLATION_OTHERS = 6      # ... hold fewer than this many other points (lidR's isolated voxel filter)
@@ -344,6 +345,14 @@ def ground_model(x: np.ndarray, y: np.ndarray, gx: np.ndarray, gy: np.ndarray, g
     except (ValueError, RuntimeError):   # fewer than 3 nodes, or all on a line
         z = nearest(*grid)
     return GroundModel(x0, y0, cell, np.asarray(z, np.float64).reshape(nx, ny))
+
+
+def heights_above(z: np.ndarray, ground: np.ndarray, digits: int = HEIGHT_DIGITS) -> np.ndarray:
+    """(n,) heights of the (n,) points ``z`` above the (n,) ``ground`` under them (:meth:`GroundModel.height`),
+    rounded to ``digits`` decimals of a metre: z less a ground model leaves float noise of the datum's size
+    (1e-13 m at 2,287 m, UAS_Clip's ground), which split tied heights (a flat ground, a layer) across KS's
+    steps and the 2 m and 0.2 m thresholds; no point file stores heights finer than the micrometre."""
+    return np.round(np.asarray(z, np.float64) - ground, digits)
 
 
 def lowest_point_ground(x: np.ndarray, y: np.ndarray, z: np.ndarray, cell: float = FILTER_CELL_M,

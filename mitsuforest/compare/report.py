@@ -42,7 +42,7 @@ def describe(cloud: Cloud) -> Description:
         notes.append(f"the points span {max(np.ptp(x), np.ptp(y)):,.0f} m: the ground model's cells are "
                      f"{model.cell:,.1f} m, not {m.CELL_M:g} m (at most {m.MAX_GRID_CELLS:,} cells), and heights "
                      "follow the ground less closely; clip the file to its plot")
-    height = z - model.height(x, y)
+    height = m.heights_above(z, model.height(x, y))
     origin = m.grid_origin(x, y)
     cells, canopy = m.canopy_cells(x[first], y[first], height[first], origin)
     reached = height <= m.GROUND_REACH_M
