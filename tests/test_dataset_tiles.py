@@ -69,6 +69,26 @@ def test_a_batch_without_points_is_in_no_tile():
     assert tile.shape == row.shape == (0,) and tile.dtype == row.dtype == np.int64
 
 
+@pytest.mark.parametrize("size", [1.1, 2.2, 5.2])
+def test_a_point_on_a_rounded_edge_is_in_the_core_its_bounds_say(size):
+    """A decimal tile size puts ``k * size`` off ``x / size``'s rounding: a point (float32, as a PCD holds
+    it) at 16.5 m with 1.1 m tiles has ``floor(16.5 / 1.1)`` 14, yet lies at core 14's upper bound
+    (``core_bounds``' x1, 16.5) and so in tile 15's file alone without a buffer. Its core is the one whose
+    bounds hold it, the tile whose file holds it: no point is lost from every core's count."""
+    from mitsuforest.dataset.tiles import core_bounds, core_tile, tile_grid, tile_members
+    area = (60.0, 10.0)
+    nx, ny = tile_grid(area, size)
+    at = (np.arange(1, nx) * size).astype(np.float32)
+    x = np.concatenate([at, np.nextafter(at, np.float32(0)), np.nextafter(at, np.float32(99))]).astype(np.float64)
+    y = np.full(len(x), 1.0)
+    ci, cj = core_tile(x, y, area, size)
+    bounds = np.array([core_bounds(i, 0, area, size) for i in ci.tolist()])
+    assert np.all((x >= bounds[:, 0]) & ((x < bounds[:, 2]) | (ci == nx - 1)))
+    tile, row = tile_members(x, y, area, size, 0.0)
+    assert np.array_equal(np.sort(row), np.arange(len(x)))                       # one file each ...
+    assert np.array_equal(tile[np.argsort(row)], ci * ny + cj)                   # ... that of its core
+
+
 def test_boxes_combine_to_those_of_all_the_points():
     from mitsuforest.dataset.tiles import combine_boxes, instance_boxes
     rng = np.random.default_rng(2)
