@@ -6,6 +6,7 @@ The task functions run in this process, without Dask, on a tiny plot (12 m, 3 le
 cluster runs are in ``test_dataset.py``.
 """
 
+import csv
 import json
 import shutil
 from pathlib import Path
@@ -263,3 +264,56 @@ def test_reruns_reuse_finished_parts_and_tiles_and_nothing_looks_finished_early(
     listed = {root / rel for t in record["tiles"] for rel in t["files"]}
     assert set(files.tiles_folder(root, NAME).iterdir()) == listed
     assert not parts.parts_folder(root, NAME).exists()
+
+
+def test_each_tree_is_in_the_core_of_one_tile_however_many_hold_it_whole(tmp_path):
+    """A tile's tree table says which tile owns each object (``core``: its position in that tile's core),
+    so that a plot's volumes summed over its tiles count each object once: ``whole_inside`` is 1 in every
+    file holding all its points, and a deadwood piece on a core's edge, within the buffer of both tiles,
+    is whole inside two."""
+    from types import SimpleNamespace
+    from mitsuforest.classes import DEADWOOD, GROUND, TREE_LEAVES, TREE_WOOD
+    from mitsuforest.dataset import files
+    from mitsuforest.dataset.spec import Tiles
+    from mitsuforest.dataset.tiles import tile_members
+    from mitsuforest.scan import POINT_DTYPE
+    from mitsuforest.write.ground import fill_height, with_room_for_height
+    rng = np.random.default_rng(4)
+    scene = SimpleNamespace(name=NAME, area=SimpleNamespace(size=(12, 12)), output=SimpleNamespace(profile="ours"),
+                            origin=SimpleNamespace(offset=(500000.0, 6000000.0, 0.0), crs=None),
+                            sensor=SimpleNamespace(intensity=None))
+    tiles = Tiles(5.0, 1.0, "pcd")
+    # a tree at (4, 4) whose crown reaches x 6.5 (into tile 1's core), a deadwood piece at (2, 5.2) lying
+    # from y 4.6 to 5.4 (whole inside the files of tiles (0, 0) and (0, 1)), and ground
+    objects = [(1, TREE_WOOD, (3.8, 4.2, 3.8, 4.2)), (1, TREE_LEAVES, (2.0, 6.5, 2.0, 6.0)),
+               (2, DEADWOOD, (1.5, 2.5, 4.6, 5.4)), (0, GROUND, (-1.0, 13.0, -1.0, 13.0))]
+    points = []
+    for instance, cls, (x0, x1, y0, y1) in objects:
+        p = np.zeros(200, POINT_DTYPE)
+        p["x"], p["y"], p["z"] = rng.uniform(x0, x1, 200), rng.uniform(y0, y1, 200), rng.uniform(0, 9, 200)
+        p["classification"], p["instance"] = cls, instance
+        p["return_number"] = p["number_of_returns"] = 1
+        points.append(p)
+    points = fill_height(np.concatenate(points), with_room_for_height(np.concatenate(points)),
+                         lambda x, y: np.zeros(len(x)))
+    for axis, o in zip("xy", scene.origin.offset[:2]):
+        points[axis] += o
+    folder = files.plot_folder(tmp_path, NAME)
+    files.tiles_folder(tmp_path, NAME).mkdir(parents=True)
+    (folder / f"{NAME}_volumes.csv").write_text(
+        "row,model,instance,volume_union_m3,treeid,x,y,z\n"
+        "tree,tree01,1,0.75,1,500004.0000,6000004.0000,0.0\ndeadwood,deadwood001,2,0.05,11,500002.0000,6000005.2000,0.0\n")
+    labels = files.tile_labels(folder / f"{NAME}_volumes.csv", None, "ours",
+                               *files.object_boxes(points, scene.origin.offset))
+    tile, row = tile_members(points["x"] - 500000.0, points["y"] - 6000000.0, (12, 12), 5.0, 1.0)
+    counted, whole = {}, {}
+    for t in range(9):
+        files.write_tile(tmp_path, scene, tiles, labels, t // 3, t % 3, points[row[tile == t]])
+        table = files.tiles_folder(tmp_path, NAME) / f"{NAME}_x{t // 3}_y{t % 3}_trees.csv"
+        for r in csv.DictReader(table.open()):
+            if r["whole_inside"] == "1":
+                whole.setdefault(r["instance"], []).append(t)
+            if r.get("core") == "1":
+                counted.setdefault(r["instance"], []).append((t, float(r["volume_union_m3"])))
+    assert whole == {"2": [0, 1]}                                  # whole inside two files ...
+    assert counted == {"1": [(0, 0.75)], "2": [(1, 0.05)]}         # ... owned by one tile each
