@@ -142,18 +142,20 @@ def test_tile_tree_tables(three_plots):
     folder = out / "plots" / "plot_0000"
     with open(folder / "plot_0000_volumes.csv", newline="") as f:
         volumes = {r["instance"]: r["volume_union_m3"] for r in csv.DictReader(f) if r["row"] == "tree"}
-    seen = set()
+    seen, owners = set(), []
     for table in sorted((folder / "tiles").glob("*_trees.csv")):
         with open(table, newline="") as f:
             for r in csv.DictReader(f):
                 if r["kind"] == "tree":
                     assert r["volume_union_m3"] == volumes[r["instance"]]
                     seen.add(r["instance"])
-                assert int(r["points"]) > 0 and r["whole_inside"] in ("0", "1")
+                    owners += [r["instance"]] * (r["core"] == "1")
+                assert int(r["points"]) > 0 and r["whole_inside"] in ("0", "1") and r["core"] in ("0", "1")
     assert seen == set(volumes)           # every tree is listed by some tile
-    # a 12 m plot with 5 m tiles: no tree crown (several metres wide) fits whole in a corner tile's core
-    corner = (folder / "tiles" / "plot_0000_x1_y1_trees.csv").read_text().splitlines()[1:]
-    assert all(line.endswith(",0") for line in corner if ",tree," in line)
+    assert sorted(owners) == sorted(volumes)      # and owned by one: its volume counted once
+    # a 12 m plot with 5 m tiles: no tree crown (several metres wide) fits whole in the middle tile's extent
+    with open(folder / "tiles" / "plot_0000_x1_y1_trees.csv", newline="") as f:
+        assert all(r["whole_inside"] == "0" for r in csv.DictReader(f) if r["kind"] == "tree")
 
 
 @pytest.mark.slow

@@ -6,6 +6,7 @@ The task functions run in this process, without Dask, on a tiny plot (12 m, 3 le
 cluster runs are in ``test_dataset.py``.
 """
 
+import csv
 import json
 import shutil
 from pathlib import Path
@@ -67,6 +68,26 @@ def test_a_batch_without_points_is_in_no_tile():
     from mitsuforest.dataset.tiles import tile_members
     tile, row = tile_members(np.zeros(0), np.zeros(0), (20, 20), 10.0, 1.0)
     assert tile.shape == row.shape == (0,) and tile.dtype == row.dtype == np.int64
+
+
+@pytest.mark.parametrize("size", [1.1, 2.2, 5.2])
+def test_a_point_on_a_rounded_edge_is_in_the_core_its_bounds_say(size):
+    """A decimal tile size puts ``k * size`` off ``x / size``'s rounding: a point (float32, as a PCD holds
+    it) at 16.5 m with 1.1 m tiles has ``floor(16.5 / 1.1)`` 14, yet lies at core 14's upper bound
+    (``core_bounds``' x1, 16.5) and so in tile 15's file alone without a buffer. Its core is the one whose
+    bounds hold it, the tile whose file holds it: no point is lost from every core's count."""
+    from mitsuforest.dataset.tiles import core_bounds, core_tile, tile_grid, tile_members
+    area = (60.0, 10.0)
+    nx, ny = tile_grid(area, size)
+    at = (np.arange(1, nx) * size).astype(np.float32)
+    x = np.concatenate([at, np.nextafter(at, np.float32(0)), np.nextafter(at, np.float32(99))]).astype(np.float64)
+    y = np.full(len(x), 1.0)
+    ci, cj = core_tile(x, y, area, size)
+    bounds = np.array([core_bounds(i, 0, area, size) for i in ci.tolist()])
+    assert np.all((x >= bounds[:, 0]) & ((x < bounds[:, 2]) | (ci == nx - 1)))
+    tile, row = tile_members(x, y, area, size, 0.0)
+    assert np.array_equal(np.sort(row), np.arange(len(x)))                       # one file each ...
+    assert np.array_equal(tile[np.argsort(row)], ci * ny + cj)                   # ... that of its core
 
 
 def test_boxes_combine_to_those_of_all_the_points():
@@ -243,3 +264,56 @@ def test_reruns_reuse_finished_parts_and_tiles_and_nothing_looks_finished_early(
     listed = {root / rel for t in record["tiles"] for rel in t["files"]}
     assert set(files.tiles_folder(root, NAME).iterdir()) == listed
     assert not parts.parts_folder(root, NAME).exists()
+
+
+def test_each_tree_is_in_the_core_of_one_tile_however_many_hold_it_whole(tmp_path):
+    """A tile's tree table says which tile owns each object (``core``: its position in that tile's core),
+    so that a plot's volumes summed over its tiles count each object once: ``whole_inside`` is 1 in every
+    file holding all its points, and a deadwood piece on a core's edge, within the buffer of both tiles,
+    is whole inside two."""
+    from types import SimpleNamespace
+    from mitsuforest.classes import DEADWOOD, GROUND, TREE_LEAVES, TREE_WOOD
+    from mitsuforest.dataset import files
+    from mitsuforest.dataset.spec import Tiles
+    from mitsuforest.dataset.tiles import tile_members
+    from mitsuforest.scan import POINT_DTYPE
+    from mitsuforest.write.ground import fill_height, with_room_for_height
+    rng = np.random.default_rng(4)
+    scene = SimpleNamespace(name=NAME, area=SimpleNamespace(size=(12, 12)), output=SimpleNamespace(profile="ours"),
+                            origin=SimpleNamespace(offset=(500000.0, 6000000.0, 0.0), crs=None),
+                            sensor=SimpleNamespace(intensity=None))
+    tiles = Tiles(5.0, 1.0, "pcd")
+    # a tree at (4, 4) whose crown reaches x 6.5 (into tile 1's core), a deadwood piece at (2, 5.2) lying
+    # from y 4.6 to 5.4 (whole inside the files of tiles (0, 0) and (0, 1)), and ground
+    objects = [(1, TREE_WOOD, (3.8, 4.2, 3.8, 4.2)), (1, TREE_LEAVES, (2.0, 6.5, 2.0, 6.0)),
+               (2, DEADWOOD, (1.5, 2.5, 4.6, 5.4)), (0, GROUND, (-1.0, 13.0, -1.0, 13.0))]
+    points = []
+    for instance, cls, (x0, x1, y0, y1) in objects:
+        p = np.zeros(200, POINT_DTYPE)
+        p["x"], p["y"], p["z"] = rng.uniform(x0, x1, 200), rng.uniform(y0, y1, 200), rng.uniform(0, 9, 200)
+        p["classification"], p["instance"] = cls, instance
+        p["return_number"] = p["number_of_returns"] = 1
+        points.append(p)
+    points = fill_height(np.concatenate(points), with_room_for_height(np.concatenate(points)),
+                         lambda x, y: np.zeros(len(x)))
+    for axis, o in zip("xy", scene.origin.offset[:2]):
+        points[axis] += o
+    folder = files.plot_folder(tmp_path, NAME)
+    files.tiles_folder(tmp_path, NAME).mkdir(parents=True)
+    (folder / f"{NAME}_volumes.csv").write_text(
+        "row,model,instance,volume_union_m3,treeid,x,y,z\n"
+        "tree,tree01,1,0.75,1,500004.0000,6000004.0000,0.0\ndeadwood,deadwood001,2,0.05,11,500002.0000,6000005.2000,0.0\n")
+    labels = files.tile_labels(folder / f"{NAME}_volumes.csv", None, "ours",
+                               *files.object_boxes(points, scene.origin.offset))
+    tile, row = tile_members(points["x"] - 500000.0, points["y"] - 6000000.0, (12, 12), 5.0, 1.0)
+    counted, whole = {}, {}
+    for t in range(9):
+        files.write_tile(tmp_path, scene, tiles, labels, t // 3, t % 3, points[row[tile == t]])
+        table = files.tiles_folder(tmp_path, NAME) / f"{NAME}_x{t // 3}_y{t % 3}_trees.csv"
+        for r in csv.DictReader(table.open()):
+            if r["whole_inside"] == "1":
+                whole.setdefault(r["instance"], []).append(t)
+            if r.get("core") == "1":
+                counted.setdefault(r["instance"], []).append((t, float(r["volume_union_m3"])))
+    assert whole == {"2": [0, 1]}                                  # whole inside two files ...
+    assert counted == {"1": [(0, 0.75)], "2": [(1, 0.05)]}         # ... owned by one tile each

@@ -131,14 +131,24 @@ def read_plot_points(folder, name: str, formats) -> np.ndarray:
 
 
 def read_volumes(path) -> dict:
-    """``{instance: (kind, treeid, union volume m³)}`` of the placed trees and deadwood pieces of a
-    render's ``_volumes.csv``."""
+    """``{instance: (kind, treeid, union volume m³, x, y)}`` of the placed trees and deadwood pieces of a
+    render's ``_volumes.csv`` (x, y: the object's position as written there, georeferenced)."""
     out = {}
     with open(path, newline="") as f:
         for row in csv.DictReader(f):
             if row["row"] in ("tree", "deadwood") and row["instance"]:
-                out[int(row["instance"])] = (row["row"], int(row["treeid"]), float(row["volume_union_m3"]))
+                out[int(row["instance"])] = (row["row"], int(row["treeid"]), float(row["volume_union_m3"]),
+                                             float(row["x"]), float(row["y"]))
     return out
+
+
+def owned_objects(volumes: dict, offset, i: int, j: int, area_size, size: float) -> set:
+    """The instances of ``volumes`` (:func:`read_volumes`) whose position lies in tile ``(i, j)``'s core:
+    each object is owned by exactly one tile of its plot, as each point is in one core."""
+    ids = list(volumes)
+    xy = np.array([volumes[k][3:5] for k in ids], np.float64).reshape(-1, 2) - np.asarray(offset, np.float64)[:2]
+    ci, cj = tiling.core_tile(xy[:, 0], xy[:, 1], area_size, size)
+    return {k for k, a, b in zip(ids, ci.tolist(), cj.tolist()) if (a, b) == (i, j)}
 
 
 KEPT_CLASSES = (TREE_WOOD, TREE_LEAVES, DEADWOOD)   # the classes whose objects the tiles' tables list
@@ -251,9 +261,11 @@ def write_tile(root, scene, tiles, labels: TileLabels, i: int, j: int, points: n
         written.append(out_dir / f"{tile_id}{PROFILES[scene.output.profile].suffix}")
         write_profile(written[-1], scene.output.profile, points, offset, scene.origin.crs, labels.stems,
                       scene.sensor.intensity)
-    rows = _tree_rows(points, labels, tiling.tile_extent(i, j, area, tiles.size, tiles.buffer))
+    rows = _tree_rows(points, labels, tiling.tile_extent(i, j, area, tiles.size, tiles.buffer),
+                      owned_objects(labels.volumes, offset, i, j, area, tiles.size))
     table = out_dir / f"{tile_id}_trees.csv"
-    write_text(table, csv_text(["instance", "kind", "treeid", "volume_union_m3", "points", "whole_inside"], rows))
+    write_text(table, csv_text(["instance", "kind", "treeid", "volume_union_m3", "points", "whole_inside", "core"],
+                               rows))
     classes = np.bincount(points["classification"], minlength=8)
     return {
         "tile": tile_id, "i": i, "j": j,
@@ -264,16 +276,17 @@ def write_tile(root, scene, tiles, labels: TileLabels, i: int, j: int, points: n
     }
 
 
-def _tree_rows(points, labels: TileLabels, extent) -> list[list]:
+def _tree_rows(points, labels: TileLabels, extent, owned: set) -> list[list]:
     kept = np.isin(points["classification"], KEPT_CLASSES)
     ids, counts = np.unique(points["instance"][kept], return_counts=True)
     rows = []
     for inst, count in zip(ids.tolist(), counts.tolist()):
         if inst not in labels.volumes:
             continue
-        kind, treeid, volume = labels.volumes[inst]
+        kind, treeid, volume = labels.volumes[inst][:3]
         box = labels.boxes[np.searchsorted(labels.instances, inst)]
-        rows.append([inst, kind, treeid, f"{volume:.9g}", count, int(tiling.box_inside(box, extent))])
+        rows.append([inst, kind, treeid, f"{volume:.9g}", count, int(tiling.box_inside(box, extent)),
+                     int(inst in owned)])
     return rows
 
 

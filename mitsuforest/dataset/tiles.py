@@ -28,9 +28,16 @@ def tile_grid(area_size, size: float) -> tuple[int, int]:
 def core_tile(x: np.ndarray, y: np.ndarray, area_size, size: float) -> tuple[np.ndarray, np.ndarray]:
     """``(i, j)``, (n,) int arrays: the tile whose core holds each point (local frame)."""
     nx, ny = tile_grid(area_size, size)
-    i = np.clip(np.floor(np.asarray(x, np.float64) / size), 0, nx - 1).astype(np.int64)
-    j = np.clip(np.floor(np.asarray(y, np.float64) / size), 0, ny - 1).astype(np.int64)
-    return i, j
+    return _axis_core(x, nx, size), _axis_core(y, ny, size)
+
+
+def _axis_core(v: np.ndarray, n: int, size: float) -> np.ndarray:
+    """The core number along one axis of each value: how many of the inner core edges ``k * size``
+    (k = 1 .. n-1, the float64 values of :func:`core_bounds` and the extents) lie at or below it. Not
+    ``floor(v / size)``, whose rounding differs from ``k * size``'s for a decimal size (16.5 / 1.1 is
+    14.999..., while 15 * 1.1 is 16.5): a point on such an edge would have a core whose bounds and file
+    do not hold it."""
+    return np.searchsorted(np.arange(1, n) * size, np.asarray(v, np.float64), side="right").astype(np.int64)
 
 
 def core_bounds(i: int, j: int, area_size, size: float) -> tuple[float, float, float, float]:
