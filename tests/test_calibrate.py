@@ -153,6 +153,20 @@ def test_a_measure_that_moved_against_its_step_keeps_the_default_exponent():
     assert response_exponent(0.6, 0.7, 1.2, 2.0) == pytest.approx(math.log(0.7 / 0.6) / math.log(1.2))
 
 
+def test_a_step_too_small_to_measure_keeps_the_default_exponent():
+    """MixedConifer's twin (36° swaths), third render: the second step, leaf area × 1.029 with crowns
+    × 1.084, left its echoes per pulse at 1.387 (1.3875 -> 1.3865): a secant exponent of 0.09, clipped to
+    0.1, asked for × 3.1 the leaf where the miss (0.387 / 0.345) asks × 1.12. A step under 5 % says nothing
+    of the exponent; a larger one is held to a quarter of the default or more."""
+    from mitsuforest.twin.calibrate import echo_scale, leaf_exponent, response_exponent
+    real, last, twin = {"echoes_per_pulse": 1.345}, {"echoes_per_pulse": 1.3875}, {"echoes_per_pulse": 1.3865}
+    assert leaf_exponent(real, last, twin, 1.029) == 1.0
+    assert echo_scale(1.345, 1.3865, 1.0) == pytest.approx(0.3865 / 0.345)
+    assert leaf_exponent(real, last, twin, 1.2) == 0.25                 # the measure hardly moved: at least 1/4
+    assert echo_scale(1.345, 1.3865, 0.25) == pytest.approx((0.3865 / 0.345) ** 4)
+    assert response_exponent(0.6, 0.7, 1.04, 2.0) == 2.0
+
+
 def test_crown_ratio_recovers_a_cone_s_length_from_the_foliage_profile_of_its_returns():
     """Layers of a cone's crown of uniform leaf density (crown ratio 0.42: the foliage within relative
     depth s of the top goes as F (s / 0.42)^2.8, F = 2): a pulse stops at the first leaf, so the depth it

@@ -64,6 +64,7 @@ ECHO_TOLERANCE = 0.1    # |(E_twin - 1) / (E_real - 1) - 1|: the LAI step still 
 MIN_EXCESS = 0.02       # echoes per pulse beyond the first under which the LAI follows the gap fraction
 COVER_TOLERANCE = 0.03  # |cover_twin - cover_real|
 SCALE_LIMITS = (0.25, 4.0)   # one step changes LAI or crown radius by at most this factor
+MIN_SECANT_STEP = 0.05  # |ln factor| of a step under which its secant says nothing of the exponent (5 %)
 # The leaf area per crown area all steps together may reach, against the scan's: a twin that asks for more
 # is missing something else, and its leaf cards outgrow memory (MixedConifer's airborne twin asked x 8 at
 # its third step, 209 trees, and its render passed 24 GB).
@@ -137,11 +138,14 @@ def response_exponent(before: float, after: float, factor: float, default: float
     through the two renders (a secant step), within [0.1, 4 · default]; ``default`` where the step or
     a measure was nil, or where the measure moved against the step: the other factors, stepped at the
     same time, moved it more (MixedConifer's twin: leaf area × 1.06 with crowns × 1.16 raised its echoes
-    per pulse, and an exponent of 0.1 then asked for × 4 the leaf)."""
-    if before <= 0 or after <= 0 or abs(math.log(factor)) < 1e-3:
+    per pulse, and an exponent of 0.1 then asked for × 4 the leaf), or where the step was under
+    :data:`MIN_SECANT_STEP`: the render's noise and the other factors move the measure as much (leaf area
+    × 1.029 with crowns × 1.084 left its echoes per pulse at 1.387, a secant exponent of 0.09 asked for
+    × 3.1 the leaf). At least a quarter of ``default``, so a step asks at most its measure's miss to the 4th."""
+    if before <= 0 or after <= 0 or abs(math.log(factor)) < MIN_SECANT_STEP:
         return default
     exponent = math.log(after / before) / math.log(factor)
-    return default if exponent <= 0 else float(min(max(exponent, 0.1), 4.0 * default))
+    return default if exponent <= 0 else float(min(max(exponent, 0.25 * default), 4.0 * default))
 
 
 def canopy_spread(h) -> float | None:
