@@ -108,6 +108,43 @@ def test_qsm_csv_with_end_points_and_ids(tmp_path):
     assert len(model.parts) == 1 and [c.kind for c in model.components] == ["stem"]
 
 
+QSM_UNITS = {   # a header naming its columns' units, the entry's units, and the cylinders in metres: a 1.2 m
+    # sapling of radius 2 cm and a 0.4 m branch of radius 1 cm clear of it (union = cylinder sum)
+    "all in cm": ("radius (cm),start_x (cm),start_y (cm),start_z (cm),end_x (cm),end_y (cm),end_z (cm)\n"
+                  "2,0,0,0,0,0,120\n1,5,0,60,45,0,60\n", "m"),
+    "radius in cm, points in m": ("Radius [cm],StartX,StartY,StartZ,EndX,EndY,EndZ\n2,0,0,0,0,0,1.2\n"
+                                  "1,0.05,0,0.6,0.45,0,0.6\n", "m"),
+    "TreeQSM's (m), units m": ("radius (m)\tlength (m)\tstart_point\t\t\taxis_direction\t\t\n"
+                               "0.02\t1.2\t0\t0\t0\t0\t0\t1\n0.01\t0.4\t0.05\t0\t0.6\t1\t0\t0\n", "m"),
+    "no unit named: units": ("radius,start_x,start_y,start_z,end_x,end_y,end_z\n20,0,0,0,0,0,1200\n"
+                             "10,50,0,600,450,0,600\n", "mm"),
+}
+
+
+@pytest.mark.parametrize("case", QSM_UNITS)
+def test_qsm_columns_are_read_in_the_unit_their_header_names(tmp_path, case):
+    """A header cell's unit, (cm) or [mm], is that column's unit; ``units`` is that of the columns naming none.
+    Before, the unit was dropped with the rest of the suffix: a sapling in cm stood 120 m tall with 2 m radii
+    (within the height and radius checks), 10⁶ times its wood, silently."""
+    text, units = QSM_UNITS[case]
+    path = tmp_path / "q.txt"
+    path.write_text(text)
+    model = qsm_tree_model(QsmTree(qsm=str(path), units=units, leaf_area=0), "q")
+    assert model.meta["height"] == pytest.approx(1.2, rel=1e-12)
+    assert model.volume.analytic == pytest.approx(np.pi * (0.02 ** 2 * 1.2 + 0.01 ** 2 * 0.4), rel=1e-12)
+    assert model.volume.union == pytest.approx(model.volume.analytic, rel=1e-9)
+
+
+def test_qsm_units_that_contradict_the_header_are_refused(tmp_path):
+    """TreeQSM names metres on its radius and length but not on its start point: with units: cm these were
+    read in cm (start points, 100 times too close) and in m, a tree of mixed units."""
+    path = tmp_path / "q.txt"
+    path.write_text(QSM_UNITS["TreeQSM's (m), units m"][0])
+    with pytest.raises(ModelFileError, match=r"q\.txt: units: the header gives radius in m, length in m, but units: "
+                                             r"cm; .*drop units, or the header's unit"):
+        qsm_tree_model(QsmTree(qsm=str(path), units="cm", leaf_area=0), "q")
+
+
 @pytest.mark.parametrize("encoding", ["cp1252", "utf-16", "utf-8-sig"])
 def test_qsm_table_saved_by_windows_tools_reads_as_utf8(tmp_path, encoding):
     """A MATLAB or spreadsheet export on Windows: single-byte text with an accented comment, UTF-16 with

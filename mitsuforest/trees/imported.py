@@ -24,7 +24,7 @@ from .meshfile import check_height, joined, read_pieces, split_by_patterns, stem
 from .models import Component, Model, Part, merge
 from .qsm import read_qsm
 from .repair import PartRepair, UnrepairablePart, boundary_loops, loose_parts, repair_part
-from ..specs.sources import MAX_RADIUS, UNITS, MeshTree, ModelFileError, QsmTree, content_hash, source_name
+from ..specs.sources import MAX_RADIUS, MeshTree, ModelFileError, QsmTree, content_hash, source_name
 from .tubes import signed_volume, tube
 from .volume import WoodVolume, union_volume
 
@@ -132,9 +132,9 @@ def _repaired(entry: MeshTree, parts, names):
 
 def qsm_tree_model(entry: QsmTree, name: str) -> Model:
     """A QSM: one closed tube per cylinder (its exact volume), one component per branch, procedural leaves."""
-    cyl = read_qsm(entry.qsm)
-    start, end = (to_tree_frame(p, entry.units, entry.up) for p in (cyl.start, cyl.end))
-    radius = cyl.radius * UNITS[entry.units]
+    cyl = read_qsm(entry.qsm, entry.units)   # in metres: each column in the unit its header names, else units
+    start, end = (to_tree_frame(p, "m", entry.up) for p in (cyl.start, cyl.end))
+    radius = cyl.radius
     widest = int(np.argmax(radius))
     if radius[widest] > MAX_RADIUS:   # before the tubes: a 1e9 m cylinder would be meshed and unioned
         raise ModelFileError(entry.qsm, f"line {cyl.line[widest]}", f"radius {radius[widest]:,.4g} m with units: "

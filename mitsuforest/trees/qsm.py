@@ -2,7 +2,8 @@
 
 A table has one cylinder a line and a header naming its columns; CSV (commas) or whitespace- or
 tab-separated text. Column names are matched without case, spaces, underscores or a unit suffix
-such as ``(m)``:
+such as ``(m)``; a suffix naming a length unit, ``(m)``, ``(cm)``, ``(mm)`` or ``[cm]`` ..., is that
+column's unit (a vector cell's, its three columns'), and the entry's ``units`` that of the columns naming none:
 
 =============  ============================================================  ========
 quantity       accepted names                                                needed
@@ -33,7 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..specs.sources import ModelFileError
+from ..specs.sources import UNITS, ModelFileError
 from ..textfiles import SEMICOLONS, NotTextError, read_text, semicolon_separated
 
 ALIASES = {
@@ -106,20 +107,30 @@ def _key(name: str) -> str:
     return re.sub(r"[^a-z0-9]", "", name)
 
 
-def _column_names(keys: list[str]) -> list[str]:
-    """Header keys as quantity names (``radius``, ``start_x`` ...); a vector cell (``start_point``) becomes
-    three columns, taking the two blank cells after it where the header has them (TreeQSM's tabs)."""
-    out, i = [], 0
+def _column_names(cells: list[str]) -> tuple[list[str], list[str | None]]:
+    """Header cells as quantity names (``radius``, ``start_x`` ...) and each column's unit (``m``, ``cm``,
+    ``mm``, or None where the cell names none); a vector cell (``start_point``) becomes three columns,
+    taking the two blank cells after it where the header has them (TreeQSM's tabs)."""
+    keys = [_key(c) for c in cells]
+    out, units, i = [], [], 0
     while i < len(keys):
         k = keys[i]
-        vector = next((q for q, (cells, _, _) in VECTORS.items() if k in cells), None)
+        vector = next((q for q, (names, _, _) in VECTORS.items() if k in names), None)
         if vector:
             out += [f"{vector}_{a}" for a in "xyz"]
+            units += [_unit(cells[i])] * 3
             i += 3 if keys[i + 1:i + 3] == ["", ""] else 1
             continue
         out.append(_component(k) or next((q for q, names in ALIASES.items() if k in names), k))
+        units.append(_unit(cells[i]))
         i += 1
-    return out
+    return out, units
+
+
+def _unit(cell: str) -> str | None:
+    """The length unit a header cell names in brackets, ``radius (cm)`` or ``StartX [mm]``; else None."""
+    found = re.search(r"[(\[]\s*(mm|cm|m)\s*[)\]]", cell.lower())
+    return found.group(1) if found else None
 
 
 def _component(k: str) -> str | None:
@@ -130,9 +141,11 @@ def _component(k: str) -> str | None:
     return None
 
 
-def read_qsm(path) -> Cylinders:
-    """Read a cylinder table (see module docstring).
+def read_qsm(path, units: str = "m") -> Cylinders:
+    """Read a cylinder table (see module docstring), in metres.
 
+    :param units: ``m``, ``cm`` or ``mm``: the unit of the lengths and coordinates of the columns whose
+        header names none (all of them in a table without a header).
     :raises ModelFileError: on missing columns, text in number columns, non-positive radii or lengths.
     """
     lines = _table_lines(path)
@@ -146,16 +159,30 @@ def read_qsm(path) -> Cylinders:
             raise ModelFileError(path, "", "no header line, and fewer than the 12 columns of TreeQSM's cylinder "
                                  "export; add a header naming the columns (see the README)")
         columns, rows, exact = TREEQSM_COLUMNS, lines, False   # TreeQSM's export has more columns after these
+        column_units = [None] * len(columns)
     else:
-        columns, rows, exact = _column_names([_key(c) for c in header]), lines[1:], True
+        (columns, column_units), rows, exact = _column_names(header), lines[1:], True
     table = _numbers(path, rows, sep, len(columns), exact)
+    _check_units(path, columns, column_units, units)
     named = {}
     for i, c in enumerate(columns):
         if c in named and c in QUANTITIES:
             raise ModelFileError(path, "", f"columns {columns.index(c) + 1} and {i + 1} both give {c}; keep one")
-        if c:
-            named[c] = table[:, i]
+        if c:   # lengths and coordinates in metres; an axis is a direction, and ids have no unit
+            named[c] = table[:, i] * UNITS[column_units[i] or units] if c in LENGTHS else table[:, i]
     return _cylinders(path, named, np.array([n for n, _ in rows]))
+
+
+def _check_units(path, columns: list[str], column_units: list[str | None], units: str) -> None:
+    """Refuse ``units`` cm or mm where the header names another unit for a length column: one of the two is
+    wrong (TreeQSM names metres on its radius and length, not on its start point, which units would scale)."""
+    if units == "m":
+        return
+    other = [f"{c} in {u}" for c, u in zip(columns, column_units) if c in LENGTHS and u and u != units]
+    if other:
+        raise ModelFileError(path, "units", f"the header gives {', '.join(dict.fromkeys(other))}, but units: {units}; "
+                             "a column whose header names its unit is read in it, and units is the unit of the "
+                             "others: drop units, or the header's unit")
 
 
 def _table_lines(path) -> list[tuple[int, str]]:
@@ -204,6 +231,7 @@ def _numbers(path, rows, sep, width, exact) -> np.ndarray:
 
 MAX_VALUE = 1e9   # as origin.offset: beyond every projected CRS
 GEOMETRY = {"radius", "length", *(f"{p}_{a}" for p in ("start", "end", "axis") for a in "xyz")}
+LENGTHS = GEOMETRY - {f"axis_{a}" for a in "xyz"}   # the columns a unit scales
 
 
 def _cylinders(path, col: dict, line: np.ndarray) -> Cylinders:
