@@ -4,6 +4,7 @@ import dataclasses
 
 import numpy as np
 import pytest
+import yaml
 from scipy import stats
 from helpers import ROOT, analytic_scene, plane_model, pulses, scene_file
 
@@ -445,6 +446,41 @@ def test_ranging_noise_grows_with_range_and_incidence_as_documented(flat, range_
     assert abs(residual.mean()) < 4 * expected / np.sqrt(n)
     assert np.array_equal(_trace(flat, p, range_precision=sigma0, range_precision_per_metre=k,
                                  footprint_range_noise=f, beam_divergence=gamma)["range"], pts["range"])
+
+
+@pytest.mark.parametrize("axis", ["across", "along"])
+def test_a_render_s_ranging_noise_on_a_slope_is_the_law_across_and_along_the_track(tmp_path, variant, axis):
+    """A render's beam frame, not hand-made pulses: a northbound leg 25 m above a plate sloping 40° across
+    the track (tilted about y) or along it (about x), an elliptical beam γ = [4, 1] mrad (across, along),
+    σ₀ = 0, f = 1. Each point's range error over the ray-plane range R is N(0, σ²) with
+    σ = (R/4)·sqrt((γ₁·n·e₁)² + (γ₂·n·e₂)²)/|n·d|, e₁ = (cos φ, 0, sin φ) across the beam in the scan
+    plane and e₂ = +y: the z-scores' std is 1 for one fixed sub-ray (the thin beam). One stratified
+    sub-ray is a random point of the footprint, whose range spreads by σ_fp already: √2 (README,
+    "Ranging noise")."""
+    gamma, x, tilt = (4e-3, 1e-3), 20.0, np.radians(40.0)
+    normal = np.array([np.sin(tilt), 0, np.cos(tilt)]) if axis == "across" else np.array([0, -np.sin(tilt), np.cos(tilt)])
+    sensor = {**yaml.safe_load((ROOT / "sensors" / "ideal.yaml").read_text()), "field_of_view": 40,
+              "beam_divergence": list(gamma), "footprint_range_noise": 1.0}
+    for pattern, expected in (("fixed", 1.0), ("stratified", np.sqrt(2))):
+        path = scene_file(tmp_path / pattern, sensor=sensor, variant=variant,
+                          survey={"altitude": 30, "speed": 10, "pulse_frequency": 50000, "scan_frequency": 100,
+                                  "lines": [[[x, 15.0], [x, 25.0]]]},
+                          simulation={"beam_samples": 1, "beam_pattern": pattern})
+        tilts = (0.0, 40.0) if axis == "across" else (40.0, 0.0)
+        scene, plan, _, scan_scene = analytic_scene(path, [(plane_model("slope", 30.0, ROCK), (x, 20.0, 5.0), 0.0,
+                                                            tilts, 0)])
+        result = scan(scene, plan, scan_scene, progress=False)
+        pts = result.points[result.hits["object_row"] == 0]                  # on the plate (row 0), not the ground
+        assert len(pts) > 4000
+        phi = np.radians(pts["scan_angle"].astype(float))
+        origin = np.column_stack([np.full(len(pts), x), 15.0 + 10.0 * pts["gps_time"], np.full(len(pts), 30.0)])
+        d = np.column_stack([np.sin(phi), np.zeros_like(phi), -np.cos(phi)])
+        true_range = ((np.array([x, 20.0, 5.0]) - origin) @ normal) / (d @ normal)
+        e1 = np.column_stack([np.cos(phi), np.zeros_like(phi), np.sin(phi)])
+        sigma = true_range / 4 * np.hypot(gamma[0] * (e1 @ normal), gamma[1] * normal[1]) / np.abs(d @ normal)
+        z = (pts["range"] - true_range) / sigma
+        assert z.std() == pytest.approx(expected, rel=0.05), pattern
+        assert abs(z.mean()) < 4 * expected / np.sqrt(len(z))
 
 
 def test_speckle_multiplies_the_amplitude_by_a_gamma_of_the_looks(flat):
