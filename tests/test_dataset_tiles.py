@@ -8,7 +8,6 @@ cluster runs are in ``test_dataset.py``.
 
 import csv
 import json
-import shutil
 from pathlib import Path
 
 import numpy as np
