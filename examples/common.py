@@ -22,8 +22,9 @@ def arguments(description: str, default_out: str) -> argparse.Namespace:
 
 
 def load_render(scene_file: Path, out: Path, quick: bool = False) -> tuple[np.ndarray, dict, Path]:
-    """Points (PCD fields, georeferenced), the scene, and the render folder; renders only if needed."""
-    scene = mf.load_scene(scene_file, output_dir=out / "render")
+    """Points (PCD fields, georeferenced), the scene, and the render folder; renders only if needed (a
+    quick render has a folder of its own, so that a full run never reads its points, nor the reverse)."""
+    scene = mf.load_scene(scene_file, output_dir=out / ("render-quick" if quick else "render"))
     if quick:
         w, h = scene.area.size
         scene = scene.with_({"survey.lines": [[[w / 2, -2.0], [w / 2, h + 2.0]]], "survey.pulse_frequency": 100000,

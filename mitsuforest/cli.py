@@ -92,15 +92,15 @@ def _add_dataset(sub: argparse._SubParsersAction) -> None:
 def _add_twin(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("twin", help="write a scene that reproduces a real scan",
                        description="Write DIR/<name>.yaml (renderable as it is), its DEM GeoTIFF, trees.csv and "
-                                   "twin.json from a real LAS/LAZ scan: ground, trees on a canopy height model, "
-                                   "understory and the survey estimated from the points.")
-    p.add_argument("file", type=_named("REAL", "a file"), help="a .las or .laz scan (or our .pcd)")
+                                   "twin.json from a real scan (LAS, LAZ or PCD): ground, trees on a canopy height "
+                                   "model, understory and the survey estimated from the points.")
+    p.add_argument("file", type=_named("REAL", "a file"), help="a .las, .laz or .pcd scan (ours or another tool's)")
     p.add_argument("-o", "--output", type=_folder, required=True, help="output folder")
     p.add_argument("--species", nargs="+", default=[], metavar="NAME",
                    help="procedural species of the trees, drawn in turn (default: pinus_radiata)")
     p.add_argument("--sensor", type=_named("--sensor", "a sensor"),
                    help="a built-in sensor's name (leica_als50-ii) or a sensor file, used instead of the estimated sensor")
-    p.add_argument("--name", help="the scene's name (default: the file's stem)")
+    p.add_argument("--name", help="the scene's name (default: the file's name less .las, .laz, .copc.laz or .pcd)")
     p.add_argument("--calibrate", type=int, default=0, metavar="N",
                    help="render the twin up to N times, rescaling its crowns' leaf area, width and depth towards the "
                         "real scan's echoes per pulse (or gap fraction), canopy cover and canopy spread after each "

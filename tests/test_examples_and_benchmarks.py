@@ -31,7 +31,7 @@ def test_example_runs(name, shared_render):
     stdout = _run([str(ROOT / "examples" / name), "--quick", "--out", str(out)], ROOT)
     expected = {"leaf_wood.py": "confusion_matrix.csv", "instances.py": "instances_side.png",
                 "wood_volume.py": "training_table.csv", "sensors.py": "sensors.md", "python_api.py": None,
-                "own_models.py": "render/own_models_manifest.json"}[name]
+                "own_models.py": "render-quick/own_models_manifest.json"}[name]
     if expected:
         assert (out / expected).exists(), stdout
     if name == "leaf_wood.py":
@@ -41,6 +41,31 @@ def test_example_runs(name, shared_render):
     if name == "sensors.py":
         assert stdout.count("| RIEGL") == 3 and "Livox" in stdout and "ideal" in stdout
         assert "| Leica ALS50-II | 300 m |" in stdout
+
+
+def test_an_example_does_not_reuse_the_render_of_the_other_mode(tmp_path, monkeypatch):
+    """``--quick`` renders one leg at 100 kHz and 7 sub-rays: a full run into the same ``--out`` renders
+    the demo again rather than reading the quick render's points (and a quick run after a full one)."""
+    import importlib.util
+    from pathlib import Path
+    import mitsuforest as mf
+    spec = importlib.util.spec_from_file_location("examples_common", ROOT / "examples" / "common.py")
+    common = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(common)
+    rendered = []
+
+    def render(scene, **_):
+        folder = Path(scene.output.dir)
+        folder.mkdir(parents=True, exist_ok=True)
+        (folder / f"{scene.name}_manifest.json").write_text("{}")
+        rendered.append((folder, scene.simulation.beam_samples))
+
+    monkeypatch.setattr(mf, "render", render)
+    monkeypatch.setattr(mf, "read_pcd", lambda path: path)
+    for quick in (True, False, True, False):                # the second of each mode reads its own render
+        common.load_render(ROOT / "scenes" / "demo.yaml", tmp_path, quick)
+    assert [samples for _, samples in rendered] == [7, 19]
+    assert rendered[0][0] != rendered[1][0]
 
 
 def test_custom_scene_plans(tmp_path):
