@@ -433,6 +433,29 @@ def test_noise_and_withheld_points_are_left_out(tmp_path):
     assert cloud.notes == ["5 noise points (ASPRS classes 7, 18) left out", "4 withheld points left out"]
 
 
+@pytest.mark.parametrize("damage, offset, value", [("a VLR count of 0", 100, (0).to_bytes(4, "little")),
+                                                   ("a header size of 65535", 94, (65535).to_bytes(2, "little"))])
+def test_extra_bytes_whose_description_is_not_read_compare_as_the_file_without_them(tmp_path, damage, offset,
+                                                                                    value):
+    """A foreign LAS with an extra dimension whose header hides its extra-bytes VLR (laspy then reads the
+    extra bytes as one unnamed (n, 4) column): compared and read for a twin as the same points without it."""
+    from mitsuforest.twin.points import read_scan
+    points = _forest()
+    pcd = _our_pcd(tmp_path / "ours.pcd", points)
+    path = _foreign_las(tmp_path / "other.las", points)
+    las = laspy.read(str(path))
+    las.add_extra_dim(laspy.ExtraBytesParams(name="treeID", type=np.uint32))
+    las.treeID = np.arange(len(points)) % 7
+    las.write(str(path))
+    raw = bytearray(path.read_bytes())
+    raw[offset:offset + len(value)] = value
+    path.write_bytes(bytes(raw))
+    assert list(laspy.read(str(path)).point_format.dimension_names)[-1] == "ExtraBytes"   # the damage as laspy sees it
+    d = compare_files(pcd, path)["distance"]
+    assert d["returns_tv"] == 0 and d["ground_share"] == 0 and d["density_ratio"] == 1 and d["height_ks"] == 0
+    assert len(read_scan(path)) == len(points)
+
+
 def test_the_command_writes_table_json_and_figure(tmp_path, capsys):
     points = _forest()
     a = _our_pcd(tmp_path / "a.pcd", points)

@@ -259,9 +259,13 @@ def usable_points(columns: dict, foreign: bool = True) -> tuple[dict, list[str]]
 
 
 def repeated_points(columns: dict) -> np.ndarray:
-    """(n,) bool: every point that is an exact copy, in all of ``columns``, of one before it."""
-    records = np.rec.fromarrays([np.asarray(v) for v in columns.values()])
-    raw = np.ascontiguousarray(records).view(np.dtype((np.void, records.dtype.itemsize)))
+    """(n,) bool: every point that is an exact copy, in all of ``columns``, of one before it. A column may be
+    (n, k): laspy reads a LAS's extra bytes so where its header hides their description (a VLR count of 0)."""
+    arrays = [np.asarray(v) for v in columns.values()]
+    records = np.empty(len(arrays[0]), [(f"f{i}", a.dtype, a.shape[1:]) for i, a in enumerate(arrays)])
+    for i, a in enumerate(arrays):
+        records[f"f{i}"] = a
+    raw = records.view(np.dtype((np.void, records.dtype.itemsize)))
     repeated = np.ones(len(raw), bool)
     repeated[np.unique(raw, return_index=True)[1]] = False
     return repeated
