@@ -371,8 +371,9 @@ def test_our_own_pcd_keeps_our_classes_and_names(tmp_path):
     columns, names, classes = load_points(_our_pcd(tmp_path / "ours.pcd", points))
     assert classes is CLASS_NAMES and names == list(points.dtype.names)
     assert np.array_equal(columns["classification"], points["classification"])
-    other = points[[n for n in points.dtype.names if n not in ("instance", "object_id")]]
-    assert load_points(_our_pcd(tmp_path / "other.pcd", np.array(other)))[2] is ASPRS_CLASSES
+    from numpy.lib.recfunctions import repack_fields    # the fields' bytes alone, as the header describes them
+    other = repack_fields(points[[n for n in points.dtype.names if n not in ("instance", "object_id")]])
+    assert load_points(_our_pcd(tmp_path / "other.pcd", other))[2] is ASPRS_CLASSES
 
 
 def test_field_names_are_ours_where_they_differ_only_in_case_and_underscores():
@@ -393,6 +394,8 @@ PCD_REFUSED = {
     "ascii cut in a line": ("ragged: point 1,000 holds 2 values where FIELDS names 10 (a truncated or damaged "
                             "file)"),
     "ascii with a word": "a value does not read as its field's TYPE: could not convert string 'ground' to uint8",
+    "ascii of more points than POINTS": ("the header promises 2,000 points, but 2,005 follow: its POINTS does not "
+                                         "describe its data (a damaged file)"),
 }
 
 
@@ -411,6 +414,8 @@ def test_a_pcd_that_cannot_be_read_is_refused_in_one_line(case, tmp_path, capsys
             lines = lines[:1000]
         elif case == "ascii cut in a line":
             lines = lines[:999] + [b" ".join(lines[999].split()[:2])]
+        elif case == "ascii of more points than POINTS":
+            lines = lines + lines[:5]
         else:
             lines[5] = lines[5].replace(b" 2 ", b" ground ")
         raw = header + b"DATA ascii\n" + b"\n".join(lines)
@@ -689,12 +694,21 @@ BAD = {
     "missing": (lambda t: t / "nope.laz", "file not found"),
     "empty": (lambda t: _empty_pcd(t / "empty.pcd"), "the file holds no points"),
     "damaged": (lambda t: _damaged(t / "bad.las"), "cannot read"),
+    "header written twice": (lambda t: _header_twice(_our_pcd(t / "twice.pcd", _forest())),
+                             "its header is written twice: a second header follows its DATA line"),
     "a folder": (lambda t: t, "is a folder"),
 }
 
 
 def _damaged(path):
     path.write_bytes(bytes(range(256)) * 40)
+    return path
+
+
+def _header_twice(path):
+    """Our PCD with its header written a second time after the first (read as the points)."""
+    raw = path.read_bytes()
+    path.write_bytes(raw[:raw.index(b"DATA binary\n") + 12] + raw)
     return path
 
 

@@ -309,6 +309,13 @@ def _header_text(path, old, new):
     return path
 
 
+def _header_twice(path):
+    """``path`` with its header written a second time after the first (read as the points)."""
+    raw = path.read_bytes()
+    path.write_bytes(raw[:raw.index(b"DATA binary\n") + 12] + raw)
+    return path
+
+
 DAMAGED = {
     "pcd cut inside its header": (lambda t: _cut(_pcd(t), 60), "the header ends before its DATA line"),
     "pcd of random bytes": (lambda t: _random(t, "r.pcd"), "not a PCD file"),
@@ -318,6 +325,12 @@ DAMAGED = {
     "pcd with mismatched SIZE": (lambda t: _header_text(_pcd(t), "SIZE 2 8", "SIZE 8"), "FIELDS but"),
     "pcd without x": (lambda t: _header_text(_pcd(t), " x y z ", " a y z "), "no x, y, z fields"),
     "pcd of a killed render": (lambda t: _pcd(t, count=0, digits=20), "the header counts 0 points but 1,000 follow"),
+    "pcd with its header written twice": (lambda t: _header_twice(_pcd(t)), "its header is written twice: a second "
+                                          "header follows its DATA line"),
+    "pcd holding more points than POINTS": (lambda t: _pcd(t, count=400), "the header promises 400 points of 72 "
+                                            "bytes, but 1,000 points' worth follow"),
+    "pcd with a SIZE too small": (lambda t: _header_text(_pcd(t), "SIZE 2 8", "SIZE 2 4"), "the header promises 1,000 "
+                                  "points of 68 bytes, but 1,058 points' worth follow"),
     "las cut inside its header": (lambda t: _cut(_las(t), 100), "cannot read"),
     "las of random bytes": (lambda t: _random(t, "r.las"), "cannot read"),
     "las cut after its first 227 bytes": (lambda t: _cut(_las(t), 227), "truncated: the file ends at byte 227, "
