@@ -712,6 +712,22 @@ def _header_twice(path):
     return path
 
 
+def test_a_file_wider_than_its_cells_can_number_is_refused_in_one_line(tmp_path, capsys):
+    """Our PCD without ground classes, one point at x = 1e300 m (not left out: our files are not filtered): its
+    1 m cells' keys would overflow, and the lowest-point filter's surface found no ground (numpy's warnings, then
+    its ValueError); one line."""
+    points = _forest()
+    points["classification"] = 3
+    points["x"][0] = 1e300
+    far = _our_pcd(tmp_path / "far.pcd", points)
+    out = tmp_path / "out"
+    assert main(["compare", str(far), str(_our_pcd(tmp_path / "good.pcd", _forest())), "-o", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == ("mitsuforest: far.pcd: its points span 1e+300 m, more than the 1 m cells of a comparison can "
+                   "number (2,147,483,647 m): a damaged file, or one of stray coordinates"), err
+    assert not out.exists() or not any(out.iterdir())
+
+
 @pytest.mark.parametrize("case", sorted(BAD))
 @pytest.mark.parametrize("side", ["A", "B"])
 def test_bad_input_gets_one_line_and_exit_2(case, side, tmp_path, capsys):
