@@ -358,6 +358,64 @@ def test_damaged_file_gets_one_line(case, tmp_path, capsys):
     assert err.count("\n") == 0 and err.startswith(f"mitsuforest: {path}: ") and message in err, err
 
 
+def _vlrs_counted(path, count, extended=False):
+    """``path`` (LAS 1.4) with its header's count of VLRs, or of EVLRs (put at the file's last 10 bytes), set to
+    ``count``."""
+    if not extended:
+        return _patched(path, 100, count.to_bytes(4, "little"))
+    return _patched(_patched(path, 235, (path.stat().st_size - 10).to_bytes(8, "little")), 243,
+                    count.to_bytes(4, "little"))
+
+
+def _chunks_counted(tmp_path, count):
+    """A finished LAZ whose chunk table counts ``count`` chunks."""
+    path, start = _laz(tmp_path)
+    table = int.from_bytes(path.read_bytes()[start:start + 8], "little")
+    return _patched(path, table + 4, count.to_bytes(4, "little"))
+
+
+def _chunk_size(tmp_path, size):
+    """A finished LAZ whose LASzip VLR gives chunks of ``size`` points."""
+    import laspy
+    path, _ = _laz(tmp_path)
+    with laspy.open(str(path)) as reader:
+        record = next(v for v in reader.header.vlrs if v.user_id == "laszip encoded").record_data_bytes()
+    return _patched(path, path.read_bytes().index(record) + 12, size.to_bytes(4, "little"))
+
+
+BOTTOMLESS = {
+    "las counting 4,294,967,295 VLRs": (lambda t: _vlrs_counted(_las(t), 2**32 - 1),
+                                        "damaged: the header counts 4,294,967,295 VLRs of at least 54 bytes, more "
+                                        "than the file's 56,294 bytes can hold"),
+    "las counting 4,294,967,295 EVLRs": (lambda t: _vlrs_counted(_las(t), 2**32 - 1, extended=True),
+                                         "damaged: the header counts 4,294,967,295 EVLRs of at least 60 bytes, more "
+                                         "than the file's 56,294 bytes can hold"),
+    "laz counting 2,147,483,648 chunks": (lambda t: _chunks_counted(t, 2**31),
+                                          "damaged: its chunk table counts 2,147,483,648 chunks, more than its "),
+    "laz of chunks of 2,147,483,647 points": (lambda t: _chunk_size(t, 2**31 - 1), "damaged: its LASzip record gives "
+                                              "chunks of 2,147,483,647 points, more than the 1,000 the header counts"),
+}
+
+
+@pytest.mark.parametrize("command", ["info", "compare", "twin"])
+@pytest.mark.parametrize("case", sorted(BOTTOMLESS))
+def test_a_count_read_or_allocated_without_end_is_refused_at_once(case, command, tmp_path):
+    """A header count that laspy would read on for (4 billion VLRs past the file's end: minutes) or lazrs would
+    allocate (a chunk table of 2 billion entries: 32 GB, an abort): one line, exit 2, nothing written. Each
+    in a process of its own, which a hang or an abort does not take the tests down with."""
+    import subprocess
+    import sys
+    make, message = BOTTOMLESS[case]
+    path, out = make(tmp_path), tmp_path / "out"
+    extra = {"info": [], "compare": [path, "-o", out], "twin": ["-o", out]}[command]
+    proc = subprocess.run([sys.executable, "-m", "mitsuforest", command, path, *extra], capture_output=True,
+                          text=True, timeout=30)
+    err = proc.stderr.strip()
+    assert proc.returncode == 2 and err.count("\n") == 0, err
+    assert err.startswith(f"mitsuforest: {path}: {message}"), err
+    assert not out.exists()
+
+
 @pytest.mark.parametrize("holds", ["a point file", "no point file"])
 def test_info_on_a_folder_says_it_is_one(holds, tmp_path, capsys):
     """``mitsuforest info OUTDIR`` names the problem (a folder) and, where it has one, a point file to give."""
