@@ -130,6 +130,31 @@ def test_an_empty_input_path_is_refused_by_its_name(tmp_path, monkeypatch, capsy
     assert [p.name for p in tmp_path.iterdir()] == ["scene.yaml"]
 
 
+LONG = "a" * 5000      # a path too long for the file system: a name of more than 255 bytes
+
+
+@pytest.mark.parametrize("args, named", [(["plan", LONG + ".yaml"], "SCENE"), (["render", LONG + ".yaml"], "SCENE"),
+                                         (["info", LONG + ".las"], "FILE"),
+                                         (["compare", LONG + ".las", "scene.yaml"], "A"),
+                                         (["compare", "scene.yaml", "scene.yaml", "-o", LONG], "-o"),
+                                         (["twin", LONG + ".las", "-o", "out"], "REAL"),
+                                         (["twin", "scene.yaml", "-o", "/".join(["b" * 200] * 30)], "-o"),
+                                         (["compare", "scene.yaml", "scene.yaml", "-o", "new/" + "c" * 300], "-o"),
+                                         (["trees", "--scene", LONG + ".yaml"], "--scene")])
+def test_a_path_too_long_for_the_file_system_is_refused_by_its_name(tmp_path, monkeypatch, capsys, args, named):
+    """A path the file system cannot hold (a name over 255 bytes, under a folder still to be made too, or over
+    4,096 bytes in all): exit 2, one line naming the argument, the path shortened, nothing written (it was
+    exit 1, "File name too long; nothing was finished", the whole path echoed)."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "scene.yaml").write_text(GOOD)
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip()
+    path = next(a for a in args if len(a) > 255)
+    assert err == (f"mitsuforest: {named}: {path[:80]}...: path too long for the file system "
+                   f"({len(path):,} characters)"), err
+    assert [p.name for p in tmp_path.iterdir()] == ["scene.yaml"]
+
+
 @pytest.mark.parametrize("command", ["render", "plan", "trees", "export", "dataset", "twin", "compare"])
 def test_an_empty_output_folder_is_refused(tmp_path, monkeypatch, capsys, command):
     """``-o ""`` would be the working folder (Path("") is "."): refused in one line, nothing written."""
