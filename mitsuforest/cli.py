@@ -10,6 +10,7 @@ down after the command prints one line and exits with the same codes.
 from __future__ import annotations
 
 import argparse
+import errno
 import gc
 import os
 import signal
@@ -138,8 +139,32 @@ def _named(argument: str, what: str, hint: str = ""):
     def parse(text: str) -> Path:
         if not text:
             raise UserError(f"{argument}: must name {what}, got an empty path{hint}")
+        if _too_long(text):       # else an OSError mid-command: exit 1, the whole path echoed
+            shown = text if len(text) <= 80 else text[:80] + "..."
+            raise UserError(f"{argument}: {shown}: path too long for the file system ({len(text):,} characters)")
         return Path(text)
     return parse
+
+
+def _too_long(text: str) -> bool:
+    """Whether the file system cannot hold the path ``text``: stat says so (a name of more than NAME_MAX
+    bytes, or a path of more than PATH_MAX), or a name in it under a folder still to be made (an output
+    folder's) is longer than the nearest existing folder's file system allows."""
+    try:
+        os.stat(text)
+    except OSError as e:
+        if e.errno == errno.ENAMETOOLONG:
+            return True
+    except ValueError:        # a NUL byte: the command says what it says of such a path
+        return False
+    folder = Path(os.path.abspath(text))
+    while not folder.is_dir() and folder != folder.parent:
+        folder = folder.parent
+    try:
+        longest = os.pathconf(folder, "PC_NAME_MAX")
+    except (OSError, ValueError):
+        longest = 255
+    return any(len(os.fsencode(name)) > longest for name in Path(text).parts)
 
 
 _folder = _named("-o", "a folder", " (give . for the working folder)")     # every command's output folder

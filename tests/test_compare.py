@@ -371,8 +371,9 @@ def test_our_own_pcd_keeps_our_classes_and_names(tmp_path):
     columns, names, classes = load_points(_our_pcd(tmp_path / "ours.pcd", points))
     assert classes is CLASS_NAMES and names == list(points.dtype.names)
     assert np.array_equal(columns["classification"], points["classification"])
-    other = points[[n for n in points.dtype.names if n not in ("instance", "object_id")]]
-    assert load_points(_our_pcd(tmp_path / "other.pcd", np.array(other)))[2] is ASPRS_CLASSES
+    from numpy.lib.recfunctions import repack_fields    # the fields' bytes alone, as the header describes them
+    other = repack_fields(points[[n for n in points.dtype.names if n not in ("instance", "object_id")]])
+    assert load_points(_our_pcd(tmp_path / "other.pcd", other))[2] is ASPRS_CLASSES
 
 
 def test_field_names_are_ours_where_they_differ_only_in_case_and_underscores():
@@ -393,6 +394,8 @@ PCD_REFUSED = {
     "ascii cut in a line": ("ragged: point 1,000 holds 2 values where FIELDS names 10 (a truncated or damaged "
                             "file)"),
     "ascii with a word": "a value does not read as its field's TYPE: could not convert string 'ground' to uint8",
+    "ascii of more points than POINTS": ("the header promises 2,000 points, but 2,005 follow: its POINTS does not "
+                                         "describe its data (a damaged file)"),
 }
 
 
@@ -411,6 +414,8 @@ def test_a_pcd_that_cannot_be_read_is_refused_in_one_line(case, tmp_path, capsys
             lines = lines[:1000]
         elif case == "ascii cut in a line":
             lines = lines[:999] + [b" ".join(lines[999].split()[:2])]
+        elif case == "ascii of more points than POINTS":
+            lines = lines + lines[:5]
         else:
             lines[5] = lines[5].replace(b" 2 ", b" ground ")
         raw = header + b"DATA ascii\n" + b"\n".join(lines)
@@ -431,6 +436,29 @@ def test_noise_and_withheld_points_are_left_out(tmp_path):
     cloud = load_cloud(path)
     assert len(cloud) == len(points) - 9
     assert cloud.notes == ["5 noise points (ASPRS classes 7, 18) left out", "4 withheld points left out"]
+
+
+@pytest.mark.parametrize("damage, offset, value", [("a VLR count of 0", 100, (0).to_bytes(4, "little")),
+                                                   ("a header size of 65535", 94, (65535).to_bytes(2, "little"))])
+def test_extra_bytes_whose_description_is_not_read_compare_as_the_file_without_them(tmp_path, damage, offset,
+                                                                                    value):
+    """A foreign LAS with an extra dimension whose header hides its extra-bytes VLR (laspy then reads the
+    extra bytes as one unnamed (n, 4) column): compared and read for a twin as the same points without it."""
+    from mitsuforest.twin.points import read_scan
+    points = _forest()
+    pcd = _our_pcd(tmp_path / "ours.pcd", points)
+    path = _foreign_las(tmp_path / "other.las", points)
+    las = laspy.read(str(path))
+    las.add_extra_dim(laspy.ExtraBytesParams(name="treeID", type=np.uint32))
+    las.treeID = np.arange(len(points)) % 7
+    las.write(str(path))
+    raw = bytearray(path.read_bytes())
+    raw[offset:offset + len(value)] = value
+    path.write_bytes(bytes(raw))
+    assert list(laspy.read(str(path)).point_format.dimension_names)[-1] == "ExtraBytes"   # the damage as laspy sees it
+    d = compare_files(pcd, path)["distance"]
+    assert d["returns_tv"] == 0 and d["ground_share"] == 0 and d["density_ratio"] == 1 and d["height_ks"] == 0
+    assert len(read_scan(path)) == len(points)
 
 
 def test_the_command_writes_table_json_and_figure(tmp_path, capsys):
@@ -666,6 +694,8 @@ BAD = {
     "missing": (lambda t: t / "nope.laz", "file not found"),
     "empty": (lambda t: _empty_pcd(t / "empty.pcd"), "the file holds no points"),
     "damaged": (lambda t: _damaged(t / "bad.las"), "cannot read"),
+    "header written twice": (lambda t: _header_twice(_our_pcd(t / "twice.pcd", _forest())),
+                             "its header is written twice: a second header follows its DATA line"),
     "a folder": (lambda t: t, "is a folder"),
 }
 
@@ -673,6 +703,29 @@ BAD = {
 def _damaged(path):
     path.write_bytes(bytes(range(256)) * 40)
     return path
+
+
+def _header_twice(path):
+    """Our PCD with its header written a second time after the first (read as the points)."""
+    raw = path.read_bytes()
+    path.write_bytes(raw[:raw.index(b"DATA binary\n") + 12] + raw)
+    return path
+
+
+def test_a_file_wider_than_its_cells_can_number_is_refused_in_one_line(tmp_path, capsys):
+    """Our PCD without ground classes, one point at x = 1e300 m (not left out: our files are not filtered): its
+    1 m cells' keys would overflow, and the lowest-point filter's surface found no ground (numpy's warnings, then
+    its ValueError); one line."""
+    points = _forest()
+    points["classification"] = 3
+    points["x"][0] = 1e300
+    far = _our_pcd(tmp_path / "far.pcd", points)
+    out = tmp_path / "out"
+    assert main(["compare", str(far), str(_our_pcd(tmp_path / "good.pcd", _forest())), "-o", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == ("mitsuforest: far.pcd: its points span 1e+300 m, more than the 1 m cells of a comparison can "
+                   "number (2,147,483,647 m): a damaged file, or one of stray coordinates"), err
+    assert not out.exists() or not any(out.iterdir())
 
 
 @pytest.mark.parametrize("case", sorted(BAD))

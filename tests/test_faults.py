@@ -130,6 +130,31 @@ def test_an_empty_input_path_is_refused_by_its_name(tmp_path, monkeypatch, capsy
     assert [p.name for p in tmp_path.iterdir()] == ["scene.yaml"]
 
 
+LONG = "a" * 5000      # a path too long for the file system: a name of more than 255 bytes
+
+
+@pytest.mark.parametrize("args, named", [(["plan", LONG + ".yaml"], "SCENE"), (["render", LONG + ".yaml"], "SCENE"),
+                                         (["info", LONG + ".las"], "FILE"),
+                                         (["compare", LONG + ".las", "scene.yaml"], "A"),
+                                         (["compare", "scene.yaml", "scene.yaml", "-o", LONG], "-o"),
+                                         (["twin", LONG + ".las", "-o", "out"], "REAL"),
+                                         (["twin", "scene.yaml", "-o", "/".join(["b" * 200] * 30)], "-o"),
+                                         (["compare", "scene.yaml", "scene.yaml", "-o", "new/" + "c" * 300], "-o"),
+                                         (["trees", "--scene", LONG + ".yaml"], "--scene")])
+def test_a_path_too_long_for_the_file_system_is_refused_by_its_name(tmp_path, monkeypatch, capsys, args, named):
+    """A path the file system cannot hold (a name over 255 bytes, under a folder still to be made too, or over
+    4,096 bytes in all): exit 2, one line naming the argument, the path shortened, nothing written (it was
+    exit 1, "File name too long; nothing was finished", the whole path echoed)."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "scene.yaml").write_text(GOOD)
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip()
+    path = next(a for a in args if len(a) > 255)
+    assert err == (f"mitsuforest: {named}: {path[:80]}...: path too long for the file system "
+                   f"({len(path):,} characters)"), err
+    assert [p.name for p in tmp_path.iterdir()] == ["scene.yaml"]
+
+
 @pytest.mark.parametrize("command", ["render", "plan", "trees", "export", "dataset", "twin", "compare"])
 def test_an_empty_output_folder_is_refused(tmp_path, monkeypatch, capsys, command):
     """``-o ""`` would be the working folder (Path("") is "."): refused in one line, nothing written."""
@@ -309,6 +334,13 @@ def _header_text(path, old, new):
     return path
 
 
+def _header_twice(path):
+    """``path`` with its header written a second time after the first (read as the points)."""
+    raw = path.read_bytes()
+    path.write_bytes(raw[:raw.index(b"DATA binary\n") + 12] + raw)
+    return path
+
+
 DAMAGED = {
     "pcd cut inside its header": (lambda t: _cut(_pcd(t), 60), "the header ends before its DATA line"),
     "pcd of random bytes": (lambda t: _random(t, "r.pcd"), "not a PCD file"),
@@ -318,6 +350,12 @@ DAMAGED = {
     "pcd with mismatched SIZE": (lambda t: _header_text(_pcd(t), "SIZE 2 8", "SIZE 8"), "FIELDS but"),
     "pcd without x": (lambda t: _header_text(_pcd(t), " x y z ", " a y z "), "no x, y, z fields"),
     "pcd of a killed render": (lambda t: _pcd(t, count=0, digits=20), "the header counts 0 points but 1,000 follow"),
+    "pcd with its header written twice": (lambda t: _header_twice(_pcd(t)), "its header is written twice: a second "
+                                          "header follows its DATA line"),
+    "pcd holding more points than POINTS": (lambda t: _pcd(t, count=400), "the header promises 400 points of 72 "
+                                            "bytes, but 1,000 points' worth follow"),
+    "pcd with a SIZE too small": (lambda t: _header_text(_pcd(t), "SIZE 2 8", "SIZE 2 4"), "the header promises 1,000 "
+                                  "points of 68 bytes, but 1,058 points' worth follow"),
     "las cut inside its header": (lambda t: _cut(_las(t), 100), "cannot read"),
     "las of random bytes": (lambda t: _random(t, "r.las"), "cannot read"),
     "las cut after its first 227 bytes": (lambda t: _cut(_las(t), 227), "truncated: the file ends at byte 227, "
@@ -343,6 +381,64 @@ def test_damaged_file_gets_one_line(case, tmp_path, capsys):
     assert main(["info", str(path)]) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and err.startswith(f"mitsuforest: {path}: ") and message in err, err
+
+
+def _vlrs_counted(path, count, extended=False):
+    """``path`` (LAS 1.4) with its header's count of VLRs, or of EVLRs (put at the file's last 10 bytes), set to
+    ``count``."""
+    if not extended:
+        return _patched(path, 100, count.to_bytes(4, "little"))
+    return _patched(_patched(path, 235, (path.stat().st_size - 10).to_bytes(8, "little")), 243,
+                    count.to_bytes(4, "little"))
+
+
+def _chunks_counted(tmp_path, count):
+    """A finished LAZ whose chunk table counts ``count`` chunks."""
+    path, start = _laz(tmp_path)
+    table = int.from_bytes(path.read_bytes()[start:start + 8], "little")
+    return _patched(path, table + 4, count.to_bytes(4, "little"))
+
+
+def _chunk_size(tmp_path, size):
+    """A finished LAZ whose LASzip VLR gives chunks of ``size`` points."""
+    import laspy
+    path, _ = _laz(tmp_path)
+    with laspy.open(str(path)) as reader:
+        record = next(v for v in reader.header.vlrs if v.user_id == "laszip encoded").record_data_bytes()
+    return _patched(path, path.read_bytes().index(record) + 12, size.to_bytes(4, "little"))
+
+
+BOTTOMLESS = {
+    "las counting 4,294,967,295 VLRs": (lambda t: _vlrs_counted(_las(t), 2**32 - 1),
+                                        "damaged: the header counts 4,294,967,295 VLRs of at least 54 bytes, more "
+                                        "than the file's 56,294 bytes can hold"),
+    "las counting 4,294,967,295 EVLRs": (lambda t: _vlrs_counted(_las(t), 2**32 - 1, extended=True),
+                                         "damaged: the header counts 4,294,967,295 EVLRs of at least 60 bytes, more "
+                                         "than the file's 56,294 bytes can hold"),
+    "laz counting 2,147,483,648 chunks": (lambda t: _chunks_counted(t, 2**31),
+                                          "damaged: its chunk table counts 2,147,483,648 chunks, more than its "),
+    "laz of chunks of 2,147,483,647 points": (lambda t: _chunk_size(t, 2**31 - 1), "damaged: its LASzip record gives "
+                                              "chunks of 2,147,483,647 points, more than the 1,000 the header counts"),
+}
+
+
+@pytest.mark.parametrize("command", ["info", "compare", "twin"])
+@pytest.mark.parametrize("case", sorted(BOTTOMLESS))
+def test_a_count_read_or_allocated_without_end_is_refused_at_once(case, command, tmp_path):
+    """A header count that laspy would read on for (4 billion VLRs past the file's end: minutes) or lazrs would
+    allocate (a chunk table of 2 billion entries: 32 GB, an abort): one line, exit 2, nothing written. Each
+    in a process of its own, which a hang or an abort does not take the tests down with."""
+    import subprocess
+    import sys
+    make, message = BOTTOMLESS[case]
+    path, out = make(tmp_path), tmp_path / "out"
+    extra = {"info": [], "compare": [path, "-o", out], "twin": ["-o", out]}[command]
+    proc = subprocess.run([sys.executable, "-m", "mitsuforest", command, path, *extra], capture_output=True,
+                          text=True, timeout=30)
+    err = proc.stderr.strip()
+    assert proc.returncode == 2 and err.count("\n") == 0, err
+    assert err.startswith(f"mitsuforest: {path}: {message}"), err
+    assert not out.exists()
 
 
 @pytest.mark.parametrize("holds", ["a point file", "no point file"])

@@ -175,6 +175,26 @@ def _run(capsys, *args):
     return SimpleNamespace(returncode=code, stderr=capsys.readouterr().err)
 
 
+@pytest.mark.parametrize("far, span", [(1e5, "100,000"), (1e10, "10,000,000,000"), (1e300, "1e+300")])
+def test_a_stray_coordinate_beyond_a_plot_is_refused_before_the_ground_filter(tmp_path, capsys, far, span):
+    """Our PCD without ground classes (its points not filtered, as another tool's are), one point at x = ``far``:
+    refused in one line before the lowest-point filter grids the extent (numpy's warnings and a second line,
+    hundreds of GiB, a ValueError)."""
+    from test_compare import _forest, _our_pcd
+    points = _forest()
+    points["classification"] = 3
+    points["x"][0] = far
+    path = _our_pcd(tmp_path / "far.pcd", points)
+    import warnings
+    with warnings.catch_warnings(record=True) as caught:     # the command prints them: more lines
+        warnings.simplefilter("always")
+        r = _run(capsys, "twin", path, "-o", tmp_path / "out")
+    assert not caught, [str(w.message) for w in caught]
+    assert r.returncode == 2 and r.stderr == (f"mitsuforest: {path}: its points span {span} x 20 m; a twin's plot is "
+                                              "at most 2,000 m a side: clip the file to the plot\n"), r.stderr
+    assert not (tmp_path / "out").exists()
+
+
 def test_twin_refuses_an_empty_or_damaged_file_in_one_line(tmp_path, capsys):
     empty = tmp_path / "empty.las"
     las = laspy.create(point_format=6, file_version="1.4")

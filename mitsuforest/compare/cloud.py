@@ -8,13 +8,14 @@ from pathlib import Path
 import numpy as np
 
 from ..classes import CLASS_NAMES, GROUND
-from ..errors import UserError
+from ..errors import UserError, amount
 from ..fields import FIELD, SCAN_ANGLE_UNIT
-from .metrics import (ISOLATION_CELL_M, ISOLATION_OTHERS, STRAY_POINTS, STRAY_REACH_M, cell_keys, first_returns,
-                      first_returns_only, isolated_points, numbers_of_returns_by_time, stray_clusters)
+from .metrics import (CELL_M, ISOLATION_CELL_M, ISOLATION_OTHERS, STRAY_POINTS, STRAY_REACH_M, cell_keys,
+                      first_returns, first_returns_only, isolated_points, numbers_of_returns_by_time, stray_clusters)
 
 ASPRS_GROUND = 2
 ASPRS_NOISE = (7, 18)         # low and high noise: left out of a comparison of another tool's file
+MAX_SPAN_M = 2**31 - 1        # the widest x or y extent of a cloud's points, of 1 m cells (metrics.cell_keys)
 
 
 @dataclass
@@ -206,6 +207,10 @@ def cloud_from_columns(columns: dict, name: str, scheme: str) -> Cloud:
     n = len(columns["x"])
     if n == 0:
         raise UserError(f"{name}: no points other than {LEFT_OUT} ({'; '.join(notes)})")
+    span = max(float(np.ptp(np.asarray(columns[a], np.float64))) for a in "xy")
+    if not span < MAX_SPAN_M:      # the cells' keys (metrics.cell_keys) hold 31 bits an axis
+        raise UserError(f"{name}: its points span {amount(span)} m, more than the {CELL_M:g} m cells of a comparison "
+                        f"can number ({MAX_SPAN_M:,} m): a damaged file, or one of stray coordinates")
     rn, nr = return_numbers(columns, notes)
     first_only = first_returns_only(rn, nr, columns.get("gps_time"))
     if first_only:
@@ -259,9 +264,13 @@ def usable_points(columns: dict, foreign: bool = True) -> tuple[dict, list[str]]
 
 
 def repeated_points(columns: dict) -> np.ndarray:
-    """(n,) bool: every point that is an exact copy, in all of ``columns``, of one before it."""
-    records = np.rec.fromarrays([np.asarray(v) for v in columns.values()])
-    raw = np.ascontiguousarray(records).view(np.dtype((np.void, records.dtype.itemsize)))
+    """(n,) bool: every point that is an exact copy, in all of ``columns``, of one before it. A column may be
+    (n, k): laspy reads a LAS's extra bytes so where its header hides their description (a VLR count of 0)."""
+    arrays = [np.asarray(v) for v in columns.values()]
+    records = np.empty(len(arrays[0]), [(f"f{i}", a.dtype, a.shape[1:]) for i, a in enumerate(arrays)])
+    for i, a in enumerate(arrays):
+        records[f"f{i}"] = a
+    raw = records.view(np.dtype((np.void, records.dtype.itemsize)))
     repeated = np.ones(len(raw), bool)
     repeated[np.unique(raw, return_index=True)[1]] = False
     return repeated

@@ -49,6 +49,12 @@ def analyse(scan, settings: detection.DetectionSettings | None = None) -> dict:
     bushes, survey estimate and the notes on what was assumed. Without ``settings``, the detection's
     defaults with a CHM cell for the scan's density (:func:`~.detection.chm_cell`)."""
     notes = list(scan.notes)
+    from ..config import MAX_PLOT_SIDE
+    size = plot_frame(scan.x, scan.y, scan.z).size      # the plot's sides: all points' x, y extent
+    if max(size) > MAX_PLOT_SIDE:      # before any grid, the lowest-point filter's too: a plot a scene cannot hold
+        from ..errors import UserError, amount
+        raise UserError(f"{scan.path}: its points span {amount(size[0])} x {amount(size[1])} m; a twin's plot "
+                        f"is at most {MAX_PLOT_SIDE:,.0f} m a side: clip the file to the plot")
     if scan.ground is not None and scan.ground.any():
         is_ground, ground_source = scan.ground, "the file's ground class"
     else:
@@ -56,11 +62,6 @@ def analyse(scan, settings: detection.DetectionSettings | None = None) -> dict:
         ground_source = "lowest-point filter (the file has no ground points)"
         notes.append(f"ground: {ground_source}")
     frame = plot_frame(scan.x, scan.y, scan.z[is_ground])
-    from ..config import MAX_PLOT_SIDE
-    if max(frame.size) > MAX_PLOT_SIDE:      # before any grid: a plot a scene cannot hold
-        from ..errors import UserError
-        raise UserError(f"{scan.path}: its points span {frame.size[0]:,.0f} x {frame.size[1]:,.0f} m; a twin's plot "
-                        f"is at most {MAX_PLOT_SIDE:,.0f} m a side: clip the file to the plot")
     x0, y0 = frame.offset[0] - DEM_CELL, frame.offset[1] - DEM_CELL
     shape = (int(frame.size[1] / DEM_CELL) + 2, int(frame.size[0] / DEM_CELL) + 2)
     dem = ground.dem(scan.x[is_ground], scan.y[is_ground], scan.z[is_ground], x0, y0, shape, DEM_CELL)

@@ -90,6 +90,8 @@ def _pcd_is_ours(names: list[str]) -> bool:
 
 def _load_las(path: Path) -> tuple[dict, list[str], dict]:
     import laspy
+    if problem := _record_counts_problem(path):     # before laspy, which would read on past the file's end
+        raise PointFileError(problem)
     with laspy.open(str(path)) as reader:
         header = reader.header
         size = path.stat().st_size
@@ -121,6 +123,25 @@ def _described_as_ours(point_format, name: str) -> bool:
     return point_format.dimension_by_name(name).description.startswith(CLASS_DESCRIPTION)
 
 
+def _record_counts_problem(path: Path) -> str | None:
+    """A header's count of VLRs (54 bytes or more each) or of LAS 1.4's EVLRs (60 or more) that the file
+    cannot hold: laspy reads that many, past the file's end (4,294,967,295 took minutes). A header too short
+    to hold them is left to laspy to refuse."""
+    size = path.stat().st_size
+    with open(path, "rb") as f:
+        header = f.read(247)
+    if len(header) < 104 or header[:4] != b"LASF":
+        return None
+    counts = [("VLRs", 54, int.from_bytes(header[100:104], "little"))]
+    if header[24:26] >= bytes([1, 4]) and len(header) == 247:
+        counts.append(("EVLRs", 60, int.from_bytes(header[243:247], "little")))
+    for what, least, count in counts:
+        if count * least > size:
+            return (f"damaged: the header counts {count:,} {what} of at least {least} bytes, more than the file's "
+                    f"{size:,} bytes can hold")
+    return None
+
+
 UNFINISHED = "an unfinished file (its writer stopped before closing it, as a killed render's does)"
 
 
@@ -135,8 +156,9 @@ def _uncounted_points(path: Path, header) -> str | None:
 
 def _laz_problem(path: Path, header) -> str | None:
     """What makes a LAZ file unreadable before its points are decompressed: no chunk table (a LAZ file
-    gets it when it is closed, so one of a killed render has none, and laspy would read 0 points), or a
-    point count its chunks cannot hold (laspy would try to allocate it)."""
+    gets it when it is closed, so one of a killed render has none, and laspy would read 0 points), a chunk
+    count its bytes cannot hold (lazrs would allocate its table: 32 GB for 2^31, an abort), or a point count
+    its chunks cannot hold (laspy would try to allocate it)."""
     start, size = header.offset_to_point_data, path.stat().st_size
     with open(path, "rb") as f:
         f.seek(start)
@@ -151,8 +173,14 @@ def _laz_problem(path: Path, header) -> str | None:
             return f"no chunk table (its offset reads {table:,}), so the points cannot be found: {UNFINISHED}"
         f.seek(table)
         chunks = int.from_bytes(f.read(8)[4:], "little")
+    if chunks > table - start - 8:      # each chunk takes a byte at least; lazrs would allocate 16 bytes a chunk first
+        return (f"damaged: its chunk table counts {chunks:,} chunks, more than its {table - start - 8:,} bytes of "
+                "compressed points can hold")
     vlr = next((v for v in header.vlrs if v.user_id == "laszip encoded"), None)
     chunk_size = int.from_bytes(vlr.record_data_bytes()[12:16], "little") if vlr else 0xFFFFFFFF
+    if chunk_size != 0xFFFFFFFF and chunk_size > max(header.point_count, 1 << 20):   # lazrs allocates a chunk
+        return (f"damaged: its LASzip record gives chunks of {chunk_size:,} points, more than the "
+                f"{header.point_count:,} the header counts")
     if chunk_size != 0xFFFFFFFF and header.point_count > chunks * chunk_size:
         return (f"damaged: the header counts {header.point_count:,} points, more than its {chunks:,} compressed "
                 f"chunk{'s' if chunks != 1 else ''} of {chunk_size:,} can hold")

@@ -48,7 +48,8 @@ def read_pcd(path) -> np.ndarray:
     its fields keep the file's names (:func:`our_names` gives ours).
 
     :raises PointFileError: a damaged or foreign header, ``DATA binary_compressed``, fewer points than the
-        header promises (a truncated file, or one a render left when it was killed), or an ascii body whose
+        header promises (a truncated file, or one a render left when it was killed), a binary body of more
+        (a header written twice, a SIZE or POINTS that does not describe the data), or an ascii body whose
         lines do not hold one value a field.
     """
     with open(path, "rb") as f:
@@ -64,6 +65,11 @@ def read_pcd(path) -> np.ndarray:
             raise PointFileError(f"the header counts 0 points but {held:,} follow: an unfinished file "
                                  "(a render stopped before it wrote its counts)")
         data = f.read(count * dtype.itemsize)
+        if data.startswith((b"# .PCD", b"VERSION ")):
+            raise PointFileError("its header is written twice: a second header follows its DATA line (a damaged file)")
+        if held > count:
+            raise PointFileError(f"the header promises {count:,} points of {dtype.itemsize} bytes, but {held:,} "
+                                 "points' worth follow: its POINTS or SIZE do not describe its data (a damaged file)")
     return np.frombuffer(data, dtype, count)
 
 
@@ -85,7 +91,10 @@ def _ascii_points(body: bytes, dtype: np.dtype, count: int) -> np.ndarray:
         raise PointFileError(f"truncated: the header promises {count:,} points, the file holds {len(points):,}")
     if count == 0 and len(points):
         raise PointFileError(f"the header counts 0 points but {len(points):,} follow")
-    return points[:count]
+    if len(points) > count:
+        raise PointFileError(f"the header promises {count:,} points, but {len(points):,} follow: its POINTS does not "
+                             "describe its data (a damaged file)")
+    return points
 
 
 def _ascii_problem(lines: list[str], width: int, error: ValueError) -> str:
