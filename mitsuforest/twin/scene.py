@@ -156,10 +156,12 @@ def sensor_reach(altitude: float, field_of_view: float, wavelength: float = 1550
 
 
 def field_of_view_seen(widest: float | None) -> int | None:
-    """The twin's field of view (whole degrees) from ``widest``, twice the file's largest scan angle: to the
-    nearest degree, within 1-360°. Whole-degree scan angles (LAS 1.2's rank) make 18° stand for 17.5-18.5°;
-    rounding up (to 5°, as before) widened a swath whose edge the file shows inside the plot."""
-    return None if widest is None else int(min(360, max(1, round(widest))))
+    """The twin's field of view (whole degrees) from ``widest``, twice the file's largest scan angle,
+    rounded up to 5°, within 5-360°: the angles a file keeps are a lower bound of its mirror's sweep, as
+    deliveries trim swath edges where lines overlap. MixedConifer keeps ±18° (whole degrees), and its
+    lines that lie inside the plot hold the twin's first returns a m² within 2 % at 40°, 11 % too many at
+    36° (the same pulses over a narrower swath)."""
+    return None if widest is None else int(min(360, 5 * max(1, math.ceil(widest / 5))))
 
 
 def _ground_reflectance(wavelength: float) -> float:
