@@ -480,6 +480,40 @@ def test_interrupts_wait_for_the_heavy_imports():
     assert reached == ["the end of the block"]
 
 
+def test_an_interrupt_just_after_a_batch_is_queued_does_not_hang_the_writer():
+    """A Ctrl-C whose handler ran just after the scan's put had taken the writer queue's lock (Python's
+    ``Condition.__enter__`` is cut between taking the lock and the ``with`` block) left the lock taken;
+    closing the writer then put its end on that lock and waited for ever (a render stuck at its first
+    batch, 0%). The signal is sent at that very moment; the put holds it and raises it once the batch is
+    queued, and the writer closes."""
+    import subprocess
+    import sys
+    script = """
+import os, signal, threading
+from mitsuforest.write.background import Background
+done = []
+sink = Background(done.append)
+lock = sink._queue.not_full
+plain = type(lock)
+class TakenThenInterrupted(plain):
+    def __enter__(self):
+        taken = self._lock.__enter__()
+        self.__class__ = plain                       # once
+        os.kill(os.getpid(), signal.SIGINT)          # its handler runs here, the lock taken
+        return taken
+lock.__class__ = TakenThenInterrupted
+try:
+    sink("first batch")
+except KeyboardInterrupt:
+    print("interrupted")
+sink.close()
+print("closed", done)
+"""
+    run = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
+    assert run.returncode == 0, run.stderr
+    assert run.stdout.split("\n")[:2] == ["interrupted", "closed ['first batch']"], (run.stdout, run.stderr)
+
+
 def _wait_until_mapped(proc, library: str, timeout: float = 60.0) -> None:
     """Wait until ``proc`` has loaded a shared library whose path holds ``library`` (Linux)."""
     maps, end = f"/proc/{proc.pid}/maps", time.monotonic() + timeout

@@ -5,6 +5,8 @@ from __future__ import annotations
 import queue
 import threading
 
+from ..interrupts import deferred_signals
+
 
 class Background:
     """Calls ``consume(batch)`` for each batch on one worker thread, in order.
@@ -12,6 +14,11 @@ class Background:
     numpy and file writes release the GIL, so the writer runs while the scan's next batch is built
     and traced. An exception in ``consume`` is raised again by the next :meth:`__call__` or by
     :meth:`close`; later batches are then dropped.
+
+    The caller's puts hold Ctrl-C and SIGTERM (:func:`~mitsuforest.interrupts.deferred_signals`) and act
+    on them once the batch is queued: an interrupt landing just after a put had taken the queue's lock
+    left it taken (``with`` in Python's ``Condition.__enter__`` is cut there), and :meth:`close`, putting
+    the end, then waited on that lock for ever. A put waits at most for the worker to take a batch.
     """
 
     def __init__(self, consume, depth: int = 4):
@@ -31,12 +38,14 @@ class Background:
 
     def __call__(self, batch) -> None:
         self._raise()
-        self._queue.put(batch)
+        with deferred_signals():
+            self._queue.put(batch)
 
     def close(self) -> None:
         """Wait until every batch is consumed; raise the worker's exception, if any."""
         if self._thread.is_alive():
-            self._queue.put(None)
+            with deferred_signals():
+                self._queue.put(None)
             self._thread.join()
         self._raise()
 
