@@ -16,6 +16,7 @@ import threading
 from concurrent.futures import Future, ThreadPoolExecutor, wait
 
 from .errors import UserError
+from .interrupts import deferred_signals
 
 THREADS_VARIABLE = "MITSUFOREST_WRITER_THREADS"
 MIN_ROWS = 32768   # the smallest part worth a task of its own
@@ -123,7 +124,10 @@ class ReadAhead:
     waits for its kernels, and numpy works, without Python's lock). The thread makes an item only while
     fewer than ``depth`` made items wait to be taken. An exception raised making an item is raised again
     where that item would have come. :meth:`close`, or the end of a ``with`` block, stops the making once
-    the item being made is made."""
+    the item being made is made. The caller's release of a place holds Ctrl-C and SIGTERM until it is done
+    (:func:`~mitsuforest.interrupts.deferred_signals`): an interrupt just after ``Semaphore.release`` took its
+    lock left the lock taken, the making thread then waited on it for ever, and :meth:`close` on that
+    thread."""
 
     _END = object()
 
@@ -170,7 +174,8 @@ class ReadAhead:
             if error is not None:
                 raise error
             raise StopIteration
-        self._room.release()
+        with deferred_signals():
+            self._room.release()
         return item
 
     def close(self) -> None:

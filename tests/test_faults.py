@@ -514,6 +514,39 @@ print("closed", done)
     assert run.stdout.split("\n")[:2] == ["interrupted", "closed ['first batch']"], (run.stdout, run.stderr)
 
 
+def test_an_interrupt_just_after_a_read_ahead_gives_room_does_not_hang_its_close():
+    """The scan's read-ahead (the device's next batch traced while this one is written; a GPU's path):
+    a Ctrl-C whose handler ran just after the caller's release of a place had taken the semaphore's lock
+    left it taken, the making thread waited on it for ever, and closing waited on that thread. The
+    release holds the signal and raises it once done; the read-ahead closes."""
+    import subprocess
+    import sys
+    script = """
+import os, signal, threading
+from mitsuforest.threads import ReadAhead
+ahead = ReadAhead(iter(range(5)), depth=1)
+cond = ahead._room._cond
+plain = type(cond)
+class TakenThenInterrupted(plain):
+    def __enter__(self):
+        taken = self._lock.__enter__()
+        if threading.current_thread() is threading.main_thread():   # the caller's release, not the maker's wait
+            self.__class__ = plain                   # once
+            os.kill(os.getpid(), signal.SIGINT)      # its handler runs here, the lock taken
+        return taken
+cond.__class__ = TakenThenInterrupted
+try:
+    next(ahead)
+except KeyboardInterrupt:
+    print("interrupted")
+ahead.close()
+print("closed")
+"""
+    run = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
+    assert run.returncode == 0, run.stderr
+    assert run.stdout.split("\n")[:2] == ["interrupted", "closed"], (run.stdout, run.stderr)
+
+
 def _wait_until_mapped(proc, library: str, timeout: float = 60.0) -> None:
     """Wait until ``proc`` has loaded a shared library whose path holds ``library`` (Linux)."""
     maps, end = f"/proc/{proc.pid}/maps", time.monotonic() + timeout
