@@ -63,9 +63,10 @@ CRS_RECORDS = {34735: "GeoTIFF keys", 2112: "WKT"}    # LASF_Projection record i
 
 
 def unread_crs_record(path) -> str | None:
-    """The kind of CRS record (``"GeoTIFF keys"``, ``"WKT"``) a LAS/LAZ file holds that :func:`file_crs` could
-    not read (a user-defined projection's GeoTIFF keys), or None: a PCD, a file without one, one whose CRS reads."""
-    if str(path).lower().endswith(".pcd") or file_crs(path) is not None:
+    """The kind of CRS record (``"GeoTIFF keys"``, ``"WKT"``) a LAS/LAZ file holds, for a file whose CRS
+    :func:`file_crs` could not read (a user-defined projection's GeoTIFF keys), or None: a PCD, a file
+    without one. The caller has asked :func:`file_crs` already (reading the header again costs an open)."""
+    if str(path).lower().endswith(".pcd"):
         return None
     import laspy
     try:

@@ -107,8 +107,9 @@ def scan_angle_degrees(columns: dict, pcd: bool) -> np.ndarray | None:
 
 
 def unread_crs_note(path) -> str | None:
-    """The note on a file whose CRS record cannot be read (:func:`~mitsuforest.crs.unread_crs_record`), whose
-    units are then unknown and taken as metres; None for a file without one."""
+    """The note on a file whose CRS :func:`~mitsuforest.crs.file_crs` did not read but that holds a CRS record
+    (:func:`~mitsuforest.crs.unread_crs_record`), whose units are then unknown and taken as metres; None for
+    a file without one."""
     from ..crs import unread_crs_record
     kind = unread_crs_record(path)
     return None if kind is None else (f"its CRS record ({kind}) cannot be read: its coordinates are taken as "

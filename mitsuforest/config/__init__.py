@@ -580,6 +580,13 @@ def lawnmower_lines(size, heading: float, line_spacing: float) -> float:
         return math.inf
 
 
+def most_stems(size) -> int:
+    """The most trees a plot of ``size`` (w, h) m may hold, listed or counted: :data:`MAX_STEMS_PER_M2` a
+    square metre, at least one."""
+    w, h = size
+    return max(1, int(MAX_STEMS_PER_M2 * w * h))
+
+
 def understory_capacity(size, kind: str) -> int:
     """How many understory objects of ``kind`` random placement can fit, alone, in a plot of ``size``
     (w, h) m: their clear discs (``CLEARANCE``) fill at most a share RSA_JAMMING of it, and none fits in a
@@ -625,7 +632,7 @@ def _check_scene(scene: dict, ctx: Context):
                      f"in a {w:g} x {h:g} m plot (random placement fills at most about {fit})")
     if forest["trees"]:
         w, h = scene["area"]["size"]
-        most = max(1, int(MAX_STEMS_PER_M2 * w * h))
+        most = most_stems(scene["area"]["size"])
         if forest["trees"] > most:
             ctx.fail("forest.trees", f"{forest['trees']} trees in a {w:g} x {h:g} m plot is more than {MAX_STEMS_PER_M2:g} a "
                      f"square metre (at most {most}; the densest young stands hold about 10)")

@@ -19,7 +19,7 @@ import numpy as np
 
 from .. import seeds
 from ..classes import DEADWOOD_TREEID, GROUND_OBJECT_ID
-from ..config import MAX_LEGS, MAX_STEMS_PER_M2, scene_error
+from ..config import MAX_LEGS, MAX_STEMS_PER_M2, most_stems, scene_error
 from ..errors import UserError, amount
 from ..specs.understory import CLEARANCE, SHRUB_FORMS, UNDERSTORY_COMPONENTS, UNDERSTORY_KEYS
 from ..specs.archetypes import Archetype, UniqueTrees, grown_to, nearest_template, unique_archetypes
@@ -138,7 +138,6 @@ def _checked_legs(scene, legs: list[Leg], terrain: Terrain) -> list[Leg]:
     return legs
 
 
-
 def _check_ground_below_flight(scene, legs: list[Leg], terrain: Terrain) -> None:
     """The plot's highest ground must lie at least the sensor's minimum range below the lowest leg: higher
     ground would put the platform in or under the terrain (points above it, pulses fired upwards)."""
@@ -211,7 +210,7 @@ def _tree_list(scene) -> list:
     if len(listed) > MAX_TREE_MODELS:
         raise _Refusal("forest.trees_file", f"{len(listed):,} trees, at most {MAX_TREE_MODELS:,} (treeid is 16 bits)")
     w, h = scene.area.size
-    if len(listed) > (most := max(1, int(MAX_STEMS_PER_M2 * w * h))):   # as forest.trees: each row builds a crown
+    if len(listed) > (most := most_stems(scene.area.size)):   # as forest.trees: each row builds a crown
         raise _Refusal("forest.trees_file", f"{len(listed):,} trees in a {w:g} x {h:g} m plot is more than "
                        f"{MAX_STEMS_PER_M2:g} a square metre (at most {most:,}; the densest young stands hold about 10)")
     for i, t in enumerate(listed):

@@ -256,12 +256,19 @@ def sweep_alignment(x, y, t, angle) -> float | None:
     parts = sweep_parts(t, angle)
     if len(parts) < 3:
         return None
-    sums = np.zeros(2, complex)
+    directions = []
     for b in parts:
         q = np.column_stack([x[b], y[b]]) - [np.mean(x[b]), np.mean(y[b])]
-        d = np.linalg.eigh(q.T @ q)[1][:, 1]
-        sums += len(b) * np.array([np.exp(2j * np.arctan2(d[1], d[0])), 1.0])
-    return float(abs(sums[0]) / sums[1].real)
+        directions.append(np.linalg.eigh(q.T @ q)[1][:, 1])
+    return axial_alignment(directions, [len(b) for b in parts])
+
+
+def axial_alignment(directions, weights) -> float:
+    """The mean resultant length, 0 to 1, of the (k, 2) ``directions`` taken as axes (their doubled angles)
+    with the (k,) ``weights``: 1 where they all run one way, whichever sense."""
+    d = np.asarray(directions, float).reshape(-1, 2)
+    w = np.asarray(weights, float)
+    return float(abs(np.sum(w * np.exp(2j * np.arctan2(d[:, 1], d[:, 0])))) / np.sum(w))
 
 
 def deflector_of(senses: list[list[tuple[float, int]]]) -> tuple[str | None, list[float]]:
@@ -363,8 +370,7 @@ def nadir_line(x, y, z, t, angle) -> tuple[NadirLine, list] | None:
     if len(found) < 3:
         return None
     parts, sweeps = [b for b, _ in found], [sw for _, sw in found]
-    doubled = [len(b) * np.exp(2j * np.arctan2(sw.direction[1], sw.direction[0])) for b, sw in found]
-    if abs(np.sum(doubled)) < PARALLEL_SWEEPS * sum(len(b) for b in parts):
+    if axial_alignment([sw.direction for sw in sweeps], [len(b) for b in parts]) < PARALLEL_SWEEPS:
         return None
     across = np.sum([sw.direction * len(b) for sw, b in zip(sweeps, parts)], axis=0)
     if np.linalg.norm(across) == 0:
@@ -530,9 +536,8 @@ def _line_positions(lines: list[_Line], good: list[Track], heading, sensor_z) ->
     to say which way: the axis as it is)."""
     if heading is None:
         return (), (), ()
-    across = flight_axes(heading)[1]
+    along, across = flight_axes(heading)
     positions, sources, headings = [], [], []
-    along = flight_axes(heading)[0]
     for ln in lines:
         if ln.track is not None and ln.track in good:
             positions.append(tuple(map(float, ln.track.position[:2])))
