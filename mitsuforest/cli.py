@@ -181,7 +181,9 @@ def main(argv=None) -> int:
         if args.command not in ("info", "compare"):
             _preload(args)
             from .trees.cache import cache_limit
+            from .trees.parallel import build_processes
             cache_limit()                     # a bad MITSUFOREST_CACHE_SIZE, refused before any work
+            build_processes()                 # and MITSUFOREST_BUILD_PROCESSES
             if argv is None:
                 _spare_the_collector()
         code = _COMMANDS[args.command](args) or 0

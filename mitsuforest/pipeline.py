@@ -21,6 +21,7 @@ from .scene import scene_variant
 from .survey import Batches, PreparedSurvey, prepare, scan, write as write_survey
 from .threads import writer_threads
 from .trees.cache import cache_limit
+from .trees.parallel import build_processes
 from .write import Staging, check_output_folder, earlier_results, output_lock
 from .write.processes import start_processes, writer_processes
 
@@ -85,12 +86,13 @@ def check_output(scene: Scene, overwrite: bool) -> None:
 
 def check_variables() -> None:
     """Refuse a bad ``MITSUFOREST_WRITER_THREADS``, ``MITSUFOREST_WRITER_PROCESSES``,
-    ``MITSUFOREST_READ_AHEAD`` or ``MITSUFOREST_CACHE_SIZE`` (one line naming it, see
-    :class:`~mitsuforest.errors.UserError`)."""
+    ``MITSUFOREST_READ_AHEAD``, ``MITSUFOREST_CACHE_SIZE`` or ``MITSUFOREST_BUILD_PROCESSES`` (one line
+    naming it, see :class:`~mitsuforest.errors.UserError`)."""
     writer_threads()
     writer_processes()
     read_ahead_variable()
     cache_limit()
+    build_processes()
 
 
 def write_files(prepared: PreparedSurvey, batches: Batches, *, overwrite: bool = False,

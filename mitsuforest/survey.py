@@ -29,7 +29,7 @@ from .labels import label_points
 from .realism import realism_table
 from .scan import ScanResult, scan_batches
 from .scene import HitTable, ScanScene, build_scene
-from .trees import build_models, tree_shape
+from .trees import build_models, tree_shapes
 from .write.manifest import import_report
 from .write import PointWriter, Staging, write_manifest, write_render_outputs
 from .write.background import Background
@@ -107,8 +107,8 @@ class Written:
 
 def make_plan(scene: Scene) -> Plan:
     """The plan of ``scene`` (:func:`~mitsuforest.plan.plan_scene`), its trees' crowns and components from
-    the trees stage (:func:`~mitsuforest.trees.tree_shape`)."""
-    return plan_scene(scene, tree_shape)
+    the trees stage (:func:`~mitsuforest.trees.tree_shapes`)."""
+    return plan_scene(scene, tree_shapes)
 
 
 def placed_summary(plan: Plan) -> str:

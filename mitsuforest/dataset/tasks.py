@@ -30,10 +30,13 @@ def _quiet(*_):
 def set_threads(threads: int | None) -> None:
     """Limit this worker process's Dr.Jit thread pool (LocalCluster: cores / workers), and its point
     writer's threads unless ``MITSUFOREST_WRITER_THREADS`` says otherwise; its writer uses no processes of
-    its own unless ``MITSUFOREST_WRITER_PROCESSES`` says so (the workers share the cores already), with
-    ``threads`` or without (a scheduler's workers without ``--threads``)."""
+    its own unless ``MITSUFOREST_WRITER_PROCESSES`` says so (the workers share the cores already), nor does it
+    build models in processes unless ``MITSUFOREST_BUILD_PROCESSES`` says so; with ``threads`` or without (a
+    scheduler's workers without ``--threads``)."""
+    from ..trees.parallel import PROCESSES_VARIABLE as BUILD_PROCESSES
     from ..write.processes import PROCESSES_VARIABLE
     os.environ.setdefault(PROCESSES_VARIABLE, "0")
+    os.environ.setdefault(BUILD_PROCESSES, "0")
     if threads:
         from ..threads import THREADS_VARIABLE
         os.environ.setdefault(THREADS_VARIABLE, str(threads))

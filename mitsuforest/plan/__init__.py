@@ -1,8 +1,8 @@
 """Stage 1: a scene file becomes a deterministic placement plan.
 
->>> plan = plan_scene(load_scene("scenes/demo.yaml"), tree_shape)   # doctest: +SKIP
+>>> plan = plan_scene(load_scene("scenes/demo.yaml"), tree_shapes)   # doctest: +SKIP
 
-(:func:`mitsuforest.survey.make_plan` passes :func:`mitsuforest.trees.tree_shape`.)
+(:func:`mitsuforest.survey.make_plan` passes :func:`mitsuforest.trees.tree_shapes`.)
 
 The plan is plain JSON-ready data: the models to build, every placed object with its transform and
 ids, the measured canopy cover and the flight legs. The same scene and seed give the same plan,
@@ -32,7 +32,7 @@ from .transforms import apply
 from .tree_list import read_tree_list
 from .types import Leg, ModelSpec, PlacedObject, Plan
 
-__all__ = ["plan_scene", "TreeShape", "plan_json", "Plan", "PlacedObject", "ModelSpec", "Leg", "Terrain", "UNDERSTORY_MODELS"]
+__all__ = ["plan_scene", "TreeShapes", "plan_json", "Plan", "PlacedObject", "ModelSpec", "Leg", "Terrain", "UNDERSTORY_MODELS"]
 
 BUSH_MODELS = 8          # bushes are instances of this many distinct shrubs
 MAX_TREES = 5000
@@ -48,27 +48,28 @@ class _Refusal(Exception):
         self.key, self.reason = key, reason
 
 
-TreeShape = Callable[..., tuple[np.ndarray, int]]
-"""``tree_shape(source, keep=True)``: a tree model's (k, 3) crown points, model frame, and its labelled
-component count; ``keep=False`` for a plot's drawn unique trees, whose shapes are not worth keeping (see
-:func:`mitsuforest.trees.tree_shape`, the trees stage's answer, which the plan cannot import)."""
+TreeShapes = Callable[..., list[tuple[np.ndarray, int]]]
+"""``tree_shapes(sources, keep=True)``: of each tree model in ``sources``, its (k, 3) crown points, model frame,
+and its labelled component count; ``keep`` false (one for all, or one per source) for a plot's drawn unique
+trees, whose shapes are not worth keeping (see :func:`mitsuforest.trees.tree_shapes`, the trees stage's
+answer, which the plan cannot import). One call takes many, so that the trees stage may grow them at once."""
 
 
-def plan_scene(scene, tree_shape: TreeShape) -> Plan:
+def plan_scene(scene, tree_shapes: TreeShapes) -> Plan:
     """Place trees and understory, measure canopy cover, lay out the flight legs of a
     :class:`~mitsuforest.config.types.Scene`.
 
-    :param tree_shape: the crown points and component count of each tree model, for spacing, canopy
-        cover and object ids: the plan's one call into the trees stage, passed in by its caller.
+    :param tree_shapes: the crown points and component count of tree models, for spacing, canopy cover and
+        object ids: the plan's one call into the trees stage, passed in by its caller.
     :raises ConfigError: ``FILE: key.path: reason`` when the scene cannot be planned.
     """
     try:
-        return _plan(scene, tree_shape)
+        return _plan(scene, tree_shapes)
     except _Refusal as r:
         raise scene_error(scene, r.key, r.reason) from None
 
 
-def _plan(scene, tree_shape: TreeShape) -> Plan:
+def _plan(scene, tree_shapes: TreeShapes) -> Plan:
     rng = seeds.rng(scene.seed, "trees")
     size = scene.area.size
     try:
@@ -77,8 +78,8 @@ def _plan(scene, tree_shape: TreeShape) -> Plan:
         raise _Refusal("terrain.path", str(e)) from None
     legs = _checked_legs(scene, flight_legs(size, scene.survey, terrain.mean_height), terrain)   # before the slow part
     listed = _tree_list(scene) if scene.forest.trees_file else None
-    tree_models = _tree_models(scene.forest, scene.seed, tree_shape) if listed is None else \
-        _listed_tree_models(scene, listed, tree_shape)
+    tree_models = _tree_models(scene.forest, scene.seed, tree_shapes) if listed is None else \
+        _listed_tree_models(scene, listed, tree_shapes)
     crowns = [crown for crown, _ in tree_models.values()]
     models = {name: spec for name, (_, spec) in tree_models.items()}
     if listed is None:
@@ -186,19 +187,23 @@ def _deadwood_treeid(tree_models: int) -> int:
     return max(DEADWOOD_TREEID, tree_models + 1)
 
 
-def _tree_models(forest, seed: int, tree_shape: TreeShape) -> dict[str, tuple[np.ndarray, ModelSpec]]:
+def _tree_models(forest, seed: int, tree_shapes: TreeShapes) -> dict[str, tuple[np.ndarray, ModelSpec]]:
     """``treeNN``: (crown points, spec) of the archetypes (a unique entry's N drawn trees in its place),
     then of the imported models (``forest.models``), numbered on: tree model N carries treeid N."""
-    out = {}
+    archetypes, drawn = [], []
     for i, entry in enumerate(forest.archetypes):
-        drawn = isinstance(entry, UniqueTrees)
-        for a in unique_archetypes(entry, seed, i) if drawn else (entry,):
-            crown, components = tree_shape(a, keep=not drawn)
-            out[f"tree{len(out) + 1:02d}"] = crown, ModelSpec("tree", components, archetype=a, drawn=drawn or None)
-    for entry in forest.models:
-        crown, components = tree_shape(entry)   # builds (or loads) the model: files are read here
-        out[f"tree{len(out) + 1:02d}"] = crown, ModelSpec("tree", components, source=entry)
-    return out
+        unique = isinstance(entry, UniqueTrees)
+        for a in unique_archetypes(entry, seed, i) if unique else (entry,):
+            archetypes.append(a)
+            drawn.append(unique)
+    crowns, specs = [], []
+    for a, d, (crown, components) in zip(archetypes, drawn, tree_shapes(archetypes, keep=[not d for d in drawn])):
+        crowns.append(crown)
+        specs.append(ModelSpec("tree", components, archetype=a, drawn=d or None))
+    for entry, (crown, components) in zip(forest.models, tree_shapes(forest.models)):  # builds (or loads) the models
+        crowns.append(crown)
+        specs.append(ModelSpec("tree", components, source=entry))
+    return {f"tree{i + 1:02d}": (crown, spec) for i, (crown, spec) in enumerate(zip(crowns, specs))}
 
 
 def _tree_list(scene) -> list:
@@ -220,20 +225,17 @@ def _tree_list(scene) -> list:
     return listed
 
 
-def _listed_tree_models(scene, listed, tree_shape: TreeShape) -> dict[str, tuple[np.ndarray, ModelSpec]]:
+def _listed_tree_models(scene, listed, tree_shapes: TreeShapes) -> dict[str, tuple[np.ndarray, ModelSpec]]:
     """One procedural model per listed tree: the scene's (or its family's) archetype of the tree's species
     nearest in height, grown to the tree's height and crown (:func:`~mitsuforest.specs.archetypes.grown_to`)."""
     archetypes = scene.forest.archetypes
     default_species = archetypes[0].species if archetypes else "eucalyptus"
-    out = {}
-    for i, t in enumerate(listed):
-        template = nearest_template(t.species or default_species, t.height, archetypes)
-        a = grown_to(template, t.height, 2 * t.crown_radius,
-                     seed=seeds.key(scene.seed, "listed-tree", i, bits=31),
-                     leaf_area=t.leaf_area, crown_ratio=t.crown_ratio)
-        crown, components = tree_shape(a)
-        out[f"tree{i + 1:02d}"] = crown, ModelSpec("tree", components, archetype=a)
-    return out
+    grown = [grown_to(nearest_template(t.species or default_species, t.height, archetypes), t.height,
+                      2 * t.crown_radius, seed=seeds.key(scene.seed, "listed-tree", i, bits=31),
+                      leaf_area=t.leaf_area, crown_ratio=t.crown_ratio)
+             for i, t in enumerate(listed)]
+    return {f"tree{i + 1:02d}": (crown, ModelSpec("tree", components, archetype=a))
+            for i, (a, (crown, components)) in enumerate(zip(grown, tree_shapes(grown)))}
 
 
 def _place_listed_trees(listed, size, crowns, terrain, tilt_max, rng) -> tuple[list[PlacedObject], float]:

@@ -6,6 +6,7 @@
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 from functools import lru_cache
 
 import numpy as np
@@ -13,14 +14,16 @@ import numpy as np
 from ..specs import ModelSpec
 from ..specs.archetypes import DEFAULT_ARCHETYPES, Archetype
 from ..specs.sources import MeshTree, QsmTree
-from .cache import cached, cached_arrays
+from .cache import cached, cached_arrays, is_stored
 from .imported import imported_model, summary as imported_summary
 from .models import Component, Model, Part, tree_components, tree_model
+from .parallel import in_workers
 from .skeleton import grow
 from .ground_layer import grass_patch_model, litter_patch_model
 from .understory import bush_model, deadwood_model, rock_model, stump_model
 
-__all__ = ["Archetype", "DEFAULT_ARCHETYPES", "Model", "Part", "Component", "build_model", "build_models", "tree_shape"]
+__all__ = ["Archetype", "DEFAULT_ARCHETYPES", "Model", "Part", "Component", "build_model", "build_models", "tree_shape",
+           "tree_shapes"]
 
 _BUILDERS = {"bush": bush_model, "rock": rock_model, "stump": stump_model, "deadwood": deadwood_model,
              "grass": grass_patch_model, "litter": litter_patch_model}
@@ -38,6 +41,28 @@ def tree_shape(source: Archetype | MeshTree | QsmTree, keep: bool = True) -> tup
     if isinstance(source, Archetype):
         return _archetype_shape(source, keep)
     return imported_summary(source)
+
+
+def tree_shapes(sources: Sequence[Archetype | MeshTree | QsmTree], keep: bool | Sequence[bool] = True
+                ) -> list[tuple[np.ndarray, int]]:
+    """:func:`tree_shape` of each of ``sources``, in order (``keep`` for all, or one for each): the
+    archetypes' crowns that the cache does not hold grown in worker processes where there are many
+    (:mod:`.parallel`)."""
+    sources = list(sources)
+    keeps = [keep] * len(sources) if isinstance(keep, bool) else list(keep)
+    todo = [i for i, (s, k) in enumerate(zip(sources, keeps)) if isinstance(s, Archetype) and not (k and _crown_stored(s))]
+    grown = dict(zip(todo, in_workers(_archetype_shape, [(sources[i], keeps[i]) for i in todo])))
+    out = []
+    for i, (source, k) in enumerate(zip(sources, keeps)):
+        ok, shape = grown.get(i, (False, None))
+        if ok:
+            shape[0].flags.writeable = False
+        out.append(shape if ok else tree_shape(source, k))
+    return out
+
+
+def _crown_stored(a: Archetype) -> bool:
+    return is_stored("crown", archetype_parameters(a))
 
 
 @lru_cache(maxsize=64)
@@ -88,17 +113,37 @@ def build_model(name: str, spec: ModelSpec) -> Model:
 
 
 def build_models(plan, progress=None, order=None) -> dict[str, Model]:
-    """Every model of the plan, from the cache where possible, in the plan's order.
+    """Every model of the plan, from the cache where possible, in the plan's order; the procedural models
+    the cache does not hold built in worker processes where there are many (:mod:`.parallel`).
 
     :param order: the order in which to build or read them (a permutation of the plan's model rows; the
         plan's own by default): processes setting up one plot at once (a dataset's leg tasks) each take
         another, so that with a shared cache each builds a share and reads what the others stored.
     """
     names = list(plan.models)
+    rows = list(range(len(names)) if order is None else order)
+    todo = [names[row] for row in rows if _not_stored(plan.models[names[row]])]
+    from_workers = in_workers(_built_in_worker, [(name, plan.models[name]) for name in todo])
+    todo = set(todo)
     built = {}
-    for row in range(len(names)) if order is None else order:
+    for row in rows:
         name = names[row]
-        built[name] = build_model(name, plan.models[name])
+        ok, model = next(from_workers) if name in todo else (False, None)
+        built[name] = model if ok and model is not None else build_model(name, plan.models[name])
         if progress:
             progress(name)
     return {name: built[name] for name in names}
+
+
+def _not_stored(spec: ModelSpec) -> bool:
+    """Whether ``spec`` is a procedural model the cache does not hold (an imported one is built apart)."""
+    if spec.kind == "tree":
+        return spec.source is None and (spec.drawn or not is_stored("tree", archetype_parameters(spec.archetype)))
+    return spec.kind in _BUILDERS and not is_stored(spec.kind, spec.parameters())
+
+
+def _built_in_worker(name: str, spec: ModelSpec) -> Model | None:
+    """A worker's job: build the model, and hand it back only where the cache does not now hold it (a
+    drawn tree, or a cache that cannot be written); else the plan's process reads the entry."""
+    model = build_model(name, spec)
+    return None if not _not_stored(spec) else model

@@ -49,7 +49,7 @@ from .volume import WoodVolume
 
 log = logging.getLogger(__name__)
 
-NOT_GENERATORS = ("cache.py", "gallery.py")                   # trees/ modules that make no geometry
+NOT_GENERATORS = ("cache.py", "gallery.py", "parallel.py")    # trees/ modules that make no geometry
 # Package modules outside trees/ whose source decides a model's bytes: the component classes stored with
 # each model, and the seeding (a model's random streams come from seeds.rng).
 GENERATOR_MODULES = ("classes.py", "seeds.py")
@@ -118,6 +118,12 @@ def cache_key(kind: str, params: dict) -> str:
 
 def _entry_path(kind: str, params: dict) -> Path:
     return cache_dir() / (cache_key(kind, params) + ".npz")
+
+
+def is_stored(kind: str, params: dict) -> bool:
+    """Whether the cache holds an entry for ``(kind, params)`` (readable or not: a damaged one is rebuilt
+    where it is read)."""
+    return _entry_path(kind, params).is_file()
 
 
 def cached(kind: str, params: dict, build) -> Model:

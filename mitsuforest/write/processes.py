@@ -17,21 +17,18 @@ last whole chunk wait for the next batch, and the file's last part takes the res
 from __future__ import annotations
 
 import collections
-import multiprocessing
 import os
 import pickle
 import shutil
-import signal
-import sys
 import tempfile
 import threading
-import types
-from concurrent.futures import Future, ProcessPoolExecutor, wait
+from concurrent.futures import Future, wait
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from ..pools import process_pool, usable_cores
 from ..threads import on_row_ranges, whole_number_variable
 from .ground import copy_fields, fill_height, ground_surface, with_room_for_height
 from .output_profiles import PROFILES
@@ -55,7 +52,7 @@ def writer_processes(cores: int | None = None) -> int:
     processes = whole_number_variable(PROCESSES_VARIABLE, 0)
     if processes is not None:
         return processes
-    cores = len(os.sched_getaffinity(0)) if cores is None else cores
+    cores = usable_cores() if cores is None else cores
     return cores - 1 if cores >= MIN_CORES else 0
 
 
@@ -71,45 +68,6 @@ def start_processes(scene, keep: bool = False) -> None:
     processes = writer_processes() if fits_processes(scene, keep) else 0
     if processes:
         process_pool(processes)
-
-
-_POOLS: dict[int, ProcessPoolExecutor] = {}
-
-
-def process_pool(processes: int) -> ProcessPoolExecutor:
-    """The process-wide pool of ``processes`` writer workers, kept for later files and renders, started
-    (not waited for) on first use; a broken pool is replaced. The workers are fresh interpreters
-    (``spawn``: no copy of this process's threads, Dr.Jit's and CUDA's among them)."""
-    pool = _POOLS.get(processes)
-    if pool is None or getattr(pool, "_broken", False):
-        pool = _POOLS[processes] = _started_pool(processes)
-    return pool
-
-
-def _started_pool(processes: int) -> ProcessPoolExecutor:
-    # A spawned worker runs the parent's main module first (multiprocessing's rule), which for a script
-    # that renders at its top level, with no ``if __name__ == "__main__"``, would render again in every
-    # worker: all of them start now, while the main module is an empty one.
-    main = sys.modules["__main__"]
-    sys.modules["__main__"] = types.ModuleType("__main__")
-    try:
-        pool = ProcessPoolExecutor(processes, mp_context=multiprocessing.get_context("spawn"),
-                                   initializer=_ignore_interrupts)
-        for _ in range(processes):        # each submit starts one more worker while none is idle
-            pool.submit(_ready)
-    finally:
-        sys.modules["__main__"] = main
-    return pool
-
-
-def _ignore_interrupts() -> None:
-    """A worker's initializer: Ctrl-C reaches the whole process group, and the parent, not each worker,
-    answers it."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-
-
-def _ready() -> None:
-    """A task that makes the pool start a worker."""
 
 
 @dataclass
