@@ -17,7 +17,8 @@ holding ``r_first - 5σ`` (``r_first`` its nearest sub-ray return). Each sample 
 bin (an integrating digitiser), computed in closed form with erf, so ``h · Σ samples`` is the integral
 of W over the window for any pulse length, however short against the bin. A return's shape is
 summed over ``r_i ± 5σ`` (it leaves out 6e-7 of its integral); a pulse is ``complete`` when its
-farthest return's ``r_i + 5σ`` lies inside the window.
+farthest return's ``r_i + 5σ`` lies inside the window and its nearest return's ``r_i - 5σ`` is not
+before emission (range 0, where every window starts at the latest).
 
 On the device. A render samples on the device (:func:`device_waveforms`, one lane per pulse adding
 the bins of its returns into its window in turn, float32 but for each bin's start less the return's
@@ -83,7 +84,7 @@ def sample_waveforms(ranges: np.ndarray, powers: np.ndarray, sigma: float, bin_r
     if n and not np.isfinite(nearest).all():
         raise ValueError("every pulse needs a return to anchor its window")
     first_bin = np.floor(np.maximum(nearest - reach, 0.0) / bin_range).astype(np.int64)
-    complete = farthest + reach <= (first_bin + samples) * bin_range
+    complete = (nearest - reach >= 0.0) & (farthest + reach <= (first_bin + samples) * bin_range)
     out = np.zeros((n, samples), np.float32)
     block = max(1, CHUNK_RETURNS // max(ranges.shape[1], 1))               # pulses sampled at once
     for lo in range(0, n, block):
@@ -137,7 +138,7 @@ def device_waveforms(t: mi.Float, power: mi.Float, samples_per_pulse: int, sigma
     Float64 = dr.float64_array_t(Float)         # bin edges far from the sensor: see _add_returns
     near = Float64(dr.gather(Float, nearest, rows)) - reach
     first = dr.floor(dr.maximum(near, 0.0) / bin_range)
-    complete = Float64(dr.gather(Float, farthest, rows)) + reach <= (first + B) * bin_range
+    complete = (near >= 0.0) & (Float64(dr.gather(Float, farthest, rows)) + reach <= (first + B) * bin_range)
     first_bin = UInt32(first)
     waveform = dr.zeros(Float, m * B)
     _add_returns(waveform, t, power, rows, first, S, B, sigma, bin_range)
