@@ -82,6 +82,51 @@ def test_device_sampling_is_its_numpy_twin(variant):
     assert (~complete).any() and complete.any()
 
 
+@pytest.mark.parametrize("pulse_length", [1e-9, 4e-9])
+def test_device_sampling_keeps_its_precision_at_the_sensors_far_ranges(pulse_length, variant):
+    """One return at ranges up to the ideal sensor's range_max (10 km), stepped through a bin: the
+    device's float32 samples are the numpy twin's (float64) within 5e-5 of the peak, as near the sensor.
+    Bin edges taken as k·h - r in float32 at 10 km keep ~1e-3 m, 1 % of a 1 ns pulse's σ (6.4e-2 m):
+    the samples were off by 6.4e-3 of the peak there, 3e-4 at 1 km, and 1.1e-4 at 250 m."""
+    import mitsuba as mi
+    from mitsuforest.scan.waveform import device_waveforms
+    from mitsuforest.scene.variant import variant_scope
+    sigma = pulse_sigma(C * pulse_length / 2)
+    ranges = (np.array([250.0, 1000.0, 6000.0, 9999.0])[:, None] + np.linspace(0, H, 13)).astype(np.float32)
+    ranges = ranges.reshape(-1, 1)
+    powers = np.full(ranges.shape, 3e-9)
+    with variant_scope(variant):
+        made = device_waveforms(mi.Float(ranges.ravel()), mi.Float(powers.ravel().astype(np.float32)), 1, sigma, H, 64)
+        first, wave = np.array(made["first_bin"]), np.array(made["waveform"]).reshape(-1, 64)
+    twin_first, twin, _ = sample_waveforms(ranges, powers, sigma, H, 64)
+    assert first.tolist() == twin_first.tolist()
+    mid = 39 + np.argmin(np.abs((ranges[39:, 0] / H) % 1 - 0.5))           # at 10 km, mid-bin: peaks there
+    assert first[mid] + np.argmax(wave[mid]) == math.floor(float(ranges[mid, 0]) / H)
+    assert (np.abs(wave - twin).max(axis=1) <= 5e-5 * twin.max(axis=1)).all()
+
+
+def test_a_return_within_five_sigma_of_the_sensor_is_not_complete(variant):
+    """A return at 0.5 m (4 ns: σ = 0.255 m): its shape starts before emission, where the window (from
+    range 0) cannot hold it, so 2.5 % of its energy is outside and the waveform is not ``complete``;
+    at 1.3 m (beyond 5σ = 1.27 m) it is, and the window's integral is the echo's energy."""
+    import mitsuba as mi
+    from mitsuforest.scan.waveform import device_waveforms
+    from mitsuforest.scene.variant import variant_scope
+    sigma = pulse_sigma(C * PULSE / 2)
+    ranges, powers = np.array([[0.5], [1.3]]), np.array([[1.0], [1.0]])
+    first_bin, wave, complete = sample_waveforms(ranges, powers, sigma, H, 64)
+    integral = wave.sum(axis=1, dtype=np.float64) * H
+    assert first_bin.tolist() == [0, 0]
+    assert integral[0] == pytest.approx(echo_energy([1.0], sigma)[0] * 0.5 * (1 + math.erf(0.5 / (sigma * math.sqrt(2)))),
+                                        rel=1e-5)
+    assert integral[1] == pytest.approx(echo_energy([1.0], sigma)[0], rel=1e-5)
+    assert complete.tolist() == [False, True]
+    with variant_scope(variant):
+        made = device_waveforms(mi.Float(ranges.ravel().astype(np.float32)), mi.Float(powers.ravel().astype(np.float32)),
+                                1, sigma, H, 64)
+        assert np.array(made["complete"]).tolist() == [False, True]
+
+
 def test_device_waveforms_are_the_same_bytes_on_any_number_of_threads(variant):
     """Each bin is summed in the same order whatever the threads: 2,000 pulses of 19 returns sampled
     on one Dr.Jit thread and on four give the same bytes (lanes that added into shared bins at once

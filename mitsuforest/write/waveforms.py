@@ -121,7 +121,7 @@ class PulseRecordWriter(Closing):
                  "pulse_sigma": np.float64(self.sigma)})
         if scene.output.pulses:
             self.pulses = NpzStream(staging.file("_pulses.npz"), {**beam, "echoes": ("<u2", ())})
-        self.incomplete = 0    # waveforms whose returns reach past the window
+        self.incomplete = 0    # waveforms whose returns reach out of the window (not complete)
         self.with_echoes = 0   # fired pulses with an echo
 
     def add(self, batch) -> None:
