@@ -61,7 +61,7 @@ def render(scene, *, output_dir=None, seed=None, variant=None, overwrite=False, 
         start_processes(scene, keep_points)
     else:
         check_variables()
-    prepared = prepared or prepare(scene, log=log)
+    prepared = prepared or prepare(scene, log=log, progress=progress)
     batches = scan(prepared, progress=progress)
     if write:
         result = write_files(prepared, batches, overwrite=overwrite, keep_points=keep_points)

@@ -119,7 +119,7 @@ def placed_summary(plan: Plan) -> str:
     return f"{len(plan.trees)} trees"
 
 
-def prepare(scene: Scene, legs: range | None = None, *, log=_quiet) -> PreparedSurvey:
+def prepare(scene: Scene, legs: range | None = None, *, log=_quiet, progress: bool = False) -> PreparedSurvey:
     """Plan ``scene``, build its models and load into Mitsuba the objects in reach of ``legs``.
 
     :param legs: the legs to be scanned (indices into the plan's legs; all by default). A survey
@@ -127,13 +127,22 @@ def prepare(scene: Scene, legs: range | None = None, *, log=_quiet) -> PreparedS
         points as a survey prepared for all; ``range(0)`` loads the ground alone (for writing batches
         scanned elsewhere).
     :param log: called with a line on the plan and one on the Mitsuba scene.
+    :param progress: a bar of the models built, where that takes more than a second.
     """
     timings = Timings()
     plan = make_plan(scene)
     timings.lap("plan")
-    models = build_models(plan)
+    models = _built_models(plan, progress)
     timings.lap("trees")
     return _load(scene, plan, models, legs, None, timings, log)
+
+
+def _built_models(plan: Plan, progress: bool) -> dict:
+    if not progress:
+        return build_models(plan)
+    from tqdm import tqdm
+    with tqdm(total=len(plan.models), desc="models", unit=" models", leave=False, delay=1.0, dynamic_ncols=True) as bar:
+        return build_models(plan, progress=lambda name: bar.update())
 
 
 def prepare_plan(scene: Scene, plan: Plan, models: dict, legs: range | None = None, *,
