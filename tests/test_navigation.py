@@ -108,6 +108,33 @@ def test_a_boresight_roll_error_makes_opposite_lines_disagree_by_2h_sin_delta(tm
     assert shift[1] - shift[0] == pytest.approx(2 * H * np.sin(d), rel=0.01)      # 0.52 m
 
 
+@pytest.mark.parametrize("axis", [1, 2], ids=["pitch", "yaw"])
+def test_a_boresight_pitch_or_yaw_error_places_each_point_along_the_believed_beam(tmp_path, axis):
+    """A 1° boresight error in pitch or yaw (the roll case is above): each point lies at its true range
+    along the beam turned by it (nose up tilts the beam forward; yaw turns it clockwise seen from above).
+    On a northbound leg at 30 m a pitch error moves the nadir point 30·sin 1° = 0.524 m north; a yaw
+    error leaves it and moves a point e east of the track e·sin 1° south."""
+    error = [0.0, 0.0, 0.0]
+    error[axis] = 1.0
+    true, H, _ = flat_scan(tmp_path / "true")
+    placed, _, _ = flat_scan(tmp_path / "err", navigation_errors={"boresight_error_deg": error})
+    placed = _paired(true, placed)
+    origin = np.column_stack([np.full(len(true), X), 5.0 + 10.0 * true["gps_time"], np.full(len(true), H)])
+    echo = np.column_stack([true[a] for a in "xyz"])
+    phi = np.radians(true["scan_angle"].astype(float))
+    body = np.column_stack([np.zeros_like(phi), np.sin(phi), np.cos(phi)])        # forward, right, down
+    believed = body @ (ENU_FROM_NED @ euler_matrix(*error)[0]).T
+    want = origin + believed * np.linalg.norm(echo - origin, axis=1)[:, None]
+    assert np.abs(np.column_stack([placed[a] for a in "xyz"]) - want).max() < 2e-5
+    nadir, east = np.abs(phi) < np.radians(1), phi > np.radians(15)
+    moved = np.column_stack([placed[a] - true[a] for a in "xyz"])
+    if axis == 1:
+        assert moved[nadir, 1].mean() == pytest.approx(H * np.sin(np.radians(1)), rel=1e-3)   # 0.524 m north
+    else:
+        assert np.abs(moved[nadir, :2]).max() < 0.02
+        assert moved[east, 1] == pytest.approx(-(true["x"][east] - X) * np.sin(np.radians(1)), abs=1e-3)
+
+
 def test_a_gnss_random_walk_spreads_overlapping_strips_by_its_sigma(tmp_path):
     """Twenty passes along the same line, each Δ = 6 s after the one before (3 s leg, 3 s back): where two
     consecutive strips overlap, their heights differ by the walk's increment over Δ, N(0, q²·Δ)."""
