@@ -129,7 +129,8 @@ FIELDS: tuple[Field, ...] = (
           las=(LasDimension("intensity", "counts"), extra("amplitude", "<f4", "echo amplitude (white at 1 m=1)", 4)),
           read_from="amplitude"),
     Field("gps_time", "<f8", "s, the pulse's time", las=(LasDimension("gps_time"),)),
-    Field("scan_angle", "<f4", "degrees: the deflector's scan angle",
+    Field("scan_angle", "<f4", "degrees: the beam's angle from the vertical across the heading, positive "
+          "right (LAS 1.4; a Risley pair's off-nadir angle)",
           las=(LasDimension("scan_angle", "scaled", SCAN_ANGLE_UNIT),)),
     Field("pulse_id", "<u8", "the survey's pulse number"),
     Field("range", "<f4", "m from the sensor to the echo"),

@@ -11,14 +11,21 @@ from mitsuforest.survey import make_plan
 from mitsuforest.plan.trajectory import ENU_FROM_NED, euler_matrix, matrix_euler
 from mitsuforest.scan import scan
 from mitsuforest.scene import build_scene
+from mitsuforest.testing.reference.deflector import rotating
 
 X = 20.0   # the legs fly north along x = 20 m over a flat 40 m plot
 NARROW = {**__import__("yaml").safe_load((SENSORS / "ideal.yaml").read_text()), "field_of_view": 40}
 
 
-def flat_scan(tmp_path, **survey):
+def deflector_angle(points):
+    """The deflector's angle (rad) of each point's pulse in :func:`flat_scan` (100 Hz mirror, from t = 0);
+    the points' ``scan_angle`` is the beam's from the vertical (LAS), which a tilt or a mount turns."""
+    return rotating(points["gps_time"], 100, np.pi)[1]
+
+
+def flat_scan(tmp_path, sensor=NARROW, **survey):
     """Points of a bare flat plot (thin ideal beam, 40° FOV, 10 kHz) and the platform's height above it."""
-    path = scene_file(tmp_path, sensor=NARROW, survey={
+    path = scene_file(tmp_path, sensor=sensor, survey={
         "altitude": 30, "speed": 10, "pulse_frequency": 10000, "scan_frequency": 100,
         "lines": [[[X, 5.0], [X, 35.0]]], **survey})
     scene = load_scene(path)
@@ -40,22 +47,56 @@ def test_the_frames_turn_a_level_northbound_body_as_documented():
 
 
 def test_a_constant_roll_shifts_the_swath_by_h_tan_roll(tmp_path):
-    """Right wing down by θ turns the sensor's nadir left: a pulse at scan angle φ lands H·tan(φ − θ)
-    right of the track, so the swath's centre (φ = 0) moves H·tan θ to the left (west on a northbound leg)."""
+    """Right wing down by θ turns the sensor's nadir left: a pulse at deflector angle φ lands H·tan(φ − θ)
+    right of the track, so the swath's centre (φ = 0) moves H·tan θ to the left (west on a northbound leg);
+    its scan angle (from the vertical, as LAS counts it) is φ − θ."""
     level, H, _ = flat_scan(tmp_path / "level")
     roll = 5.0
     rolled, _, _ = flat_scan(tmp_path / "rolled", attitude={"roll": roll})
     assert H == pytest.approx(30.0)
     for points, theta in ((level, 0.0), (rolled, np.radians(roll))):
-        phi = np.radians(points["scan_angle"].astype(float))
+        phi = deflector_angle(points)
         assert np.abs(points["x"] - X - H * np.tan(phi - theta)).max() < 2e-3
+        assert np.abs(points["scan_angle"] - np.degrees(phi - theta)).max() < 1e-4
         assert np.abs(points["y"] - (5.0 + 10.0 * points["gps_time"])).max() < 2e-3   # pitch 0: below the platform
     def centre(p):   # where the sensor's nadir (φ = 0) lands: a line through the points within 1° of it
-        near = np.abs(p["scan_angle"]) < 1.0
-        return np.polyval(np.polyfit(p["scan_angle"][near], p["x"][near], 1), 0.0) - X
+        phi = np.degrees(deflector_angle(p))
+        near = np.abs(phi) < 1.0
+        return np.polyval(np.polyfit(phi[near], p["x"][near], 1), 0.0) - X
     assert centre(level) == pytest.approx(0.0, abs=1e-3)
     assert centre(rolled) == pytest.approx(-H * np.tan(np.radians(roll)), abs=2e-3)   # -2.62 m
     assert len(rolled) == pytest.approx(len(level), rel=0.01)
+
+
+def _vertical_angle(points, origin, heading_deg):
+    """The angle (deg) of the beam from ``origin`` (n, 3) to each point from the local frame's vertical, seen
+    from behind along ``heading_deg`` (clockwise from north), positive to the right: LAS 1.4's scan angle
+    ("with respect to the vertical of the coordinate system of the data", counter-clockwise seen from the
+    rear facing along the track; 1.2: "including the roll of the aircraft", -90 on the left)."""
+    h = np.radians(heading_deg)
+    v = np.column_stack([points[a] for a in "xyz"]) - origin
+    return np.degrees(np.arctan2(v[:, 0] * np.cos(h) - v[:, 1] * np.sin(h), -v[:, 2]))
+
+
+def test_the_las_scan_angle_includes_the_roll_and_reads_back_so(tmp_path):
+    """A rolled platform (4° right wing down) with a mount turned 1° more in roll: the pulse that lands
+    below the track is aimed 5° right by the deflector, and LAS counts the scan angle from the data's
+    vertical, so it must be 0 there, not 5°. Every point's angle (PCD and LAS) is the angle of the beam it
+    lies on from the vertical (x = X + H·tan α on flat ground); a level scan's are the deflector's, as before."""
+    import laspy
+
+    from mitsuforest.write.las import las_header, las_points
+    sensor = {**NARROW, "mount": {"boresight": [1.0, 0.0, 0.0]}}
+    rolled, H, plan = flat_scan(tmp_path, sensor=sensor, attitude={"roll": 4.0})
+    origin = np.column_stack([np.full(len(rolled), X), 5.0 + 10.0 * rolled["gps_time"], np.full(len(rolled), H)])
+    truth = _vertical_angle(rolled, origin, 0.0)
+    assert np.abs(rolled["scan_angle"] - truth).max() < 1e-4
+    assert np.abs(rolled["x"] - X - H * np.tan(np.radians(rolled["scan_angle"].astype(float)))).max() < 2e-3
+    las_points(las_header([0, 0, 0]), rolled).write(tmp_path / "p.las")
+    written = np.asarray(laspy.read(tmp_path / "p.las").scan_angle) * 0.006
+    assert np.abs(written - truth).max() < 0.0031                              # the 0.006° unit
+    level, _, _ = flat_scan(tmp_path / "level")
+    assert np.abs(level["scan_angle"] - np.degrees(deflector_angle(level))).max() < 1e-5
 
 
 def test_a_sinusoidal_pitch_moves_points_along_track_and_the_trajectory_says_so(tmp_path):
@@ -63,7 +104,7 @@ def test_a_sinusoidal_pitch_moves_points_along_track_and_the_trajectory_says_so(
     points, H, plan = flat_scan(tmp_path, attitude={"pitch": wave})
     t = points["gps_time"]
     pitch = np.radians(3.0 * np.sin(2 * np.pi * t + np.radians(30)))
-    phi = np.radians(points["scan_angle"].astype(float))
+    phi = deflector_angle(points)
     # Nose up by ψ tilts the beam forward: the along-track offset is H·tan ψ / cos φ (to first order in ψ of
     # the exact ray-plane intersection, which the test computes exactly here).
     d = np.column_stack([np.sin(phi), np.zeros_like(phi), -np.cos(phi)])           # sensor frame: x right, y fwd, z up
@@ -102,10 +143,38 @@ def test_a_boresight_roll_error_makes_opposite_lines_disagree_by_2h_sin_delta(tm
     assert np.abs(placed["x"] - X - right * H * np.sin(phi - d) / np.cos(phi)).max() < 2e-3
     assert np.abs(placed["z"] - (H - H * np.cos(phi - d) / np.cos(phi)) - true["z"]).max() < 2e-3
     assert np.abs(placed["y"] - true["y"]).max() < 1e-3
+    assert np.abs(placed["scan_angle"] - np.degrees(phi - d)).max() < 1e-4      # the believed beam's, from the vertical
     nadir = np.abs(phi) < np.radians(1)
     shift = [np.mean(placed["x"][nadir & (true["point_source_id"] == k)] - true["x"][nadir & (true["point_source_id"] == k)])
              for k in (1, 2)]
     assert shift[1] - shift[0] == pytest.approx(2 * H * np.sin(d), rel=0.01)      # 0.52 m
+
+
+@pytest.mark.parametrize("axis", [1, 2], ids=["pitch", "yaw"])
+def test_a_boresight_pitch_or_yaw_error_places_each_point_along_the_believed_beam(tmp_path, axis):
+    """A 1° boresight error in pitch or yaw (the roll case is above): each point lies at its true range
+    along the beam turned by it (nose up tilts the beam forward; yaw turns it clockwise seen from above).
+    On a northbound leg at 30 m a pitch error moves the nadir point 30·sin 1° = 0.524 m north; a yaw
+    error leaves it and moves a point e east of the track e·sin 1° south."""
+    error = [0.0, 0.0, 0.0]
+    error[axis] = 1.0
+    true, H, _ = flat_scan(tmp_path / "true")
+    placed, _, _ = flat_scan(tmp_path / "err", navigation_errors={"boresight_error_deg": error})
+    placed = _paired(true, placed)
+    origin = np.column_stack([np.full(len(true), X), 5.0 + 10.0 * true["gps_time"], np.full(len(true), H)])
+    echo = np.column_stack([true[a] for a in "xyz"])
+    phi = np.radians(true["scan_angle"].astype(float))
+    body = np.column_stack([np.zeros_like(phi), np.sin(phi), np.cos(phi)])        # forward, right, down
+    believed = body @ (ENU_FROM_NED @ euler_matrix(*error)[0]).T
+    want = origin + believed * np.linalg.norm(echo - origin, axis=1)[:, None]
+    assert np.abs(np.column_stack([placed[a] for a in "xyz"]) - want).max() < 2e-5
+    nadir, east = np.abs(phi) < np.radians(1), phi > np.radians(15)
+    moved = np.column_stack([placed[a] - true[a] for a in "xyz"])
+    if axis == 1:
+        assert moved[nadir, 1].mean() == pytest.approx(H * np.sin(np.radians(1)), rel=1e-3)   # 0.524 m north
+    else:
+        assert np.abs(moved[nadir, :2]).max() < 0.02
+        assert moved[east, 1] == pytest.approx(-(true["x"][east] - X) * np.sin(np.radians(1)), abs=1e-3)
 
 
 def test_a_gnss_random_walk_spreads_overlapping_strips_by_its_sigma(tmp_path):
@@ -216,7 +285,7 @@ def test_a_curved_trajectory_file_is_flown_smoothly_with_lines_and_slerped_attit
     table = pose_table(flown.legs[1])
     assert np.allclose(table.pose(np.array([10.0, 11.5, 13.0]))[0][:, 1], [5, 17, 29], atol=1e-6)   # through the rows
     origin, rotation = Platform(scene).beam(table, second["gps_time"])
-    phi = np.radians(second["scan_angle"].astype(float))
+    phi = deflector_angle(second)
     d = np.einsum("nij,nj->ni", rotation, np.column_stack([np.sin(phi), np.zeros_like(phi), -np.cos(phi)]))
     ground = origin + d * ((origin[:, 2] - (z - H)) / -d[:, 2])[:, None]
     assert np.abs(np.column_stack([second["x"], second["y"], second["z"]]) - ground).max() < 2e-3
@@ -255,15 +324,17 @@ def test_the_trajectory_file_holds_each_leg_to_its_end_and_flies_the_same_legs_a
 
 def test_a_lever_arm_and_boresight_move_the_beam(tmp_path):
     """A sensor 1 m ahead and 0.5 m right of the reference point, turned 2° in roll: the beam leaves from
-    (X + 0.5, y + 1) and every point lands H·tan(φ − 2°) right of it (the roll of the mount as of the body)."""
+    (X + 0.5, y + 1) and every point lands H·tan(φ − 2°) right of it (the roll of the mount as of the body),
+    φ the deflector's angle; φ − 2° is its scan angle, from the vertical."""
     sensor = {**NARROW, "mount": {"lever_arm": [1.0, 0.5, 0.0], "boresight": [2.0, 0.0, 0.0]}}
     path = scene_file(tmp_path, sensor=sensor, survey={
         "altitude": 30, "speed": 10, "pulse_frequency": 10000, "scan_frequency": 100, "lines": [[[X, 5.0], [X, 35.0]]]})
     scene = load_scene(path)
     plan = make_plan(scene)
     points = scan(scene, plan, build_scene(plan, {}, scene.sensor, scene.simulation.variant), progress=False).points
-    phi = np.radians(points["scan_angle"].astype(float))
+    phi = deflector_angle(points)
     assert np.abs(points["x"] - X - 0.5 - 30 * np.tan(phi - np.radians(2))).max() < 2e-3
+    assert np.abs(points["scan_angle"] - np.degrees(phi - np.radians(2))).max() < 1e-4
     assert np.abs(points["y"] - 6.0 - 10 * points["gps_time"]).max() < 2e-3
 
 

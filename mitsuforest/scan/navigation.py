@@ -75,20 +75,25 @@ class NavigationModel:
         gnss, imu = self.at(t)
         return position + gnss, body @ euler_matrix(*imu.T)
 
-    def place(self, points: np.ndarray, leg: Leg, table: PoseTable | None) -> None:
+    def place(self, points: np.ndarray, leg: Leg, table: PoseTable | None) -> np.ndarray:
         """Move ``points`` (POINT_DTYPE, one leg's, in pulse order) in place from their true beams to the
-        believed ones."""
+        believed ones.
+
+        :returns: each pulse's turn from the true beam to the believed one (p, 3, 3), in order (a pulse's
+            echoes are the consecutive points of one time).
+        """
         if len(points) == 0:
-            return
+            return np.zeros((0, 3, 3))
         t = points["gps_time"]
         new_pulse = np.r_[True, t[1:] != t[:-1]]             # a pulse's echoes share its time: one transform each
         pulse = np.cumsum(new_pulse) - 1
-        turn, shift = self.transform(leg, table, t[new_pulse])
-        turn, shift = turn.reshape(-1, 9).T.copy(), shift.T.copy()
+        turned, shift = self.transform(leg, table, t[new_pulse])
+        turn, shift = turned.reshape(-1, 9).T.copy(), shift.T.copy()
         xyz = [points[axis].copy() for axis in "xyz"]
         for r, axis in enumerate("xyz"):
             row = [np.take(turn[3 * r + c], pulse) for c in range(3)]
             points[axis] = row[0] * xyz[0] + row[1] * xyz[1] + row[2] * xyz[2] + np.take(shift[r], pulse)
+        return turned
 
     def transform(self, leg: Leg, table: PoseTable | None, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The affine map from true to believed points at times ``t``: ``A`` (n, 3, 3) and ``b`` (n, 3), with

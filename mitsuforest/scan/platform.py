@@ -67,6 +67,25 @@ class Platform:
         body = ENU_FROM_NED @ euler_matrix(0.0, 0.0, leg.heading)[0]
         return leg.position(t), np.broadcast_to(body, (len(t), 3, 3))
 
+    def scan_angles(self, leg, table: PoseTable | None, t: np.ndarray, angle: np.ndarray,
+                    turn: np.ndarray | None = None) -> np.ndarray:
+        """LAS scan angles (deg) of line-scanner pulses at times ``t`` (n,) whose deflector angles are
+        ``angle`` (n,) deg: the beam's angle from the local frame's vertical, seen from behind along the
+        platform's heading, positive to the right (LAS 1.4: the pulse's rotational position "with respect
+        to the vertical of the coordinate system of the data"; so the platform's roll and the mount's
+        boresight are in it). With navigation errors, ``turn`` (n, 3, 3), each pulse's turn from the true
+        beam to the believed one (:meth:`~mitsuforest.scan.navigation.NavigationModel.place`): the believed
+        beam's angle, along which the points are placed."""
+        _, body = self.body_pose(leg, table, t)
+        phi = np.radians(np.asarray(angle, np.float64))
+        sensor = np.column_stack([np.sin(phi), np.zeros_like(phi), -np.cos(phi)])
+        d = np.einsum("nij,nj->ni", body, sensor @ self.sensor_to_body.T)
+        if turn is not None:
+            d = np.einsum("nij,nj->ni", turn, d)
+        forward = body[:, :, 0]                                  # the body's x axis in the local frame
+        across = d[:, 0] * forward[:, 1] - d[:, 1] * forward[:, 0]
+        return np.degrees(np.arctan2(across / np.maximum(np.hypot(forward[:, 0], forward[:, 1]), 1e-12), -d[:, 2]))
+
     def upload(self, table: PoseTable) -> DeviceTable:
         """``table`` as beam origins and rotations on the device (call under the scene's variant)."""
         origin = table.position + table.body @ self.lever_arm

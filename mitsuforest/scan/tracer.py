@@ -151,13 +151,26 @@ class PulseTracer:
         the pulse counts, and the batch's :class:`~mitsuforest.scan.waveform.PulseBatch` when asked for."""
         points, hits = self._points(slots.echoes)
         points["point_source_id"] = source_id
-        if self.navigation is not None:
-            self.navigation.place(points, leg, pose)
+        turn = self.navigation.place(points, leg, pose) if self.navigation is not None else None
+        if (pose is not None or turn is not None) and self.sensor.deflector != "risley":
+            self._tilt_scan_angles(points, leg, pose, turn)
         if not (self.waveforms or self.pulse_records):
             return points, hits, slots.fired, slots.cast
         kept = ("pulse_id", "return_number", "range", "amplitude", *(("energy",) if self.waveforms else ()))
         batch = PulseBatch(slots.waveforms, {k: slots.echoes[k] for k in kept}, slots.fired_pulses, source_id)
         return points, hits, slots.fired, slots.cast, batch
+
+    def _tilt_scan_angles(self, points: np.ndarray, leg, pose, turn: np.ndarray | None) -> None:
+        """Turn ``points``' deflector angles (one leg's, in pulse order) into LAS scan angles, from the
+        vertical (:meth:`~mitsuforest.scan.platform.Platform.scan_angles`; ``turn``: each pulse's from the
+        navigation errors, or None): a tilted platform, a turned mount or navigation errors make them
+        differ. A level leg without them keeps the deflector's, the same angle, as its bytes."""
+        if len(points) == 0:
+            return
+        t = points["gps_time"]
+        first = np.r_[True, t[1:] != t[:-1]]                  # a pulse's echoes share its time and angle
+        angles = self.platform.scan_angles(leg, pose, t[first], points["scan_angle"][first], turn)
+        points["scan_angle"] = np.take(angles, np.cumsum(first) - 1)
 
     def _echoes(self, pulses: DevicePulses, records: bool) -> tuple[dict, dict | None]:
         """The caster's echoes of ``pulses`` and, with ``records``, their waveforms (else None), traced
