@@ -17,6 +17,7 @@ import types
 from concurrent.futures import ProcessPoolExecutor
 
 _POOLS: dict[int, ProcessPoolExecutor] = {}
+MANY_CORES = 8    # from this many cores on, a pool leaves one to the process that uses it
 
 
 def usable_cores() -> int:
@@ -25,6 +26,13 @@ def usable_cores() -> int:
         return len(os.sched_getaffinity(0))
     except AttributeError:      # not Linux
         return os.cpu_count() or 1
+
+
+def worker_count(cores: int | None = None) -> int:
+    """The workers a pool has by default on ``cores`` (this process's by default): one less than the cores
+    from :data:`MANY_CORES` on, all of them below; so the stages that ask for the default share one pool."""
+    cores = usable_cores() if cores is None else cores
+    return cores - 1 if cores >= MANY_CORES else cores
 
 
 def may_start_processes() -> bool:

@@ -15,6 +15,7 @@ from mitsuforest.plan import plan_json
 from mitsuforest.survey import make_plan
 from mitsuforest.trees import parallel
 from mitsuforest.trees.parallel import MIN_JOBS, PROCESSES_VARIABLE, build_processes, in_workers
+from mitsuforest.write.processes import PROCESSES_VARIABLE as WRITER_PROCESSES, writer_processes
 
 
 def test_each_job_runs_in_a_worker_and_comes_back_in_order():
@@ -50,7 +51,9 @@ def test_a_job_runs_under_the_callers_variables_of_now(monkeypatch):
 
 def test_the_processes_from_the_variable_or_the_cores(monkeypatch):
     monkeypatch.delenv(PROCESSES_VARIABLE, raising=False)
+    monkeypatch.delenv(WRITER_PROCESSES, raising=False)
     assert build_processes(cores=6) == 6
+    assert build_processes(cores=16) == 15 == writer_processes(cores=16)     # the writer's pool, shared
     assert build_processes(cores=1) == 0
     monkeypatch.setenv(PROCESSES_VARIABLE, "1")
     assert build_processes(cores=6) == 0

@@ -10,7 +10,7 @@ from __future__ import annotations
 import os
 from collections.abc import Callable, Iterator, Sequence
 
-from ..pools import may_start_processes, process_pool, usable_cores
+from ..pools import may_start_processes, process_pool, worker_count
 from ..threads import whole_number_variable
 
 PROCESSES_VARIABLE = "MITSUFOREST_BUILD_PROCESSES"
@@ -20,13 +20,14 @@ VARIABLES = "MITSUFOREST_"   # the settings a job runs under: the caller's now, 
 
 def build_processes(cores: int | None = None) -> int:
     """Worker processes that build models and crowns: ``MITSUFOREST_BUILD_PROCESSES`` if set (0 or 1:
-    none), else the cores this process may use from 2 cores on; none in a daemonic process.
+    none), else :func:`~mitsuforest.pools.worker_count` of ``cores`` (this process's: the pool the writer
+    uses on many cores) from 2 on; none in a daemonic process.
 
     :raises UserError: for a value that is not a whole number of at least 0.
     """
     processes = whole_number_variable(PROCESSES_VARIABLE, 0)
     if processes is None:
-        processes = usable_cores() if cores is None else cores
+        processes = worker_count(cores)
     return processes if processes >= 2 and may_start_processes() else 0
 
 

@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..pools import process_pool, usable_cores
+from ..pools import process_pool, usable_cores, worker_count
 from ..threads import on_row_ranges, whole_number_variable
 from .ground import copy_fields, fill_height, ground_surface, with_room_for_height
 from .output_profiles import PROFILES
@@ -53,7 +53,7 @@ def writer_processes(cores: int | None = None) -> int:
     if processes is not None:
         return processes
     cores = usable_cores() if cores is None else cores
-    return cores - 1 if cores >= MIN_CORES else 0
+    return worker_count(cores) if cores >= MIN_CORES else 0
 
 
 def fits_processes(scene, keep: bool = False) -> bool:
