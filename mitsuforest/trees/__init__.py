@@ -146,4 +146,4 @@ def _built_in_worker(name: str, spec: ModelSpec) -> Model | None:
     """A worker's job: build the model, and hand it back only where the cache does not now hold it (a
     drawn tree, or a cache that cannot be written); else the plan's process reads the entry."""
     model = build_model(name, spec)
-    return None if not _not_stored(spec) else model
+    return model if _not_stored(spec) else None

@@ -32,10 +32,10 @@ def build_processes(cores: int | None = None) -> int:
 
 
 def in_workers(function: Callable, jobs: Sequence[tuple], processes: int | None = None) -> Iterator[tuple[bool, object]]:
-    """``(True, function(*job))`` for each of ``jobs`` in order, each computed in a worker process; ``(False,
-    None)`` for a job whose worker failed. All are computed here instead, as ``(False, None)``, where
-    there are fewer than :data:`MIN_JOBS` or :func:`build_processes` gives none. The jobs not yet started
-    are cancelled when the caller stops early (an interrupt)."""
+    """``(True, function(*job))`` for each of ``jobs`` in order, each computed in a worker process, or
+    ``(False, None)`` for the caller to compute: a job whose worker failed, and every job where there are
+    fewer than :data:`MIN_JOBS` or :func:`build_processes` gives none. The jobs not yet started are
+    cancelled when the caller stops early (an interrupt, an error)."""
     processes = build_processes() if processes is None else processes
     if processes < 2 or len(jobs) < MIN_JOBS:
         yield from ((False, None) for _ in jobs)
