@@ -287,3 +287,23 @@ def test_the_example_dem_scene_renders(tmp_path):
     assert len(ground) > 100_000 and np.median(error) < 0.005 and np.quantile(error, 0.95) < 0.02
     assert {GROUND, TREE_WOOD, TREE_LEAVES, BUSH, GROUND_VEGETATION} <= set(np.unique(p["classification"]))
     assert result.manifest["realism"]["class_shares"]["ground_vegetation"] > 0.02
+
+
+def test_a_dem_georeferenced_only_by_control_points_is_refused(tmp_path, capsys):
+    """A TIFF placed by ground control points has no geotransform: rasterio gives it the identity, which
+    read its pixel numbers as local metres (south-up, 1 m cells) and planned the plot on them."""
+    from rasterio.control import GroundControlPoint
+    dem = tmp_path / "dem.tif"
+    gcps = [GroundControlPoint(r, c, EAST + 0.25 * c, NORTH + 48 - 0.25 * r) for r in (0, 192) for c in (0, 192)]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        with rasterio.open(dem, "w", driver="GTiff", width=192, height=192, count=1, dtype="float32",
+                           gcps=gcps, crs="EPSG:28355") as dst:
+            dst.write(np.full((192, 192), 130.0, np.float32), 1)
+    path = scene_file(tmp_path, terrain={"type": "dem", "path": str(dem)},
+                      survey={"altitude": 30, "pulse_frequency": 100000, "speed": 10, "lines": [[[20.0, -5.0], [20.0, 45.0]]]})
+    code = main(["plan", str(path), "-o", str(tmp_path / "out")])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1
+    assert "scene.yaml: terrain.path: " in err
+    assert "the DEM is placed by ground control points, not a geotransform: warp it north-up first (gdalwarp)" in err

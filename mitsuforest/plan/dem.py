@@ -43,7 +43,10 @@ def read_dem(path, size, offset=(0.0, 0.0, 0.0), crs: str | None = None):
         raise UserError(f"cannot read the DEM {path}: {e}") from None
     with dataset:
         t = dataset.transform
-        if t.is_identity and not dataset.gcps[0]:
+        if t.is_identity and dataset.gcps[0]:    # rasterio's identity: pixel numbers, not the points' places
+            raise UserError(f"{path}: the DEM is placed by ground control points, not a geotransform: warp it "
+                            "north-up first (gdalwarp)")
+        if t.is_identity:
             raise UserError(f"{path}: the DEM has no georeference (no geotransform): give it its corners and CRS "
                             "first (gdal_translate -a_ullr ULX ULY LRX LRY -a_srs EPSG:N)")
         if t.b != 0 or t.d != 0:
