@@ -307,3 +307,17 @@ def test_a_dem_georeferenced_only_by_control_points_is_refused(tmp_path, capsys)
     assert code == 2 and len(err.splitlines()) == 1
     assert "scene.yaml: terrain.path: " in err
     assert "the DEM is placed by ground control points, not a geotransform: warp it north-up first (gdalwarp)" in err
+
+
+@pytest.mark.parametrize("crs, reason", [
+    ("EPSG:2227", "has its axes in US survey foot"),
+    ("EPSG:4326", "is geographic, in degrees"),
+])
+def test_a_dem_in_a_crs_not_in_metres_is_refused_without_origin_crs(tmp_path, capsys, crs, reason):
+    """With no origin.crs to compare with, a DEM in a state plane in feet was read as if its feet were
+    metres (the plot 3.28 times too small on it) and one in degrees as if degrees were metres."""
+    dem = write_dem(tmp_path / "dem.tif", plane, crs=crs)
+    code = main(["plan", str(dem_scene(tmp_path, dem)), "-o", str(tmp_path / "out")])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1
+    assert "scene.yaml: terrain.path: " in err and f"the DEM's CRS ({crs}) {reason}" in err

@@ -121,9 +121,17 @@ def _check_crs(path, dem_crs, scene_crs: str | None) -> None:
         _WARNED.add(str(path))
         log.warning("mitsuforest: %s: the DEM names no CRS; its coordinates are taken to be in origin.crs (%s)",
                     display_path(path), scene_crs)
-    if scene_crs is None or dem_crs is None:
+    if dem_crs is None:
         return
     from pyproj import CRS
+    if scene_crs is None:        # no origin.crs to be the same as: it must be one the scene's metres can be in
+        from ..crs import projection_problem
+        problem = projection_problem(dem_crs.to_wkt())
+        if problem:
+            theirs = CRS.from_user_input(dem_crs.to_wkt())
+            raise UserError(f"{path}: the DEM's CRS ({theirs.to_string()}) {problem}; the scene is in metres: "
+                            "reproject it to a projected CRS in metres (gdalwarp -t_srs)")
+        return
     ours, theirs = CRS.from_user_input(scene_crs), CRS.from_user_input(dem_crs.to_wkt())
     if not ours.equals(theirs, ignore_axis_order=True):
         raise UserError(f"{path}: the DEM's CRS ({theirs.to_string()}) is not origin.crs ({ours.to_string()}); "
