@@ -321,3 +321,21 @@ def test_a_dem_in_a_crs_not_in_metres_is_refused_without_origin_crs(tmp_path, ca
     err = capsys.readouterr().err.strip()
     assert code == 2 and len(err.splitlines()) == 1
     assert "scene.yaml: terrain.path: " in err and f"the DEM's CRS ({crs}) {reason}" in err
+
+
+def test_a_dem_with_a_scale_and_offset_holds_their_heights(tmp_path):
+    """GDAL's band scale and offset: a DEM of centimetres above 100 m in int16 (scale 0.01, offset 100)
+    holds heights ``raw * 0.01 + 100``; the raw integers were read as metres (the plane's 30 m rise
+    became 3,000 m)."""
+    dem = write_dem(tmp_path / "dem.tif", plane)
+    with rasterio.open(dem) as data:
+        z, profile = data.read(1).astype(np.float64), data.profile
+    raw = np.round((z - 100.0) * 100.0).astype(np.int16)
+    profile.update(dtype="int16", nodata=None)
+    scaled = tmp_path / "scaled.tif"
+    with rasterio.open(scaled, "w", **profile) as dst:
+        dst.write(raw, 1)
+        dst.scales, dst.offsets = (0.01,), (100.0,)
+    t = make_plan(load_scene(dem_scene(tmp_path, scaled, crs="EPSG:28355"))).terrain
+    gx, gy = np.meshgrid(t.x, t.y)
+    assert np.abs(t.z - (plane(gx + OFFSET[0], gy + OFFSET[1]) - OFFSET[2])).max() < 0.006   # half a centimetre

@@ -60,13 +60,15 @@ def read_dem(path, size, offset=(0.0, 0.0, 0.0), crs: str | None = None):
                             f"local frame (origin.offset subtracted), the plot 0..{size[0]:g} x 0..{size[1]:g} m")
         window = Window(cols[0], rows[0], cols[1] - cols[0], rows[1] - rows[0])
         band = dataset.read(1, window=window, masked=True)
+        scale, shift = dataset.scales[0], dataset.offsets[0]
     x = t.c - ox + (np.arange(cols[0], cols[1]) + 0.5) * t.a
     y = t.f - oy + (np.arange(rows[0], rows[1]) + 0.5) * t.e
-    height = np.ma.filled(band.astype(np.float64), np.nan)
+    stored = np.ma.filled(band.astype(np.float64), np.nan)
     if t.a < 0:
-        x, height = x[::-1], height[:, ::-1]
+        x, stored = x[::-1], stored[:, ::-1]
     if t.e < 0:                      # north-up: rows run south
-        y, height = y[::-1], height[::-1]
+        y, stored = y[::-1], stored[::-1]
+    height = stored * scale + shift             # GDAL's band scale and offset (1 and 0 for most DEMs)
     foreign = ~((height >= LOWEST_GROUND) & (height <= HIGHEST_GROUND)) & ~np.isnan(height)
     z = _clamp_outer_holes(x, y, np.where(foreign, np.nan, height) - oz, size)
     holes = ~np.isfinite(z)
@@ -74,7 +76,7 @@ def read_dem(path, size, offset=(0.0, 0.0, 0.0), crs: str | None = None):
         j, i = np.argwhere(holes)[0]
         where = f"the first at local x {x[i]:.2f}, y {y[j]:.2f}"
         if foreign[j, i]:
-            value = f"{height[j, i]:.9g}"    # float32 exactly
+            value = f"{stored[j, i]:.9g}"    # float32 exactly, as stored (before a scale and offset)
             raise UserError(f"{path}: the DEM has {int(holes.sum())} cells over the plot at heights no ground has "
                             f"({value}, {where}): a nodata value the file does not declare? Declare it "
                             f"(gdal_edit.py -a_nodata {value}), then fill the cells (gdal_fillnodata)")
