@@ -339,3 +339,24 @@ def test_a_dem_with_a_scale_and_offset_holds_their_heights(tmp_path):
     t = make_plan(load_scene(dem_scene(tmp_path, scaled, crs="EPSG:28355"))).terrain
     gx, gy = np.meshgrid(t.x, t.y)
     assert np.abs(t.z - (plane(gx + OFFSET[0], gy + OFFSET[1]) - OFFSET[2])).max() < 0.006   # half a centimetre
+
+
+@pytest.mark.parametrize("unit, metres", [("ft", 0.3048), ("US survey foot", 1200 / 3937), ("m", 1.0), ("metre", 1.0)])
+def test_dem_heights_in_feet_are_read_in_metres(tmp_path, unit, metres):
+    """A band whose unit is feet (GDAL's unit type, as US DEMs in NAVD88 feet have) holds heights in
+    feet: they were read as metres, the plane 3.28 times too high and too steep."""
+    dem = write_dem(tmp_path / "dem.tif", lambda x, y: plane(x, y) / metres)
+    with rasterio.open(dem, "r+") as data:
+        data.units = (unit,)
+    t = make_plan(load_scene(dem_scene(tmp_path, dem, crs="EPSG:28355"))).terrain
+    gx, gy = np.meshgrid(t.x, t.y)
+    assert np.abs(t.z - (plane(gx + OFFSET[0], gy + OFFSET[1]) - OFFSET[2])).max() < 1e-3
+
+
+def test_dem_heights_in_an_unknown_unit_are_refused(tmp_path):
+    dem = write_dem(tmp_path / "dem.tif", plane)
+    with rasterio.open(dem, "r+") as data:
+        data.units = ("fathom",)
+    with pytest.raises(ConfigError, match=r"terrain.path: .*dem.tif: the DEM's heights are in 'fathom', not metres "
+                                          r"or feet: convert them to metres first"):
+        make_plan(load_scene(dem_scene(tmp_path, dem, crs="EPSG:28355")))

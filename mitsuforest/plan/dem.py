@@ -60,7 +60,7 @@ def read_dem(path, size, offset=(0.0, 0.0, 0.0), crs: str | None = None):
                             f"local frame (origin.offset subtracted), the plot 0..{size[0]:g} x 0..{size[1]:g} m")
         window = Window(cols[0], rows[0], cols[1] - cols[0], rows[1] - rows[0])
         band = dataset.read(1, window=window, masked=True)
-        scale, shift = dataset.scales[0], dataset.offsets[0]
+        scale, shift, metres = dataset.scales[0], dataset.offsets[0], _metres_per_unit(path, dataset.units[0])
     x = t.c - ox + (np.arange(cols[0], cols[1]) + 0.5) * t.a
     y = t.f - oy + (np.arange(rows[0], rows[1]) + 0.5) * t.e
     stored = np.ma.filled(band.astype(np.float64), np.nan)
@@ -70,7 +70,7 @@ def read_dem(path, size, offset=(0.0, 0.0, 0.0), crs: str | None = None):
         y, stored = y[::-1], stored[::-1]
     height = stored * scale + shift             # GDAL's band scale and offset (1 and 0 for most DEMs)
     foreign = ~((height >= LOWEST_GROUND) & (height <= HIGHEST_GROUND)) & ~np.isnan(height)
-    z = _clamp_outer_holes(x, y, np.where(foreign, np.nan, height) - oz, size)
+    z = _clamp_outer_holes(x, y, np.where(foreign, np.nan, height) * metres - oz, size)
     holes = ~np.isfinite(z)
     if holes.any():
         j, i = np.argwhere(holes)[0]
@@ -83,6 +83,23 @@ def read_dem(path, size, offset=(0.0, 0.0, 0.0), crs: str | None = None):
         raise UserError(f"{path}: the DEM has {int(holes.sum())} nodata cells over the plot ({where}); "
                         "fill them first (gdal_fillnodata)")
     return x, y, np.ascontiguousarray(z)
+
+
+# GDAL's band unit type as DEMs write it (lower case), and the metres in one unit.
+HEIGHT_UNITS = {**dict.fromkeys(("", "m", "metre", "metres", "meter", "meters"), 1.0),
+                **dict.fromkeys(("ft", "foot", "feet", "international foot"), 0.3048),
+                **dict.fromkeys(("us survey foot", "us-ft", "ftus", "us_survey_foot", "survey foot"), 1200 / 3937)}
+
+
+def _metres_per_unit(path, unit: str | None) -> float:
+    """Metres in one unit of the DEM's heights, from its band's unit type (none: metres).
+
+    :raises UserError: a unit that is neither metres nor feet."""
+    try:
+        return HEIGHT_UNITS[(unit or "").strip().lower()]
+    except KeyError:
+        raise UserError(f"{path}: the DEM's heights are in {unit!r}, not metres or feet: convert them to metres "
+                        "first (gdal_calc.py)") from None
 
 
 def _clamp_outer_holes(x: np.ndarray, y: np.ndarray, z: np.ndarray, size) -> np.ndarray:
