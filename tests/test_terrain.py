@@ -360,3 +360,33 @@ def test_dem_heights_in_an_unknown_unit_are_refused(tmp_path):
     with pytest.raises(ConfigError, match=r"terrain.path: .*dem.tif: the DEM's heights are in 'fathom', not metres "
                                           r"or feet: convert them to metres first"):
         make_plan(load_scene(dem_scene(tmp_path, dem, crs="EPSG:28355")))
+
+
+@pytest.mark.parametrize("case", ["north-up", "south-up", "east to west", "cells off the plot's grid", "pixel is point"])
+def test_dem_grids_of_every_orientation_hold_the_plane(tmp_path, case):
+    """The tilted plane sampled at the cell centres of grids running north or south, east or west, with
+    cells (0.7 x 0.9 m) whose edges miss the plot's, and of a PixelIsPoint file (its tiepoint a cell
+    centre, which GDAL turns into the corner of a cell): the terrain holds the plane at its grid points and
+    anywhere between them, to float32's precision."""
+    transform, width, height = {
+        "north-up": (Affine(0.5, 0, EAST, 0, -0.5, NORTH + 60), 120, 120),
+        "south-up": (Affine(0.5, 0, EAST, 0, 0.5, NORTH), 120, 120),
+        "east to west": (Affine(-0.5, 0, EAST + 60, 0, -0.5, NORTH + 60), 120, 120),
+        "cells off the plot's grid": (Affine(0.7, 0, EAST + 0.13, 0, -0.9, NORTH + 60.3), 90, 70),
+        "pixel is point": (Affine(0.5, 0, EAST, 0, -0.5, NORTH + 60), 120, 120),
+    }[case]
+    cols, rows = np.meshgrid(np.arange(width) + 0.5, np.arange(height) + 0.5)
+    dem = tmp_path / "dem.tif"
+    with rasterio.open(dem, "w", driver="GTiff", width=width, height=height, count=1, dtype="float32",
+                       crs="EPSG:28355", transform=transform) as dst:
+        dst.write(plane(*(transform @ (cols, rows))).astype(np.float32), 1)
+        if case == "pixel is point":
+            dst.update_tags(AREA_OR_POINT="Point")
+    t = make_plan(load_scene(dem_scene(tmp_path, dem, crs="EPSG:28355"))).terrain
+    assert t.x[0] == 0 and t.x[-1] == 40 and t.y[0] == 0 and t.y[-1] == 40
+    gx, gy = np.meshgrid(t.x, t.y)
+    assert np.abs(t.z - (plane(gx + OFFSET[0], gy + OFFSET[1]) - OFFSET[2])).max() < 2e-5
+    px, py = np.random.default_rng(1).uniform(0, 40, (2, 2000))
+    truth = plane(px + OFFSET[0], py + OFFSET[1]) - OFFSET[2]
+    assert np.abs(t.surface_height(px, py) - truth).max() < 2e-5
+    assert np.abs(t.height(px, py) - truth).max() < 2e-5
