@@ -390,3 +390,12 @@ def test_dem_grids_of_every_orientation_hold_the_plane(tmp_path, case):
     truth = plane(px + OFFSET[0], py + OFFSET[1]) - OFFSET[2]
     assert np.abs(t.surface_height(px, py) - truth).max() < 2e-5
     assert np.abs(t.height(px, py) - truth).max() < 2e-5
+
+
+def test_dem_heights_in_the_feet_of_its_vertical_crs_are_read_in_metres(tmp_path):
+    """A DEM in NAD83 / UTM 10N + NAVD88 height (ftUS) whose band names no unit holds heights in US
+    survey feet, as its CRS says: they were read as metres (the plane 3.28 times too high and steep)."""
+    dem = write_dem(tmp_path / "dem.tif", lambda x, y: plane(x, y) * 3937 / 1200, crs="EPSG:26910+6360")
+    t = make_plan(load_scene(dem_scene(tmp_path, dem))).terrain
+    gx, gy = np.meshgrid(t.x, t.y)
+    assert np.abs(t.z - (plane(gx + OFFSET[0], gy + OFFSET[1]) - OFFSET[2])).max() < 1e-3
