@@ -358,7 +358,8 @@ def test_dem_heights_in_an_unknown_unit_are_refused(tmp_path):
     with rasterio.open(dem, "r+") as data:
         data.units = ("fathom",)
     with pytest.raises(ConfigError, match=r"terrain.path: .*dem.tif: the DEM's heights are in 'fathom', not metres "
-                                          r"or feet: convert them to metres first"):
+                                          r"or feet: convert them to metres first \(gdal_calc.py\), or name their unit where they "
+                                          r"are \(gdal_edit.py -units m\)"):
         make_plan(load_scene(dem_scene(tmp_path, dem, crs="EPSG:28355")))
 
 

@@ -99,7 +99,7 @@ def _metres_per_unit(path, unit: str | None) -> float:
         return HEIGHT_UNITS[(unit or "").strip().lower()]
     except KeyError:
         raise UserError(f"{path}: the DEM's heights are in {unit!r}, not metres or feet: convert them to metres "
-                        "first (gdal_calc.py)") from None
+                        "first (gdal_calc.py), or name their unit where they are (gdal_edit.py -units m)") from None
 
 
 def _clamp_outer_holes(x: np.ndarray, y: np.ndarray, z: np.ndarray, size) -> np.ndarray:
