@@ -128,6 +128,7 @@ def test_a_dem_one_cell_wide_or_high_is_level_that_way(tmp_path, width, height):
     ("crs", "is not origin.crs"),
     ("no georeference", "the DEM has no georeference (no geotransform): give it its corners and CRS first"),
     ("text", "cannot read the DEM"),
+    ("rotated", "the DEM's grid is rotated or sheared; warp it north-up first (gdalwarp)"),
 ])
 def test_bad_dems_are_refused_in_one_line(tmp_path, capsys, case, reason):
     dem = tmp_path / "dem.tif"
@@ -146,6 +147,11 @@ def test_bad_dems_are_refused_in_one_line(tmp_path, capsys, case, reason):
                 dst.write(np.zeros((64, 64), np.float32), 1)
     elif case == "text":
         dem.write_text("not a raster")
+    elif case == "rotated":       # 0.25 m cells turned by 1 degree, covering the plot
+        c, s = 0.25 * np.cos(np.deg2rad(1.0)), 0.25 * np.sin(np.deg2rad(1.0))
+        with rasterio.open(dem, "w", driver="GTiff", width=240, height=240, count=1, dtype="float32", crs="EPSG:28355",
+                           transform=Affine(c, s, EAST - 5, s, -c, NORTH + 55)) as dst:
+            dst.write(np.full((240, 240), 130.0, np.float32), 1)
     path = dem_scene(tmp_path, dem, crs="EPSG:28355")
     code = main(["plan", str(path), "-o", str(tmp_path / "out")])
     err = capsys.readouterr().err.strip()
