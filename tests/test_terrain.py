@@ -406,3 +406,31 @@ def test_dem_heights_in_the_feet_of_its_vertical_crs_are_read_in_metres(tmp_path
     t = make_plan(load_scene(dem_scene(tmp_path, dem))).terrain
     gx, gy = np.meshgrid(t.x, t.y)
     assert np.abs(t.z - (plane(gx + OFFSET[0], gy + OFFSET[1]) - OFFSET[2])).max() < 1e-3
+
+
+def test_logs_lie_along_a_sloping_dem(tmp_path):
+    """Logs (deadwood, 1.5-7 m) on the plane rising 18 % (0.15 east, -0.10 north): each lies on the
+    ground along its whole length, the underside of every 0.5 m of it between 10 cm under the plane and
+    5 cm above it (the model rests 0.2 r sunk, r <= 0.2 m, with knots). Logs were laid level at the
+    height of their centre, so their ends stood up to half their length times the slope (0.5 m for a
+    7 m log) above or under the ground."""
+    from mitsuforest.plan.transforms import apply
+    from mitsuforest.trees import build_model
+
+    def sloped(x, y):
+        return 120.0 + 0.15 * (x - EAST) - 0.10 * (y - NORTH)
+
+    scene = load_scene(dem_scene(tmp_path, write_dem(tmp_path / "dem.tif", sloped))).with_(
+        understory={"deadwood": 6, "bushes": 0, "rocks": 0, "stumps": 0})
+    plan = make_plan(scene)
+    logs = [o for o in plan.objects if o.kind == "deadwood"]
+    assert len(logs) == 6
+    for log in logs:
+        model = build_model(log.model, plan.models[log.model])
+        v = model.vertices()
+        w = apply(log.matrix, v)
+        above = w[:, 2] - (sloped(w[:, 0] + OFFSET[0], w[:, 1] + OFFSET[1]) - OFFSET[2])
+        along = np.floor(v[:, 0] / 0.5)
+        lowest = np.array([above[along == k].min() for k in np.unique(along)])
+        assert -0.10 < lowest.min() and lowest.max() < 0.05, (log.model, log.tilt, lowest.min(), lowest.max())
+        assert w[:, :2].min() > 0 and w[:, :2].max() < 40          # still wholly inside the plot
