@@ -8,9 +8,9 @@ left, so the two never overlap and the covers are met to one cell. Each patch is
 it stays in its cell), and laid on the plane fitted to the terrain under its cell: tilted to the slope,
 its centre at the plane's height there. A tilted patch's top leans out of its cell downhill as its
 square's corners come in; in a cell at the plot's edge where that takes it out of the plot, it is tilted
-less, just enough to stay inside the plot (its centre never moves, so patches never overlap). Patches do not avoid trees, rocks or logs (grass grows
-round them). The draws use their own random stream, so a scene without a ground layer is planned as
-before.
+less, just enough to stay inside the plot (its centre never moves, so patches never overlap). Patches do
+not avoid trees, rocks or logs (grass grows round them). The draws use their own random stream, so a
+scene without a ground layer is planned as before.
 """
 
 from __future__ import annotations
