@@ -434,3 +434,15 @@ def test_logs_lie_along_a_sloping_dem(tmp_path):
         lowest = np.array([above[along == k].min() for k in np.unique(along)])
         assert -0.10 < lowest.min() and lowest.max() < 0.05, (log.model, log.tilt, lowest.min(), lowest.max())
         assert w[:, :2].min() > 0 and w[:, :2].max() < 40          # still wholly inside the plot
+
+
+def test_a_dem_in_a_local_grid_in_metres_is_read_without_origin_crs(tmp_path):
+    """A DEM in a site's own grid (a LOCAL_CS in metres, as a terrestrial survey gives) under a scene with no
+    origin.crs: its metres are the scene's, so it is read (the check of abfe793 refused it as 'not a
+    projected CRS', which only origin.crs must be)."""
+    from rasterio.crs import CRS as RasterCRS
+    local = RasterCRS.from_wkt('LOCAL_CS["site grid",UNIT["metre",1],AXIS["Easting",EAST],AXIS["Northing",NORTH]]')
+    dem = write_dem(tmp_path / "dem.tif", plane, crs=local)
+    t = make_plan(load_scene(dem_scene(tmp_path, dem))).terrain
+    gx, gy = np.meshgrid(t.x, t.y)
+    assert np.abs(t.z - (plane(gx + OFFSET[0], gy + OFFSET[1]) - OFFSET[2])).max() < 2e-5

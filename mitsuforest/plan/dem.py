@@ -143,9 +143,8 @@ def _check_crs(path, dem_crs, scene_crs: str | None) -> None:
     if dem_crs is None:
         return
     from pyproj import CRS
-    if scene_crs is None:        # no origin.crs to be the same as: it must be one the scene's metres can be in
-        from ..crs import projection_problem
-        problem = projection_problem(dem_crs.to_wkt())
+    if scene_crs is None:        # no origin.crs to be the same as: its x and y must be in the scene's metres
+        problem = _not_in_metres(dem_crs.to_wkt())
         if problem:
             theirs = CRS.from_user_input(dem_crs.to_wkt())
             raise UserError(f"{path}: the DEM's CRS ({theirs.to_string()}) {problem}; the scene is in metres: "
@@ -155,3 +154,14 @@ def _check_crs(path, dem_crs, scene_crs: str | None) -> None:
     if not ours.equals(theirs, ignore_axis_order=True):
         raise UserError(f"{path}: the DEM's CRS ({theirs.to_string()}) is not origin.crs ({ours.to_string()}); "
                         "reproject it (gdalwarp -t_srs) or fix origin.crs")
+
+
+def _not_in_metres(wkt: str) -> str | None:
+    """Why x and y in the CRS ``wkt`` are not metres (degrees, feet), or None: a projected CRS in metres, or a
+    local grid in metres (which origin.crs could not be, but a DEM without one may)."""
+    from ..crs import length_units
+    try:
+        _, words, across, _ = length_units(wkt)
+    except ValueError:
+        return "is geographic, in degrees"
+    return None if across == 1.0 else f"has its axes in {words}"
