@@ -176,3 +176,26 @@ def test_ground_vegetation_points_at_the_share_the_patches_cover(tmp_path):
     nadir = (kind == "grass") & (np.abs(p["scan_angle"]) < 10)
     expected = np.mean([share[o.model] for o, n in zip(where, nadir) if n])
     assert nadir.sum() > 2_000 and veg[nadir].mean() == pytest.approx(expected, rel=0.25)
+
+
+@pytest.mark.parametrize("slope", [(0.15, 0.0), (0.0, -0.15)])
+def test_litter_lies_on_a_slope_along_the_plot_edges_too(tmp_path, slope):
+    """Litter (at most 2 cm tall) on a plane rising 15 % along one axis: tilted to the slope (8.5°), a
+    patch in a cell at the plot's edge stays inside the plot (its square's corners come in by 0.5 (1 -
+    cos 8.5°) = 5.5 mm, more than its top leans out, 2 cm x sin 8.5° = 3.0 mm). Its top was still taken to
+    lean out, so edge patches lay flat, half their leaves up to 7.5 cm under the ground and half up to
+    7.5 cm above it; now every leaf lies on the plane (at most 1 cm under it, 3 cm above) in the plot."""
+    p, q = slope
+    dem = write_dem(tmp_path / "dem.tif", lambda x, y: 120.0 + p * (x - OFFSET[0]) + q * (y - OFFSET[1]))
+    scene = load_scene(dem_scene(tmp_path, dem)).with_({"understory.litter.cover": 1.0})
+    plan = make_plan(scene)
+    size = scene.area.size
+    models = {n: build_model(n, spec) for n, spec in plan.models.items() if spec.kind == "litter"}
+    edge = 0
+    for obj in _patches(plan, "litter"):
+        v = apply(obj.matrix, models[obj.model].vertices())
+        assert v[:, :2].min() >= -1e-9 and v[:, 0].max() <= size[0] + 1e-9 and v[:, 1].max() <= size[1] + 1e-9
+        above = v[:, 2] - (120.0 + p * v[:, 0] + q * v[:, 1] - OFFSET[2])
+        assert -0.01 < above.min() and above.max() < 0.03, (obj.position, obj.tilt, above.min(), above.max())
+        edge += min(*obj.position[:2], size[0] - obj.position[0], size[1] - obj.position[1]) < 1
+    assert edge == 4 * (size[0] - 1)

@@ -100,3 +100,45 @@ def test_dataset_tiles_carry_the_heights_from_the_pcd_and_from_the_las(sloped):
         sel = in_extent(x, y, tile_extent(r["i"], r["j"], (24, 24), 12.0, 1.0))
         assert len(tile.points) == sel.sum() > 1000
         assert np.array_equal(np.asarray(tile.height_above_ground), pcd["height_above_ground"][sel])
+
+
+def test_heights_over_a_tilted_dem_plane_are_z_less_the_plane_and_beyond_the_plot_the_edge(tmp_path):
+    """A GeoTIFF of the plane z = 130 + 0.15 dx - 0.1 dy (0.5 m cells, origin 10 m west of the world
+    frame's 0) under a 20 m plot with two listed trees repeated 6 m around it: every point's height is
+    its z less the plane at its x, y (the analytic plane, not the terrain's own arithmetic), and beyond
+    the plot, where the repeated trees stand on the height of the plot's nearest edge, z less the plane
+    there. Ground points lie on the plane (the ideal sensor: no ranging noise)."""
+    import rasterio
+    from rasterio.transform import Affine
+    east, north = 500_000.0, 6_000_000.0
+    offset = [east + 3.0, north + 4.0, 100.0]
+
+    def plane(x, y):
+        return 130.0 + 0.15 * (x - east) - 0.1 * (y - north)
+
+    transform = Affine(0.5, 0, east - 10, 0, -0.5, north + 50)
+    cols, rows = np.meshgrid(np.arange(120) + 0.5, np.arange(120) + 0.5)
+    with rasterio.open(tmp_path / "dem.tif", "w", driver="GTiff", width=120, height=120, count=1, dtype="float64",
+                       crs="EPSG:28355", transform=transform) as dst:
+        dst.write(plane(*(transform @ (cols, rows))), 1)
+    (tmp_path / "trees.csv").write_text(f"x,y,height,crown_radius\n{offset[0] + 5},{offset[1] + 6},8,1.5\n"
+                                        f"{offset[0] + 14},{offset[1] + 13},10,2\n")
+    path = scene_file(tmp_path, terrain={"type": "dem", "path": "dem.tif"}, area={"size": [20, 20]},
+                      origin={"offset": offset, "crs": "EPSG:28355"},
+                      forest={"trees": None, "trees_file": "trees.csv", "surround": 6, "tilt": 0},
+                      survey={"altitude": 30, "pulse_frequency": 100000, "scan_frequency": 50, "speed": 10,
+                              "lines": [[[10.0, -10.0], [10.0, 30.0]]]},
+                      output={"dir": str(tmp_path / "out"), "formats": ["laz"], "pictures": False})
+    render(path, progress=False, log=lambda *_: None)
+    las = laspy.read(str(tmp_path / "out" / "test.laz"))
+    x, y, z = (np.asarray(las[a], np.float64) for a in "xyz")
+    hag = np.asarray(las["height_above_ground"], np.float64)
+    lx, ly = x - offset[0], y - offset[1]
+    beyond = (lx < 0) | (lx > 20) | (ly < 0) | (ly > 20)
+    edge = plane(np.clip(lx, 0, 20) + offset[0], np.clip(ly, 0, 20) + offset[1])
+    assert (~beyond).sum() > 15_000 and beyond.sum() > 100          # points of the repeated trees
+    assert np.abs(hag - (z - edge)).max() < 2e-4                    # LAS: 0.1 mm coordinates, float32 heights
+    assert np.abs(hag - (z - plane(x, y)))[beyond].max() > 0.1       # beyond: not the plane there
+    ground = np.asarray(las["label"]) == GROUND
+    assert ground.sum() > 10_000 and np.abs(z[ground] - plane(x[ground], y[ground])).max() < 2e-4
+    assert hag[np.isin(np.asarray(las["label"]), (2, 3))].max() > 7.0

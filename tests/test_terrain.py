@@ -128,6 +128,7 @@ def test_a_dem_one_cell_wide_or_high_is_level_that_way(tmp_path, width, height):
     ("crs", "is not origin.crs"),
     ("no georeference", "the DEM has no georeference (no geotransform): give it its corners and CRS first"),
     ("text", "cannot read the DEM"),
+    ("rotated", "the DEM's grid is rotated or sheared; warp it north-up first (gdalwarp)"),
 ])
 def test_bad_dems_are_refused_in_one_line(tmp_path, capsys, case, reason):
     dem = tmp_path / "dem.tif"
@@ -146,6 +147,11 @@ def test_bad_dems_are_refused_in_one_line(tmp_path, capsys, case, reason):
                 dst.write(np.zeros((64, 64), np.float32), 1)
     elif case == "text":
         dem.write_text("not a raster")
+    elif case == "rotated":       # 0.25 m cells turned by 1 degree, covering the plot
+        c, s = 0.25 * np.cos(np.deg2rad(1.0)), 0.25 * np.sin(np.deg2rad(1.0))
+        with rasterio.open(dem, "w", driver="GTiff", width=240, height=240, count=1, dtype="float32", crs="EPSG:28355",
+                           transform=Affine(c, s, EAST - 5, s, -c, NORTH + 55)) as dst:
+            dst.write(np.full((240, 240), 130.0, np.float32), 1)
     path = dem_scene(tmp_path, dem, crs="EPSG:28355")
     code = main(["plan", str(path), "-o", str(tmp_path / "out")])
     err = capsys.readouterr().err.strip()
@@ -287,3 +293,156 @@ def test_the_example_dem_scene_renders(tmp_path):
     assert len(ground) > 100_000 and np.median(error) < 0.005 and np.quantile(error, 0.95) < 0.02
     assert {GROUND, TREE_WOOD, TREE_LEAVES, BUSH, GROUND_VEGETATION} <= set(np.unique(p["classification"]))
     assert result.manifest["realism"]["class_shares"]["ground_vegetation"] > 0.02
+
+
+def test_a_dem_georeferenced_only_by_control_points_is_refused(tmp_path, capsys):
+    """A TIFF placed by ground control points has no geotransform: rasterio gives it the identity, which
+    read its pixel numbers as local metres (south-up, 1 m cells) and planned the plot on them."""
+    from rasterio.control import GroundControlPoint
+    dem = tmp_path / "dem.tif"
+    gcps = [GroundControlPoint(r, c, EAST + 0.25 * c, NORTH + 48 - 0.25 * r) for r in (0, 192) for c in (0, 192)]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        with rasterio.open(dem, "w", driver="GTiff", width=192, height=192, count=1, dtype="float32",
+                           gcps=gcps, crs="EPSG:28355") as dst:
+            dst.write(np.full((192, 192), 130.0, np.float32), 1)
+    path = scene_file(tmp_path, terrain={"type": "dem", "path": str(dem)},
+                      survey={"altitude": 30, "pulse_frequency": 100000, "speed": 10, "lines": [[[20.0, -5.0], [20.0, 45.0]]]})
+    code = main(["plan", str(path), "-o", str(tmp_path / "out")])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1
+    assert "scene.yaml: terrain.path: " in err
+    assert "the DEM is placed by ground control points, not a geotransform: warp it north-up first (gdalwarp)" in err
+
+
+@pytest.mark.parametrize("crs, reason", [
+    ("EPSG:2227", "has its axes in US survey foot"),
+    ("EPSG:4326", "is geographic, in degrees"),
+])
+def test_a_dem_in_a_crs_not_in_metres_is_refused_without_origin_crs(tmp_path, capsys, crs, reason):
+    """With no origin.crs to compare with, a DEM in a state plane in feet was read as if its feet were
+    metres (the plot 3.28 times too small on it) and one in degrees as if degrees were metres."""
+    dem = write_dem(tmp_path / "dem.tif", plane, crs=crs)
+    code = main(["plan", str(dem_scene(tmp_path, dem)), "-o", str(tmp_path / "out")])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1
+    assert "scene.yaml: terrain.path: " in err and f"the DEM's CRS ({crs}) {reason}" in err
+
+
+def test_a_dem_with_a_scale_and_offset_holds_their_heights(tmp_path):
+    """GDAL's band scale and offset: a DEM of centimetres above 100 m in int16 (scale 0.01, offset 100)
+    holds heights ``raw * 0.01 + 100``; the raw integers were read as metres (the plane's 30 m rise
+    became 3,000 m)."""
+    dem = write_dem(tmp_path / "dem.tif", plane)
+    with rasterio.open(dem) as data:
+        z, profile = data.read(1).astype(np.float64), data.profile
+    raw = np.round((z - 100.0) * 100.0).astype(np.int16)
+    profile.update(dtype="int16", nodata=None)
+    scaled = tmp_path / "scaled.tif"
+    with rasterio.open(scaled, "w", **profile) as dst:
+        dst.write(raw, 1)
+        dst.scales, dst.offsets = (0.01,), (100.0,)
+    t = make_plan(load_scene(dem_scene(tmp_path, scaled, crs="EPSG:28355"))).terrain
+    gx, gy = np.meshgrid(t.x, t.y)
+    assert np.abs(t.z - (plane(gx + OFFSET[0], gy + OFFSET[1]) - OFFSET[2])).max() < 0.006   # half a centimetre
+
+
+@pytest.mark.parametrize("unit, metres", [("ft", 0.3048), ("US survey foot", 1200 / 3937), ("m", 1.0), ("metre", 1.0)])
+def test_dem_heights_in_feet_are_read_in_metres(tmp_path, unit, metres):
+    """A band whose unit is feet (GDAL's unit type, as US DEMs in NAVD88 feet have) holds heights in
+    feet: they were read as metres, the plane 3.28 times too high and too steep."""
+    dem = write_dem(tmp_path / "dem.tif", lambda x, y: plane(x, y) / metres)
+    with rasterio.open(dem, "r+") as data:
+        data.units = (unit,)
+    t = make_plan(load_scene(dem_scene(tmp_path, dem, crs="EPSG:28355"))).terrain
+    gx, gy = np.meshgrid(t.x, t.y)
+    assert np.abs(t.z - (plane(gx + OFFSET[0], gy + OFFSET[1]) - OFFSET[2])).max() < 1e-3
+
+
+def test_dem_heights_in_an_unknown_unit_are_refused(tmp_path):
+    dem = write_dem(tmp_path / "dem.tif", plane)
+    with rasterio.open(dem, "r+") as data:
+        data.units = ("fathom",)
+    with pytest.raises(ConfigError, match=r"terrain.path: .*dem.tif: the DEM's heights are in 'fathom', not metres "
+                                          r"or feet: convert them to metres first \(gdal_calc.py\), or name their unit where they "
+                                          r"are \(gdal_edit.py -units m\)"):
+        make_plan(load_scene(dem_scene(tmp_path, dem, crs="EPSG:28355")))
+
+
+@pytest.mark.parametrize("case", ["north-up", "south-up", "east to west", "cells off the plot's grid", "pixel is point"])
+def test_dem_grids_of_every_orientation_hold_the_plane(tmp_path, case):
+    """The tilted plane sampled at the cell centres of grids running north or south, east or west, with
+    cells (0.7 x 0.9 m) whose edges miss the plot's, and of a PixelIsPoint file (its tiepoint a cell
+    centre, which GDAL turns into the corner of a cell): the terrain holds the plane at its grid points and
+    anywhere between them, to float32's precision."""
+    transform, width, height = {
+        "north-up": (Affine(0.5, 0, EAST, 0, -0.5, NORTH + 60), 120, 120),
+        "south-up": (Affine(0.5, 0, EAST, 0, 0.5, NORTH), 120, 120),
+        "east to west": (Affine(-0.5, 0, EAST + 60, 0, -0.5, NORTH + 60), 120, 120),
+        "cells off the plot's grid": (Affine(0.7, 0, EAST + 0.13, 0, -0.9, NORTH + 60.3), 90, 70),
+        "pixel is point": (Affine(0.5, 0, EAST, 0, -0.5, NORTH + 60), 120, 120),
+    }[case]
+    cols, rows = np.meshgrid(np.arange(width) + 0.5, np.arange(height) + 0.5)
+    dem = tmp_path / "dem.tif"
+    with rasterio.open(dem, "w", driver="GTiff", width=width, height=height, count=1, dtype="float32",
+                       crs="EPSG:28355", transform=transform) as dst:
+        dst.write(plane(*(transform @ (cols, rows))).astype(np.float32), 1)
+        if case == "pixel is point":
+            dst.update_tags(AREA_OR_POINT="Point")
+    t = make_plan(load_scene(dem_scene(tmp_path, dem, crs="EPSG:28355"))).terrain
+    assert t.x[0] == 0 and t.x[-1] == 40 and t.y[0] == 0 and t.y[-1] == 40
+    gx, gy = np.meshgrid(t.x, t.y)
+    assert np.abs(t.z - (plane(gx + OFFSET[0], gy + OFFSET[1]) - OFFSET[2])).max() < 2e-5
+    px, py = np.random.default_rng(1).uniform(0, 40, (2, 2000))
+    truth = plane(px + OFFSET[0], py + OFFSET[1]) - OFFSET[2]
+    assert np.abs(t.surface_height(px, py) - truth).max() < 2e-5
+    assert np.abs(t.height(px, py) - truth).max() < 2e-5
+
+
+def test_dem_heights_in_the_feet_of_its_vertical_crs_are_read_in_metres(tmp_path):
+    """A DEM in NAD83 / UTM 10N + NAVD88 height (ftUS) whose band names no unit holds heights in US
+    survey feet, as its CRS says: they were read as metres (the plane 3.28 times too high and steep)."""
+    dem = write_dem(tmp_path / "dem.tif", lambda x, y: plane(x, y) * 3937 / 1200, crs="EPSG:26910+6360")
+    t = make_plan(load_scene(dem_scene(tmp_path, dem))).terrain
+    gx, gy = np.meshgrid(t.x, t.y)
+    assert np.abs(t.z - (plane(gx + OFFSET[0], gy + OFFSET[1]) - OFFSET[2])).max() < 1e-3
+
+
+def test_logs_lie_along_a_sloping_dem(tmp_path):
+    """Logs (deadwood, 1.5-7 m) on the plane rising 18 % (0.15 east, -0.10 north): each lies on the
+    ground along its whole length, the underside of every 0.5 m of it between 10 cm under the plane and
+    5 cm above it (the model rests 0.2 r sunk, r <= 0.2 m, with knots). Logs were laid level at the
+    height of their centre, so their ends stood up to half their length times the slope (0.5 m for a
+    7 m log) above or under the ground."""
+    from mitsuforest.plan.transforms import apply
+    from mitsuforest.trees import build_model
+
+    def sloped(x, y):
+        return 120.0 + 0.15 * (x - EAST) - 0.10 * (y - NORTH)
+
+    scene = load_scene(dem_scene(tmp_path, write_dem(tmp_path / "dem.tif", sloped))).with_(
+        understory={"deadwood": 6, "bushes": 0, "rocks": 0, "stumps": 0})
+    plan = make_plan(scene)
+    logs = [o for o in plan.objects if o.kind == "deadwood"]
+    assert len(logs) == 6
+    for log in logs:
+        model = build_model(log.model, plan.models[log.model])
+        v = model.vertices()
+        w = apply(log.matrix, v)
+        above = w[:, 2] - (sloped(w[:, 0] + OFFSET[0], w[:, 1] + OFFSET[1]) - OFFSET[2])
+        along = np.floor(v[:, 0] / 0.5)
+        lowest = np.array([above[along == k].min() for k in np.unique(along)])
+        assert -0.10 < lowest.min() and lowest.max() < 0.05, (log.model, log.tilt, lowest.min(), lowest.max())
+        assert w[:, :2].min() > 0 and w[:, :2].max() < 40          # still wholly inside the plot
+
+
+def test_a_dem_in_a_local_grid_in_metres_is_read_without_origin_crs(tmp_path):
+    """A DEM in a site's own grid (a LOCAL_CS in metres, as a terrestrial survey gives) under a scene with no
+    origin.crs: its metres are the scene's, so it is read (the check of abfe793 refused it as 'not a
+    projected CRS', which only origin.crs must be)."""
+    from rasterio.crs import CRS as RasterCRS
+    local = RasterCRS.from_wkt('LOCAL_CS["site grid",UNIT["metre",1],AXIS["Easting",EAST],AXIS["Northing",NORTH]]')
+    dem = write_dem(tmp_path / "dem.tif", plane, crs=local)
+    t = make_plan(load_scene(dem_scene(tmp_path, dem))).terrain
+    gx, gy = np.meshgrid(t.x, t.y)
+    assert np.abs(t.z - (plane(gx + OFFSET[0], gy + OFFSET[1]) - OFFSET[2])).max() < 2e-5

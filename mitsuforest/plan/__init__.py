@@ -26,7 +26,7 @@ from ..specs.archetypes import Archetype, UniqueTrees, grown_to, nearest_templat
 from ..specs.sources import MAX_HEIGHT, MeshTree, QsmTree
 from .cover import CoverGrid, PlacedOutlines, crown_outline
 from .flight import flight_legs
-from .ground_layer import place_ground_layer
+from .ground_layer import place_ground_layer, slope_tilts
 from .terrain import Terrain, make_terrain
 from .transforms import apply
 from .tree_list import read_tree_list
@@ -378,10 +378,24 @@ def _place_understory(scene: dict, size, trees, terrain, rng, deadwood_treeid: i
                 models[model] = spec
             taken.add(spot)
             x, y = spot.centre
+            tilt = _lying_tilt(terrain, spot.centre, spot.yaw, spot.length) if kind == "deadwood" else (0.0, 0.0)
             objects.append(PlacedObject(
                 kind=kind, model=model, treeid=deadwood_treeid if kind == "deadwood" else 0,
-                position=(float(x), float(y), float(terrain.height(x, y))), rotation=spot.yaw, tilt=(0.0, 0.0)))
+                position=(float(x), float(y), float(terrain.height(x, y))), rotation=spot.yaw, tilt=tilt))
     return objects, models
+
+
+def _lying_tilt(terrain, centre, yaw: float, length: float) -> tuple[float, float]:
+    """Tilts (degrees) that lay a log of ``length`` at ``centre``, along ``yaw`` (degrees from +x), on the
+    plane fitted to the terrain's heights along it and 0.5 m to either side, so it lies along a slope
+    rather than level at its centre's height; (0, 0) on level ground."""
+    along, across = np.meshgrid(np.linspace(-length / 2, length / 2, 9), [-0.5, 0.0, 0.5])
+    c, s = math.cos(math.radians(yaw)), math.sin(math.radians(yaw))
+    dx, dy = (along * c - across * s).ravel(), (along * s + across * c).ravel()
+    heights = terrain.height(centre[0] + dx, centre[1] + dy)
+    _, p, q = np.linalg.lstsq(np.column_stack([np.ones_like(dx), dx, dy]), heights, rcond=None)[0]
+    tilt_x, tilt_y = slope_tilts(np.array([p]), np.array([q]))
+    return float(tilt_x[0]) + 0.0, float(tilt_y[0]) + 0.0        # + 0.0: no -0.0 in the plan's JSON
 
 
 class _Footprint:

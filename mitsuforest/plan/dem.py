@@ -43,7 +43,10 @@ def read_dem(path, size, offset=(0.0, 0.0, 0.0), crs: str | None = None):
         raise UserError(f"cannot read the DEM {path}: {e}") from None
     with dataset:
         t = dataset.transform
-        if t.is_identity and not dataset.gcps[0]:
+        if t.is_identity and dataset.gcps[0]:    # rasterio's identity: pixel numbers, not the points' places
+            raise UserError(f"{path}: the DEM is placed by ground control points, not a geotransform: warp it "
+                            "north-up first (gdalwarp)")
+        if t.is_identity:
             raise UserError(f"{path}: the DEM has no georeference (no geotransform): give it its corners and CRS "
                             "first (gdal_translate -a_ullr ULX ULY LRX LRY -a_srs EPSG:N)")
         if t.b != 0 or t.d != 0:
@@ -57,27 +60,46 @@ def read_dem(path, size, offset=(0.0, 0.0, 0.0), crs: str | None = None):
                             f"local frame (origin.offset subtracted), the plot 0..{size[0]:g} x 0..{size[1]:g} m")
         window = Window(cols[0], rows[0], cols[1] - cols[0], rows[1] - rows[0])
         band = dataset.read(1, window=window, masked=True)
+        scale, shift, metres = dataset.scales[0], dataset.offsets[0], _metres_per_unit(path, dataset.units[0])
     x = t.c - ox + (np.arange(cols[0], cols[1]) + 0.5) * t.a
     y = t.f - oy + (np.arange(rows[0], rows[1]) + 0.5) * t.e
-    height = np.ma.filled(band.astype(np.float64), np.nan)
+    stored = np.ma.filled(band.astype(np.float64), np.nan)
     if t.a < 0:
-        x, height = x[::-1], height[:, ::-1]
+        x, stored = x[::-1], stored[:, ::-1]
     if t.e < 0:                      # north-up: rows run south
-        y, height = y[::-1], height[::-1]
+        y, stored = y[::-1], stored[::-1]
+    height = stored * scale + shift             # GDAL's band scale and offset (1 and 0 for most DEMs)
     foreign = ~((height >= LOWEST_GROUND) & (height <= HIGHEST_GROUND)) & ~np.isnan(height)
-    z = _clamp_outer_holes(x, y, np.where(foreign, np.nan, height) - oz, size)
+    z = _clamp_outer_holes(x, y, np.where(foreign, np.nan, height) * metres - oz, size)
     holes = ~np.isfinite(z)
     if holes.any():
         j, i = np.argwhere(holes)[0]
         where = f"the first at local x {x[i]:.2f}, y {y[j]:.2f}"
         if foreign[j, i]:
-            value = f"{height[j, i]:.9g}"    # float32 exactly
+            value = f"{stored[j, i]:.9g}"    # float32 exactly, as stored (before a scale and offset)
             raise UserError(f"{path}: the DEM has {int(holes.sum())} cells over the plot at heights no ground has "
                             f"({value}, {where}): a nodata value the file does not declare? Declare it "
                             f"(gdal_edit.py -a_nodata {value}), then fill the cells (gdal_fillnodata)")
         raise UserError(f"{path}: the DEM has {int(holes.sum())} nodata cells over the plot ({where}); "
                         "fill them first (gdal_fillnodata)")
     return x, y, np.ascontiguousarray(z)
+
+
+# GDAL's band unit type as DEMs write it (lower case), and the metres in one unit.
+HEIGHT_UNITS = {**dict.fromkeys(("", "m", "metre", "metres", "meter", "meters"), 1.0),
+                **dict.fromkeys(("ft", "foot", "feet", "international foot"), 0.3048),
+                **dict.fromkeys(("us survey foot", "us-ft", "ftus", "us_survey_foot", "survey foot"), 1200 / 3937)}
+
+
+def _metres_per_unit(path, unit: str | None) -> float:
+    """Metres in one unit of the DEM's heights, from its band's unit type (none: metres).
+
+    :raises UserError: a unit that is neither metres nor feet."""
+    try:
+        return HEIGHT_UNITS[(unit or "").strip().lower()]
+    except KeyError:
+        raise UserError(f"{path}: the DEM's heights are in {unit!r}, not metres or feet: convert them to metres "
+                        "first (gdal_calc.py), or name their unit where they are (gdal_edit.py -units m)") from None
 
 
 def _clamp_outer_holes(x: np.ndarray, y: np.ndarray, z: np.ndarray, size) -> np.ndarray:
@@ -118,10 +140,28 @@ def _check_crs(path, dem_crs, scene_crs: str | None) -> None:
         _WARNED.add(str(path))
         log.warning("mitsuforest: %s: the DEM names no CRS; its coordinates are taken to be in origin.crs (%s)",
                     display_path(path), scene_crs)
-    if scene_crs is None or dem_crs is None:
+    if dem_crs is None:
         return
     from pyproj import CRS
+    if scene_crs is None:        # no origin.crs to be the same as: its x and y must be in the scene's metres
+        problem = _not_in_metres(dem_crs.to_wkt())
+        if problem:
+            theirs = CRS.from_user_input(dem_crs.to_wkt())
+            raise UserError(f"{path}: the DEM's CRS ({theirs.to_string()}) {problem}; the scene is in metres: "
+                            "reproject it to a projected CRS in metres (gdalwarp -t_srs)")
+        return
     ours, theirs = CRS.from_user_input(scene_crs), CRS.from_user_input(dem_crs.to_wkt())
     if not ours.equals(theirs, ignore_axis_order=True):
         raise UserError(f"{path}: the DEM's CRS ({theirs.to_string()}) is not origin.crs ({ours.to_string()}); "
                         "reproject it (gdalwarp -t_srs) or fix origin.crs")
+
+
+def _not_in_metres(wkt: str) -> str | None:
+    """Why x and y in the CRS ``wkt`` are not metres (degrees, feet), or None: a projected CRS in metres, or a
+    local grid in metres (which origin.crs could not be, but a DEM without one may)."""
+    from ..crs import length_units
+    try:
+        _, words, across, _ = length_units(wkt)
+    except ValueError:
+        return "is geographic, in degrees"
+    return None if across == 1.0 else f"has its axes in {words}"

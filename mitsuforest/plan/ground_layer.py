@@ -6,11 +6,11 @@ the plot; a plot whose sides are not whole metres keeps a strip under 1 m free a
 left, so the two never overlap and the covers are met to one cell. Each patch is one of
 :data:`~mitsuforest.specs.understory.PATCH_MODELS` models of its kind, turned by a multiple of 90° (so
 it stays in its cell), and laid on the plane fitted to the terrain under its cell: tilted to the slope,
-its centre at the plane's height there. A tilted patch's top leans out of its cell downhill; in a cell
-at the plot's edge it is tilted less, just enough for its top to stay inside the plot (its centre never
-moves, so patches never overlap). Patches do not avoid trees, rocks or logs (grass grows
-round them). The draws use their own random stream, so a scene without a ground layer is planned as
-before.
+its centre at the plane's height there. A tilted patch's top leans out of its cell downhill as its
+square's corners come in; in a cell at the plot's edge where that takes it out of the plot, it is tilted
+less, just enough to stay inside the plot (its centre never moves, so patches never overlap). Patches do
+not avoid trees, rocks or logs (grass grows round them). The draws use their own random stream, so a
+scene without a ground layer is planned as before.
 """
 
 from __future__ import annotations
@@ -24,6 +24,7 @@ from .types import ModelSpec, PlacedObject
 FIT_SAMPLES = 5           # terrain samples per cell side for the patch's plane
 LITTER_TOP = 0.02         # m: litter lies lower than this above its plane
 GRASS_TOP = 1.4           # the longest blade, times understory.grass.height
+TILT_STEPS = 100          # shares of a tilt tried where the whole does not fit in the plot
 
 
 def ground_cells(size) -> np.ndarray:
@@ -89,11 +90,27 @@ def place_ground_layer(understory, size, terrain, seed: int) -> tuple[list[Place
 
 
 def _within_plot(tilt_x: np.ndarray, tilt_y: np.ndarray, tops: np.ndarray, centres: np.ndarray, size):
-    """Tilts (degrees, (n,) each) scaled down where a patch's top, ``tops`` (n,) above its plane, would
-    lean out of the plot: by up to ``top · sin(tilt)`` beyond the cell at ``centres`` (n, 2), which the
-    cell's free margin to the plot's nearest edge must hold."""
-    margin = np.minimum(centres, np.asarray(size, float) - centres).min(axis=1) - PATCH_SIZE / 2
-    tilt = np.hypot(tilt_x, tilt_y)
-    allowed = np.rad2deg(np.arcsin(np.clip(np.maximum(margin, 0.0) / tops, 0.0, 1.0)))
-    scale = np.where(tilt > allowed, allowed / np.maximum(tilt, 1e-12), 1.0)
+    """Tilts (degrees, (n,) each) scaled down where a patch would reach out of the plot: its square, from the
+    ground to ``tops`` (n,) above its plane, turned by the tilts (:func:`_reach`), must stay within its cell
+    at ``centres`` (n, 2) and the cell's free margin to the plot's nearest edge along each axis. Where the
+    whole tilt does not fit, the largest share of it (in steps of 1/TILT_STEPS) that does; none fits always."""
+    margin = np.minimum(centres, np.asarray(size, float) - centres) - PATCH_SIZE / 2 + 1e-9      # (n, 2)
+    scale = np.ones(len(tilt_x))
+    tight = np.flatnonzero((_reach(tilt_x, tilt_y, tops) > margin).any(axis=1))   # cells along the plot's edges
+    shares = np.linspace(1.0, 0.0, TILT_STEPS + 1)[:, None]                         # (steps, 1)
+    reach = _reach(tilt_x[tight] * shares, tilt_y[tight] * shares, tops[tight])     # (steps, tight, 2)
+    fits = (reach <= margin[tight]).all(axis=2)                                     # the share 0 always fits
+    scale[tight] = shares[np.argmax(fits, axis=0), 0]
     return tilt_x * scale, tilt_y * scale
+
+
+def _reach(tilt_x: np.ndarray, tilt_y: np.ndarray, tops: np.ndarray) -> np.ndarray:
+    """(..., 2) how far beyond its cell, along x and y, a patch reaches when turned by ``Rx(tilt_x) Ry(tilt_y)``
+    (degrees; turns by multiples of 90° about z change nothing): its square's corners (which a tilt draws
+    in) and its top (``tops`` above its plane, which a tilt leans out)."""
+    a, b = np.deg2rad(tilt_x), np.deg2rad(tilt_y)
+    half = PATCH_SIZE / 2
+    # Rows x and y of Rx(a) Ry(b): (cos b, 0, sin b) and (sin a sin b, cos a, -sin a cos b).
+    along_x = half * np.abs(np.cos(b)) + tops * np.abs(np.sin(b))
+    along_y = half * (np.abs(np.sin(a) * np.sin(b)) + np.abs(np.cos(a))) + tops * np.abs(np.sin(a) * np.cos(b))
+    return np.stack([along_x, along_y], axis=-1) - half
