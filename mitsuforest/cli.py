@@ -287,7 +287,7 @@ def _plan(args) -> int:
     out = Path(scene.output.dir)
     check_output_folder(out)
     refuse_finished_render(out, scene.name)
-    plan = make_plan(scene)
+    plan = make_plan(scene, progress=sys.stderr.isatty())      # a bar at a terminal: a long tree list takes minutes
     path = write_plan(out, scene.name, plan)
     kinds = {}
     for obj in plan.objects:

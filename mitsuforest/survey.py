@@ -105,10 +105,15 @@ class Written:
     points: np.ndarray | None
 
 
-def make_plan(scene: Scene) -> Plan:
+def make_plan(scene: Scene, progress: bool = False) -> Plan:
     """The plan of ``scene`` (:func:`~mitsuforest.plan.plan_scene`), its trees' crowns and components from
-    the trees stage (:func:`~mitsuforest.trees.tree_shapes`)."""
-    return plan_scene(scene, tree_shapes)
+    the trees stage (:func:`~mitsuforest.trees.tree_shapes`); with ``progress``, a bar of the crowns had
+    where that takes more than a second (a long tree list's, grown anew)."""
+    if not progress:
+        return plan_scene(scene, tree_shapes)
+    from tqdm import tqdm
+    with tqdm(desc="crowns", unit=" crowns", leave=False, delay=1.0, dynamic_ncols=True) as bar:
+        return plan_scene(scene, functools.partial(tree_shapes, progress=bar.update))
 
 
 def placed_summary(plan: Plan) -> str:
@@ -130,7 +135,7 @@ def prepare(scene: Scene, legs: range | None = None, *, log=_quiet, progress: bo
     :param progress: a bar of the models built, where that takes more than a second.
     """
     timings = Timings()
-    plan = make_plan(scene)
+    plan = make_plan(scene, progress)
     timings.lap("plan")
     models = _built_models(plan, progress)
     timings.lap("trees")

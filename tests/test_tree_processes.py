@@ -1,6 +1,7 @@
 """Models and crowns built in worker processes (``trees/parallel.py``): the same bytes as one process builds,
 each job in a worker, a worker's failure left to the caller."""
 
+import dataclasses
 import operator
 import os
 
@@ -155,3 +156,17 @@ def test_a_dataset_worker_builds_in_one_process(monkeypatch):
     monkeypatch.delenv(PROCESSES_VARIABLE)
     set_threads(None)
     assert build_processes(cores=16) == 0
+
+
+def test_the_crowns_progress_once_each(monkeypatch, tmp_path):
+    """``tree_shapes(..., progress=f)`` calls ``f`` once a crown is had, each of them, from the workers too
+    (what the plan's bar counts)."""
+    monkeypatch.setenv("MITSUFOREST_CACHE", str(tmp_path / "cache"))
+    template = trees.DEFAULT_ARCHETYPES[0]
+    sources = [dataclasses.replace(template, seed=template.seed + i) for i in range(MIN_JOBS + 1)]
+    calls = []
+    for processes in ("0", "2"):
+        monkeypatch.setenv(PROCESSES_VARIABLE, processes)
+        shapes = trees.tree_shapes(sources, keep=False, progress=lambda: calls.append(processes))
+        assert len(shapes) == len(sources)
+    assert calls == ["0"] * len(sources) + ["2"] * len(sources)

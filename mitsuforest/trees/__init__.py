@@ -43,21 +43,24 @@ def tree_shape(source: Archetype | MeshTree | QsmTree, keep: bool = True) -> tup
     return imported_summary(source)
 
 
-def tree_shapes(sources: Sequence[Archetype | MeshTree | QsmTree], keep: bool | Sequence[bool] = True
-                ) -> list[tuple[np.ndarray, int]]:
+def tree_shapes(sources: Sequence[Archetype | MeshTree | QsmTree], keep: bool | Sequence[bool] = True,
+                progress=None) -> list[tuple[np.ndarray, int]]:
     """:func:`tree_shape` of each of ``sources``, in order (``keep`` for all, or one for each): the
     archetypes' crowns that the cache does not hold grown in worker processes where there are many
-    (:mod:`.parallel`)."""
+    (:mod:`.parallel`). ``progress``, when given, is called once a shape is had."""
     sources = list(sources)
     keeps = [keep] * len(sources) if isinstance(keep, bool) else list(keep)
     todo = [i for i, (s, k) in enumerate(zip(sources, keeps)) if isinstance(s, Archetype) and not (k and _crown_stored(s))]
-    grown = dict(zip(todo, in_workers(_archetype_shape, [(sources[i], keeps[i]) for i in todo])))
+    grown = in_workers(_archetype_shape, [(sources[i], keeps[i]) for i in todo])
+    todo = set(todo)
     out = []
     for i, (source, k) in enumerate(zip(sources, keeps)):
-        ok, shape = grown.get(i, (False, None))
+        ok, shape = next(grown) if i in todo else (False, None)
         if ok:
             shape[0].flags.writeable = False
         out.append(shape if ok else tree_shape(source, k))
+        if progress:
+            progress()
     return out
 
 
