@@ -316,3 +316,59 @@ def test_each_tree_is_in_the_core_of_one_tile_however_many_hold_it_whole(tmp_pat
                 counted.setdefault(r["instance"], []).append((t, float(r["volume_union_m3"])))
     assert whole == {"2": [0, 1]}                                  # whole inside two files ...
     assert counted == {"1": [(0, 0.75)], "2": [(1, 0.05)]}         # ... owned by one tile each
+
+
+# --- the objects a leg task loads: those its pulses can reach ----------------------------------------
+
+def _narrow_sensor(folder: Path, mount: str = "") -> Path:
+    """The Leica ALS50-II (75° field of view, so the reach cull leaves objects out) made to fly at 30 m."""
+    text = (ROOT / "sensors" / "leica_als50-ii.yaml").read_text()
+    text = text.replace("range_min: 200.0", "range_min: 3.0").replace("range_max: 6000.0", "range_max: 1000.0")
+    path = folder / "narrow.yaml"
+    path.write_text(text + mount)
+    return path
+
+
+def _scan_bytes(scene, legs, cull: bool, monkeypatch) -> tuple[bytes, int]:
+    """The points of ``legs`` (None: the whole survey) prepared with the reach cull or with every object."""
+    import mitsuforest.scene as scan_scene
+    from mitsuforest.survey import make_plan, prepare_plan, scan
+    from mitsuforest.trees import build_models
+    plan = make_plan(scene)
+    with monkeypatch.context() as patch:
+        if not cull:
+            patch.setattr(scan_scene, "reachable", lambda bounds, *args: np.ones(np.shape(bounds)[:-2], bool))
+        prepared = prepare_plan(scene, plan, build_models(plan), legs=legs)
+        points = np.concatenate(list(scan(prepared)))
+    return points.tobytes(), prepared.scan_scene.loaded
+
+
+@pytest.mark.parametrize("survey, mount", [
+    ("attitude: {roll: 8}", ""),                                           # the swath leans 4.2 m west
+    ("attitude: {roll: {mean_deg: 2, amplitude_deg: 6, period_s: 3}, pitch: 4}", ""),
+    ("", "mount: {lever_arm: [0, 0, 0], boresight: [10, 0, 0]}\n"),        # the sensor mounted rolled
+    ("attitude: {roll: 8}, lines: [[[40, -2], [40, 42]]]", ""),             # one line: the render's own cull
+])
+def test_a_leg_loses_no_point_to_the_objects_left_out_of_its_reach(tmp_path, monkeypatch, survey, mount):
+    """A leg task loads only the objects its pulses can reach, and a render only those some leg reaches:
+    its points must be the bytes the same leg makes with every object loaded. The east leg (x = 40 m,
+    flying north at 30 m) of a rolled platform or a sensor mounted rolled sends its pulses up to
+    30·tan(37.5° + 8°) = 29.6 m west (32.7 m at 10°), not the 23.0 m of a level 75° field of view:
+    trees 23-30 m from it were left out, and their pulses went through them to the ground."""
+    from mitsuforest.config import load_scene
+    from mitsuforest.survey import make_plan
+    sensor = _narrow_sensor(tmp_path, mount)
+    lines = ["name: reach", "seed: 11", "area: {size: [40, 40]}", "terrain: {type: noise, amplitude: 3, wavelength: 20}",
+             "forest: {type: open, trees: 8, min_spacing: 6}", "understory: {bushes: 4, rocks: 3, deadwood: 4, stumps: 2}",
+             f"sensor: {sensor}",
+             "survey: {altitude: 30, speed: 10, pulse_frequency: 60000, scan_frequency: 40, line_spacing: 10, "
+             f"margin: 2{', ' + survey if survey else ''}}}",
+             "simulation: {beam_samples: 1, beam_pattern: fixed, variant: llvm_ad_mono}"]
+    (tmp_path / "scene.yaml").write_text("\n".join(lines) + "\n")
+    scene = load_scene(tmp_path / "scene.yaml")
+    last = len(make_plan(scene).legs) - 1
+    legs = None if "lines" in survey else range(last, last + 1)
+    culled, loaded = _scan_bytes(scene, legs, True, monkeypatch)
+    every, all_objects = _scan_bytes(scene, legs, False, monkeypatch)
+    assert loaded < all_objects                  # the cull left objects out: the test is of something
+    assert culled == every

@@ -22,7 +22,8 @@ from .meshes import face_normals, mitsuba_mesh
 from .proxies import model_cells
 from .variant import scene_variant, select_variant, variant_scope
 
-__all__ = ["ScanScene", "build_scene", "scene_variant", "select_variant", "variant_scope", "reachable"]
+__all__ = ["ScanScene", "Swath", "build_scene", "leg_swaths", "scene_variant", "select_variant", "variant_scope",
+           "reachable"]
 
 
 @dataclass
@@ -107,26 +108,83 @@ class ScanScene:
         return {name: model_cells(model) for name, model in self.survey_models.items()}
 
 
-def reachable(obj_bounds: np.ndarray, legs, sensor) -> bool:
-    """Whether any pulse of any leg can reach an object's bounding box (2, 3).
+@dataclass(frozen=True)
+class Swath:
+    """Where a leg's pulses can go: from beam origins along ``path`` (n, 3; straight between rows), each
+    inside a cone about the vertical of ``half_angle`` (rad), and ``margin`` m further (a lever arm
+    turning with the platform)."""
 
-    A downward cone of half-angle FOV/2 from a leg reaches height z out to (altitude - z)·tan(FOV/2)
-    horizontally; a field of view of 180° or more reaches everything within ``range_max``.
-    """
-    centre = obj_bounds.mean(axis=0)[:2]
-    radius = np.linalg.norm(obj_bounds[1, :2] - obj_bounds[0, :2]) / 2
+    path: np.ndarray
+    half_angle: float
+    margin: float = 0.0
+
+
+BEAM_SPREAD = 3.0   # the widest sub-ray's angle from the beam axis, in half divergences (scan/tracer.py's)
+
+
+def leg_swaths(legs, sensor, attitude=None) -> list[Swath]:
+    """The :class:`Swath` of each leg: its pulses leave within FOV/2 of the sensor's nadir, which the
+    platform's attitude (``survey.attitude``, or a trajectory file's) and the mount's boresight tilt
+    from the vertical, and their sub-rays spread by the beam's divergence beyond that."""
+    from ..plan.trajectory import BODY_FROM_SENSOR, euler_matrix, pose_table
+    mount = sensor.mount
+    spread = float(np.arctan(BEAM_SPREAD * max(sensor.beam_divergence) / 2))
+    level = attitude is None or attitude.zero
+    sensor_to_body = euler_matrix(*mount.boresight)[0] @ BODY_FROM_SENSOR
+    lever = float(np.linalg.norm(mount.lever_arm))
+    out = []
     for leg in legs:
-        a, b = np.array(leg.start), np.array(leg.end)
-        ab = b[:2] - a[:2]
-        f = np.clip(np.dot(centre - a[:2], ab) / max(np.dot(ab, ab), 1e-12), 0, 1)
-        distance = np.linalg.norm(a[:2] + f * ab - centre) - radius
-        if distance <= sensor.reach(a[2] - obj_bounds[0, 2]):
-            return True
-    return False
+        if leg.track is None and level and mount.zero:
+            out.append(Swath(leg.positions(), sensor.half_fov + spread))
+            continue
+        table = pose_table(leg, None if level else attitude)
+        nadir_cos = (table.body @ sensor_to_body)[:, 2, 2]     # the sensor's -z against the local -z
+        tilt = float(np.arccos(np.clip(nadir_cos, -1.0, 1.0)).max())
+        path = leg.positions() if leg.track is None else table.position   # a planned leg flies straight
+        out.append(Swath(path, sensor.half_fov + tilt + spread, lever))
+    return out
+
+
+def reachable(obj_bounds: np.ndarray, swaths: list[Swath], sensor) -> np.ndarray:
+    """Whether any pulse of any leg (its :class:`Swath`) can reach each object's bounding box.
+
+    A pulse leaves at most ``half_angle`` from the vertical, so it reaches height z out to
+    (origin height - z)·tan(half_angle) horizontally from its origin, never beyond ``range_max``; a half
+    angle of 90° or more reaches everything within ``range_max``.
+
+    :param obj_bounds: (m, 2, 3) boxes.
+    :returns: (m,) bool.
+    """
+    obj_bounds = np.asarray(obj_bounds, np.float64).reshape(-1, 2, 3)
+    centre = obj_bounds.mean(axis=1)[:, :2]
+    radius = np.linalg.norm(obj_bounds[:, 1, :2] - obj_bounds[:, 0, :2], axis=1) / 2
+    out = np.zeros(len(obj_bounds), bool)
+    for swath in swaths:
+        path = np.asarray(swath.path, np.float64)
+        depth = path[:, 2].max() + swath.margin - obj_bounds[:, 0, 2]
+        if swath.half_angle >= np.pi / 2:
+            reach = np.full(len(depth), sensor.range_max)
+        else:
+            reach = np.where(depth <= 0, sensor.range_max,
+                             np.minimum(sensor.range_max, np.maximum(depth, 0.0) * np.tan(swath.half_angle)))
+        out |= _path_distance(centre, path[:, :2]) - radius - swath.margin <= reach
+    return out
+
+
+def _path_distance(points: np.ndarray, path: np.ndarray, block: int = 4096) -> np.ndarray:
+    """(m,) horizontal distance of each point (m, 2) to a path (n, 2) straight between its rows."""
+    a, b = (path[:-1], path[1:]) if len(path) > 1 else (path, path)
+    best = np.full(len(points), np.inf)
+    for k in range(0, len(a), block):
+        sa, ab = a[k:k + block], b[k:k + block] - a[k:k + block]
+        rel = points[:, None, :] - sa[None]
+        f = np.clip(np.einsum("mnk,nk->mn", rel, ab) / np.maximum(np.einsum("nk,nk->n", ab, ab), 1e-12), 0, 1)
+        best = np.minimum(best, np.linalg.norm(rel - f[..., None] * ab[None], axis=2).min(axis=1))
+    return best
 
 
 def build_scene(plan, models: dict, sensor, variant: str, legs: range | None = None,
-                reflectance: np.ndarray | None = None) -> ScanScene:
+                reflectance: np.ndarray | None = None, attitude=None) -> ScanScene:
     """Load the plan's objects and ground into Mitsuba under ``variant`` and build the hit table.
 
     :param sensor: the scene's :class:`~mitsuforest.config.types.Sensor` (objects out of its reach are
@@ -136,10 +194,11 @@ def build_scene(plan, models: dict, sensor, variant: str, legs: range | None = N
         default). The box, counts and triangles stay those of the whole survey, so a scan of these legs
         casts the same pulses and makes the same points as over the whole survey's scene.
     :param reflectance: (256,) reflectance by class; None: ours at the sensor's wavelength.
+    :param attitude: the planned legs' ``survey.attitude`` (None: level), which turns where pulses go.
     """
     variant = select_variant(variant)
     with variant_scope(variant):
-        return _build(plan, models, sensor, variant, legs, reflectance)
+        return _build(plan, models, sensor, variant, legs, reflectance, attitude)
 
 
 def _placed(plan, models) -> list[tuple]:
@@ -154,11 +213,16 @@ def _placed(plan, models) -> list[tuple]:
     return out
 
 
-def _build(plan, models, sensor, variant, legs, reflectance) -> ScanScene:
+def _build(plan, models, sensor, variant, legs, reflectance, attitude) -> ScanScene:
     ground_v, ground_f = plan.terrain.mesh()
     placed = _placed(plan, models)
-    survey = [p for p in placed if reachable(p[2], plan.legs, sensor)]
-    keep = survey if legs is None else [p for p in survey if reachable(p[2], [plan.legs[i] for i in legs], sensor)]
+    swaths = leg_swaths(plan.legs, sensor, attitude)
+    bounds = np.array([b for _, _, b in placed]).reshape(-1, 2, 3)
+    survey = [p for p, near in zip(placed, reachable(bounds, swaths, sensor)) if near]
+    if legs is not None:
+        bounds = np.array([b for _, _, b in survey]).reshape(-1, 2, 3)
+        near = reachable(bounds, [swaths[i] for i in legs], sensor)
+    keep = survey if legs is None else [p for p, n in zip(survey, near) if n]
     used = sorted({obj.model for obj, _, _ in keep})
     d = {"type": "scene"}
     part_meshes = []          # in part-row order, as _hit_table numbers parts
