@@ -343,31 +343,39 @@ def _scan_bytes(scene, legs, cull: bool, monkeypatch) -> tuple[bytes, int]:
     return points.tobytes(), prepared.scan_scene.loaded
 
 
+LAWNMOWER = "altitude: 30, speed: 10, pulse_frequency: 60000, scan_frequency: 40, line_spacing: 10, margin: 2"
+
+
 @pytest.mark.parametrize("survey, mount", [
-    ("attitude: {roll: 8}", ""),                                           # the swath leans 4.2 m west
-    ("attitude: {roll: {mean_deg: 2, amplitude_deg: 6, period_s: 3}, pitch: 4}", ""),
-    ("", "mount: {lever_arm: [0, 0, 0], boresight: [10, 0, 0]}\n"),        # the sensor mounted rolled
-    ("attitude: {roll: 8}, lines: [[[40, -2], [40, 42]]]", ""),             # one line: the render's own cull
+    (LAWNMOWER + ", attitude: {roll: 8}", ""),                            # the swath leans 4.2 m west
+    (LAWNMOWER + ", attitude: {roll: {mean_deg: 2, amplitude_deg: 6, period_s: 3}, pitch: 4}", ""),
+    (LAWNMOWER, "mount: {lever_arm: [0, 0, 0], boresight: [10, 0, 0]}\n"),  # the sensor mounted rolled
+    (LAWNMOWER + ", attitude: {roll: 8}, lines: [[[40, -2], [40, 42]]]", ""),   # one line: the render's own cull
+    ("pulse_frequency: 60000, scan_frequency: 40, trajectory: bow.csv", ""),   # a line bowing 10 m west
 ])
 def test_a_leg_loses_no_point_to_the_objects_left_out_of_its_reach(tmp_path, monkeypatch, survey, mount):
     """A leg task loads only the objects its pulses can reach, and a render only those some leg reaches:
     its points must be the bytes the same leg makes with every object loaded. The east leg (x = 40 m,
     flying north at 30 m) of a rolled platform or a sensor mounted rolled sends its pulses up to
     30·tan(37.5° + 8°) = 29.6 m west (32.7 m at 10°), not the 23.0 m of a level 75° field of view:
-    trees 23-30 m from it were left out, and their pulses went through them to the ground."""
+    trees 23-30 m from it were left out, and their pulses went through them to the ground. A trajectory
+    file's line from (40, -2) to (40, 42) that bows out to x = 30 on the way reaches 10 m further west
+    than the straight line between its ends."""
     from mitsuforest.config import load_scene
     from mitsuforest.survey import make_plan
     sensor = _narrow_sensor(tmp_path, mount)
+    t = np.linspace(0.0, 4.4, 23)
+    (tmp_path / "bow.csv").write_text("time,x,y,z,roll,pitch,yaw\n" + "".join(
+        f"{a:.3f},{40 - 10 * np.sin(np.pi * a / 4.4):.4f},{10 * a - 2:.4f},30,0,0,0\n" for a in t))
     lines = ["name: reach", "seed: 11", "area: {size: [40, 40]}", "terrain: {type: noise, amplitude: 3, wavelength: 20}",
              "forest: {type: open, trees: 8, min_spacing: 6}", "understory: {bushes: 4, rocks: 3, deadwood: 4, stumps: 2}",
              f"sensor: {sensor}",
-             "survey: {altitude: 30, speed: 10, pulse_frequency: 60000, scan_frequency: 40, line_spacing: 10, "
-             f"margin: 2{', ' + survey if survey else ''}}}",
+             f"survey: {{{survey}}}",
              "simulation: {beam_samples: 1, beam_pattern: fixed, variant: llvm_ad_mono}"]
     (tmp_path / "scene.yaml").write_text("\n".join(lines) + "\n")
     scene = load_scene(tmp_path / "scene.yaml")
     last = len(make_plan(scene).legs) - 1
-    legs = None if "lines" in survey else range(last, last + 1)
+    legs = None if "lines" in survey or "trajectory" in survey else range(last, last + 1)
     culled, loaded = _scan_bytes(scene, legs, True, monkeypatch)
     every, all_objects = _scan_bytes(scene, legs, False, monkeypatch)
     assert loaded < all_objects                  # the cull left objects out: the test is of something
