@@ -380,3 +380,31 @@ def test_a_leg_loses_no_point_to_the_objects_left_out_of_its_reach(tmp_path, mon
     every, all_objects = _scan_bytes(scene, legs, False, monkeypatch)
     assert loaded < all_objects                  # the cull left objects out: the test is of something
     assert culled == every
+
+
+def test_the_reach_of_a_leg_is_its_cone_widened_by_tilt_spread_and_lever_arm():
+    """Analytic reach of a northbound leg along x = 0 at 30 m over a box on the ground (z 0 to 1, 0.2 m
+    across): level, a 75° field of view reaches 30·tan(37.5°) = 23.02 m; a beam of 30 mrad spreads its
+    widest sub-ray 3 half divergences (0.045 rad) further, to 30·tan(37.5° + 2.58°) = 25.24 m; 10° of roll
+    to 30·tan(47.5° + 2.58°) = 35.85 m on one side; a 2 m lever arm adds up to 2 m of height and 2 m across
+    (32·tan(40.08°) + 2 = 28.92 m)."""
+    from types import SimpleNamespace
+    from mitsuforest.config.types import Attitude, Mount, Wave
+    from mitsuforest.plan.types import Leg
+    from mitsuforest.scene import leg_swaths, reachable
+    leg = Leg((0.0, -5.0, 30.0), (0.0, 45.0, 30.0), 0.0, 5.0)
+    sensor = SimpleNamespace(half_fov=np.radians(37.5), range_max=1000.0, beam_divergence=(0.03, 0.03), mount=Mount())
+
+    def reach(sensor, attitude=None, side=-1):
+        """The farthest box edge (m, on the ``side`` of the leg, -1 west) that the leg reaches, to 1 cm."""
+        xs = np.arange(5.0, 60.0, 0.01)
+        boxes = np.array([[[side * x - 0.1, 19.9, 0.0], [side * x + 0.1, 20.1, 1.0]] for x in xs])
+        near = reachable(boxes, leg_swaths([leg], sensor, attitude), sensor)
+        return xs[near].max() - 0.1 * np.sqrt(2)             # the box's circle reaches its half diagonal closer
+
+    spread = np.arctan(3 * 0.015)
+    assert reach(sensor) == pytest.approx(30 * np.tan(np.radians(37.5) + spread), abs=0.011)
+    roll = Attitude(roll=Wave(10.0))               # right wing down: the nadir turns left (west, flying north)
+    assert reach(sensor, roll) == pytest.approx(30 * np.tan(np.radians(47.5) + spread), abs=0.011)
+    lever = SimpleNamespace(**{**vars(sensor), "mount": Mount(lever_arm=(0.0, 2.0, 0.0))})
+    assert reach(lever) == pytest.approx(32 * np.tan(np.radians(37.5) + spread) + 2, abs=0.011)
