@@ -408,3 +408,31 @@ def test_the_reach_of_a_leg_is_its_cone_widened_by_tilt_spread_and_lever_arm():
     assert reach(sensor, roll) == pytest.approx(30 * np.tan(np.radians(47.5) + spread), abs=0.011)
     lever = SimpleNamespace(**{**vars(sensor), "mount": Mount(lever_arm=(0.0, 2.0, 0.0))})
     assert reach(lever) == pytest.approx(32 * np.tan(np.radians(37.5) + spread) + 2, abs=0.011)
+
+
+def test_a_leg_leaning_towards_the_plot_is_flown_not_refused_as_out_of_reach(tmp_path):
+    """A line 28 m west of a 40 m plot at 30 m with the 75° field of view reaches 30·tan(37.5°) = 23.0 m
+    level, and is refused; rolled 15° left wing down its nadir turns right (east, flying north) and its
+    pulses reach 30·tan(52.5°) = 39.1 m east, to x = 11.1 m in the plot: it was refused all the same."""
+    from mitsuforest.config import load_scene
+    from mitsuforest.errors import ConfigError
+    from mitsuforest.survey import prepare, scan
+    sensor = _narrow_sensor(tmp_path)
+
+    def scene(attitude):
+        (tmp_path / "scene.yaml").write_text("\n".join([
+            "name: lean", "seed: 1", "area: {size: [40, 40]}", "terrain: {type: flat}",
+            "forest: {type: open, trees: 1, min_spacing: 6}", "understory: {bushes: 0, rocks: 0, deadwood: 0, stumps: 0}",
+            f"sensor: {sensor}",
+            "survey: {altitude: 30, speed: 10, pulse_frequency: 20000, scan_frequency: 40, "
+            f"lines: [[[-28, 0], [-28, 40]]]{attitude}}}",
+            "simulation: {beam_samples: 1, beam_pattern: fixed, variant: llvm_ad_mono}"]) + "\n")
+        return load_scene(tmp_path / "scene.yaml")
+
+    with pytest.raises(ConfigError, match=r"survey.lines\[0\]: the leg passes 28.0 m from the plot, beyond the "
+                                          r"sensor's reach of 23.0 m at this altitude"):
+        prepare(scene(""))
+    points = np.concatenate(list(scan(prepare(scene(", attitude: {roll: -15}")))))
+    ground = points[points["classification"] == 1]
+    edge = -28 + 30 * np.tan(np.radians(52.5))                  # 11.10 m; the points have 5 cm ranging noise
+    assert edge - 0.5 < ground["x"].max() <= edge + 4 * 0.05 * np.sin(np.radians(52.5))

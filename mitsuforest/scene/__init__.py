@@ -17,13 +17,13 @@ import mitsuba as mi
 import numpy as np
 
 from ..classes import GROUND, SPECIES_CODES
+from ..plan.reach import Swath, leg_swaths, path_distance
 from ..plan.transforms import apply
 from .meshes import face_normals, mitsuba_mesh
 from .proxies import model_cells
 from .variant import scene_variant, select_variant, variant_scope
 
-__all__ = ["ScanScene", "Swath", "build_scene", "leg_swaths", "scene_variant", "select_variant", "variant_scope",
-           "reachable"]
+__all__ = ["ScanScene", "build_scene", "scene_variant", "select_variant", "variant_scope", "reachable"]
 
 
 @dataclass
@@ -108,61 +108,6 @@ class ScanScene:
         return {name: model_cells(model) for name, model in self.survey_models.items()}
 
 
-@dataclass(frozen=True)
-class Swath:
-    """Where a leg's pulses can go: from beam origins at most ``margin`` m (horizontally) from ``path``
-    (n, 2; straight between rows) and at most ``top`` m high, each inside a cone about the vertical of
-    ``half_angle`` (rad)."""
-
-    path: np.ndarray
-    top: float
-    half_angle: float
-    margin: float = 0.0
-
-
-BEAM_SPREAD = 3.0   # the widest sub-ray's angle from the beam axis, in half divergences (scan/tracer.py's)
-PATH_STEP = 40      # a trajectory's pose rows (5 ms apart) per row of its swath's path
-
-
-def leg_swaths(legs, sensor, attitude=None) -> list[Swath]:
-    """The :class:`Swath` of each leg: its pulses leave within FOV/2 of the sensor's nadir, which the
-    platform's attitude (``survey.attitude``, or a trajectory file's) and the mount's boresight tilt
-    from the vertical, and their sub-rays spread by the beam's divergence beyond that; the lever arm
-    moves their origins by up to its length."""
-    from ..plan.trajectory import BODY_FROM_SENSOR, euler_matrix, pose_table
-    mount = sensor.mount
-    spread = float(np.arctan(BEAM_SPREAD * max(sensor.beam_divergence) / 2))
-    level = attitude is None or attitude.zero
-    sensor_to_body = euler_matrix(*mount.boresight)[0] @ BODY_FROM_SENSOR
-    lever = float(np.linalg.norm(mount.lever_arm))
-    out = []
-    for leg in legs:
-        ends = leg.positions()
-        if leg.track is None and level and mount.zero:
-            out.append(Swath(ends[:, :2], float(ends[:, 2].max()), sensor.half_fov + spread))
-            continue
-        table = pose_table(leg, None if level else attitude)
-        nadir_cos = (table.body @ sensor_to_body)[:, 2, 2]     # the sensor's -z against the local -z
-        tilt = float(np.arccos(np.clip(nadir_cos, -1.0, 1.0)).max())
-        # a planned leg flies straight between its ends; a trajectory's spline, coarsened within `bend` m
-        path, bend = (ends[:, :2], 0.0) if leg.track is None else _coarse_path(table.position[:, :2])
-        top = float(max(ends[:, 2].max(), table.position[:, 2].max())) + lever
-        out.append(Swath(path, top, sensor.half_fov + tilt + spread, lever + bend))
-    return out
-
-
-def _coarse_path(path: np.ndarray, step: int = PATH_STEP) -> tuple[np.ndarray, float]:
-    """Every ``step``-th row of a path (n, 2) and its last, and how far (m) the path strays from the
-    straight lines between the rows kept."""
-    keep = np.unique(np.append(np.arange(0, len(path), step), len(path) - 1))
-    if len(keep) < 2:
-        return path[keep], 0.0
-    segment = np.minimum(np.searchsorted(keep, np.arange(len(path)), side="right") - 1, len(keep) - 2)
-    a, ab = path[keep][segment], path[keep][segment + 1] - path[keep][segment]
-    f = np.clip(np.einsum("nk,nk->n", path - a, ab) / np.maximum(np.einsum("nk,nk->n", ab, ab), 1e-12), 0, 1)
-    return path[keep], float(np.linalg.norm(path - a - f[:, None] * ab, axis=1).max())
-
-
 def reachable(obj_bounds: np.ndarray, swaths: list[Swath], sensor) -> np.ndarray:
     """Whether any pulse of any leg (its :class:`Swath`) can reach each object's bounding box.
 
@@ -178,28 +123,9 @@ def reachable(obj_bounds: np.ndarray, swaths: list[Swath], sensor) -> np.ndarray
     radius = np.linalg.norm(obj_bounds[:, 1, :2] - obj_bounds[:, 0, :2], axis=1) / 2
     out = np.zeros(len(obj_bounds), bool)
     for swath in swaths:
-        depth = swath.top - obj_bounds[:, 0, 2]
-        if swath.half_angle >= np.pi / 2:
-            reach = np.full(len(depth), sensor.range_max)
-        else:
-            reach = np.where(depth <= 0, sensor.range_max,
-                             np.minimum(sensor.range_max, np.maximum(depth, 0.0) * np.tan(swath.half_angle)))
-        out |= _path_distance(centre, np.asarray(swath.path, np.float64)) - radius - swath.margin <= reach
+        reach = swath.reach(swath.top - obj_bounds[:, 0, 2], sensor.range_max)
+        out |= path_distance(centre, np.asarray(swath.path, np.float64)) - radius - swath.margin <= reach
     return out
-
-
-def _path_distance(points: np.ndarray, path: np.ndarray, pairs: int = 1 << 22) -> np.ndarray:
-    """(m,) horizontal distance of each point (m, 2) to a path (n, 2) straight between its rows, taking
-    at most about ``pairs`` (point, segment) pairs at once (a trajectory's path has a row every 5 ms)."""
-    a, b = (path[:-1], path[1:]) if len(path) > 1 else (path, path)
-    best = np.full(len(points), np.inf)
-    block = max(1, pairs // max(len(points), 1))
-    for k in range(0, len(a), block):
-        sa, ab = a[k:k + block], b[k:k + block] - a[k:k + block]
-        rel = points[:, None, :] - sa[None]
-        f = np.clip(np.einsum("mnk,nk->mn", rel, ab) / np.maximum(np.einsum("nk,nk->n", ab, ab), 1e-12), 0, 1)
-        best = np.minimum(best, np.linalg.norm(rel - f[..., None] * ab[None], axis=2).min(axis=1))
-    return best
 
 
 def build_scene(plan, models: dict, sensor, variant: str, legs: range | None = None,
