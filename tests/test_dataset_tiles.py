@@ -391,7 +391,8 @@ def test_the_reach_of_a_leg_is_its_cone_widened_by_tilt_spread_and_lever_arm():
     from types import SimpleNamespace
     from mitsuforest.config.types import Attitude, Mount, Wave
     from mitsuforest.plan.types import Leg
-    from mitsuforest.scene import leg_swaths, reachable
+    from mitsuforest.plan.reach import leg_swaths
+    from mitsuforest.scene import reachable
     leg = Leg((0.0, -5.0, 30.0), (0.0, 45.0, 30.0), 0.0, 5.0)
     sensor = SimpleNamespace(half_fov=np.radians(37.5), range_max=1000.0, beam_divergence=(0.03, 0.03), mount=Mount())
 
