@@ -168,7 +168,7 @@ def _load(scene, plan, models, legs, reflectance, timings, log) -> PreparedSurve
     log(f"plan: {placed_summary(plan)}, canopy cover {plan.canopy_cover:.1%}, {len(plan.objects)} objects, "
         f"{len(plan.legs)} legs")
     scan_scene = build_scene(plan, models, scene.sensor, scene.simulation.variant,
-                             None if len(legs) == len(plan.legs) else legs, reflectance)
+                             None if len(legs) == len(plan.legs) else legs, reflectance, scene.survey.attitude)
     timings.lap("scene")
     log(f"scene: {scan_scene.objects} objects ({scan_scene.culled} out of reach), "
         f"{scan_scene.triangles:,} distinct triangles, variant {scan_scene.variant}")

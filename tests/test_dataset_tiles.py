@@ -316,3 +316,124 @@ def test_each_tree_is_in_the_core_of_one_tile_however_many_hold_it_whole(tmp_pat
                 counted.setdefault(r["instance"], []).append((t, float(r["volume_union_m3"])))
     assert whole == {"2": [0, 1]}                                  # whole inside two files ...
     assert counted == {"1": [(0, 0.75)], "2": [(1, 0.05)]}         # ... owned by one tile each
+
+
+# --- the objects a leg task loads: those its pulses can reach ----------------------------------------
+
+def _narrow_sensor(folder: Path, mount: str = "") -> Path:
+    """The Leica ALS50-II (75° field of view, so the reach cull leaves objects out) made to fly at 30 m."""
+    text = (ROOT / "sensors" / "leica_als50-ii.yaml").read_text()
+    text = text.replace("range_min: 200.0", "range_min: 3.0").replace("range_max: 6000.0", "range_max: 1000.0")
+    path = folder / "narrow.yaml"
+    path.write_text(text + mount)
+    return path
+
+
+def _scan_bytes(scene, legs, cull: bool, monkeypatch) -> tuple[bytes, int]:
+    """The points of ``legs`` (None: the whole survey) prepared with the reach cull or with every object."""
+    import mitsuforest.scene as scan_scene
+    from mitsuforest.survey import make_plan, prepare_plan, scan
+    from mitsuforest.trees import build_models
+    plan = make_plan(scene)
+    with monkeypatch.context() as patch:
+        if not cull:
+            patch.setattr(scan_scene, "reachable", lambda bounds, *args: np.ones(np.shape(bounds)[:-2], bool))
+        prepared = prepare_plan(scene, plan, build_models(plan), legs=legs)
+        points = np.concatenate(list(scan(prepared)))
+    return points.tobytes(), prepared.scan_scene.loaded
+
+
+LAWNMOWER = "altitude: 30, speed: 10, pulse_frequency: 60000, scan_frequency: 40, line_spacing: 10, margin: 2"
+
+
+@pytest.mark.parametrize("survey, mount", [
+    (LAWNMOWER + ", attitude: {roll: 8}", ""),                            # the swath leans 4.2 m west
+    (LAWNMOWER + ", attitude: {roll: {mean_deg: 2, amplitude_deg: 6, period_s: 3}, pitch: 4}", ""),
+    (LAWNMOWER, "mount: {lever_arm: [0, 0, 0], boresight: [10, 0, 0]}\n"),  # the sensor mounted rolled
+    (LAWNMOWER + ", attitude: {roll: 8}, lines: [[[40, -2], [40, 42]]]", ""),   # one line: the render's own cull
+    ("pulse_frequency: 60000, scan_frequency: 40, trajectory: bow.csv", ""),   # a line bowing 10 m west
+])
+def test_a_leg_loses_no_point_to_the_objects_left_out_of_its_reach(tmp_path, monkeypatch, survey, mount):
+    """A leg task loads only the objects its pulses can reach, and a render only those some leg reaches:
+    its points must be the bytes the same leg makes with every object loaded. The east leg (x = 40 m,
+    flying north at 30 m) of a rolled platform or a sensor mounted rolled sends its pulses up to
+    30·tan(37.5° + 8°) = 29.6 m west (32.7 m at 10°), not the 23.0 m of a level 75° field of view:
+    trees 23-30 m from it were left out, and their pulses went through them to the ground. A trajectory
+    file's line from (40, -2) to (40, 42) that bows out to x = 30 on the way reaches 10 m further west
+    than the straight line between its ends."""
+    from mitsuforest.config import load_scene
+    from mitsuforest.survey import make_plan
+    sensor = _narrow_sensor(tmp_path, mount)
+    t = np.linspace(0.0, 4.4, 23)
+    (tmp_path / "bow.csv").write_text("time,x,y,z,roll,pitch,yaw\n" + "".join(
+        f"{a:.3f},{40 - 10 * np.sin(np.pi * a / 4.4):.4f},{10 * a - 2:.4f},30,0,0,0\n" for a in t))
+    lines = ["name: reach", "seed: 11", "area: {size: [40, 40]}", "terrain: {type: noise, amplitude: 3, wavelength: 20}",
+             "forest: {type: open, trees: 8, min_spacing: 6}", "understory: {bushes: 4, rocks: 3, deadwood: 4, stumps: 2}",
+             f"sensor: {sensor}",
+             f"survey: {{{survey}}}",
+             "simulation: {beam_samples: 1, beam_pattern: fixed, variant: llvm_ad_mono}"]
+    (tmp_path / "scene.yaml").write_text("\n".join(lines) + "\n")
+    scene = load_scene(tmp_path / "scene.yaml")
+    last = len(make_plan(scene).legs) - 1
+    legs = None if "lines" in survey or "trajectory" in survey else range(last, last + 1)
+    culled, loaded = _scan_bytes(scene, legs, True, monkeypatch)
+    every, all_objects = _scan_bytes(scene, legs, False, monkeypatch)
+    assert loaded < all_objects                  # the cull left objects out: the test is of something
+    assert culled == every
+
+
+def test_the_reach_of_a_leg_is_its_cone_widened_by_tilt_spread_and_lever_arm():
+    """Analytic reach of a northbound leg along x = 0 at 30 m over a box on the ground (z 0 to 1, 0.2 m
+    across): level, a 75° field of view reaches 30·tan(37.5°) = 23.02 m; a beam of 30 mrad spreads its
+    widest sub-ray 3 half divergences (0.045 rad) further, to 30·tan(37.5° + 2.58°) = 25.24 m; 10° of roll
+    to 30·tan(47.5° + 2.58°) = 35.85 m on one side; a 2 m lever arm adds up to 2 m of height and 2 m across
+    (32·tan(40.08°) + 2 = 28.92 m)."""
+    from types import SimpleNamespace
+    from mitsuforest.config.types import Attitude, Mount, Wave
+    from mitsuforest.plan.types import Leg
+    from mitsuforest.plan.reach import leg_swaths
+    from mitsuforest.scene import reachable
+    leg = Leg((0.0, -5.0, 30.0), (0.0, 45.0, 30.0), 0.0, 5.0)
+    sensor = SimpleNamespace(half_fov=np.radians(37.5), range_max=1000.0, beam_divergence=(0.03, 0.03), mount=Mount())
+
+    def reach(sensor, attitude=None, side=-1):
+        """The farthest box edge (m, on the ``side`` of the leg, -1 west) that the leg reaches, to 1 cm."""
+        xs = np.arange(5.0, 60.0, 0.01)
+        boxes = np.array([[[side * x - 0.1, 19.9, 0.0], [side * x + 0.1, 20.1, 1.0]] for x in xs])
+        near = reachable(boxes, leg_swaths([leg], sensor, attitude), sensor)
+        return xs[near].max() - 0.1 * np.sqrt(2)             # the box's circle reaches its half diagonal closer
+
+    spread = np.arctan(3 * 0.015)
+    assert reach(sensor) == pytest.approx(30 * np.tan(np.radians(37.5) + spread), abs=0.011)
+    roll = Attitude(roll=Wave(10.0))               # right wing down: the nadir turns left (west, flying north)
+    assert reach(sensor, roll) == pytest.approx(30 * np.tan(np.radians(47.5) + spread), abs=0.011)
+    lever = SimpleNamespace(**{**vars(sensor), "mount": Mount(lever_arm=(0.0, 2.0, 0.0))})
+    assert reach(lever) == pytest.approx(32 * np.tan(np.radians(37.5) + spread) + 2, abs=0.011)
+
+
+def test_a_leg_leaning_towards_the_plot_is_flown_not_refused_as_out_of_reach(tmp_path):
+    """A line 28 m west of a 40 m plot at 30 m with the 75° field of view reaches 30·tan(37.5°) = 23.0 m
+    level, and is refused; rolled 15° left wing down its nadir turns right (east, flying north) and its
+    pulses reach 30·tan(52.5°) = 39.1 m east, to x = 11.1 m in the plot: it was refused all the same."""
+    from mitsuforest.config import load_scene
+    from mitsuforest.errors import ConfigError
+    from mitsuforest.survey import prepare, scan
+    sensor = _narrow_sensor(tmp_path)
+
+    def scene(attitude):
+        (tmp_path / "scene.yaml").write_text("\n".join([
+            "name: lean", "seed: 1", "area: {size: [40, 40]}", "terrain: {type: flat}",
+            "forest: {type: open, trees: 1, min_spacing: 6}", "understory: {bushes: 0, rocks: 0, deadwood: 0, stumps: 0}",
+            f"sensor: {sensor}",
+            "survey: {altitude: 30, speed: 10, pulse_frequency: 20000, scan_frequency: 40, "
+            f"lines: [[[-28, 0], [-28, 40]]]{attitude}}}",
+            "simulation: {beam_samples: 1, beam_pattern: fixed, variant: llvm_ad_mono}"]) + "\n")
+        return load_scene(tmp_path / "scene.yaml")
+
+    with pytest.raises(ConfigError, match=r"survey.lines\[0\]: the leg passes 28.0 m from the plot, beyond the "
+                                          r"sensor's reach of 23.0 m at this altitude"):
+        prepare(scene(""))
+    points = np.concatenate(list(scan(prepare(scene(", attitude: {roll: -15}")))))
+    ground = points[points["classification"] == 1]
+    edge = -28 + 30 * np.tan(np.radians(52.5))                  # 11.10 m; the points have 5 cm ranging noise
+    assert edge - 0.5 < ground["x"].max() <= edge + 4 * 0.05 * np.sin(np.radians(52.5))

@@ -172,9 +172,12 @@ def _leg_gap(leg: Leg, size) -> float:
 
 
 def _reach(scene, leg: Leg, terrain: Terrain) -> float:
-    """How far from the track (m) a pulse of ``leg`` can reach the ground, down to the terrain's lowest
-    point in the plot (the terrain's own heights: a DEM's or a mesh's range, not ``terrain.amplitude``)."""
-    return scene.sensor.reach(float(leg.positions()[:, 2].min()) - float(terrain.z.min()))
+    """How far from the track (m) a pulse's beam axis of ``leg`` can reach the ground, down to the terrain's
+    lowest point in the plot (the terrain's own heights: a DEM's or a mesh's range, not ``terrain.amplitude``),
+    with the swath the platform's attitude and the sensor's mount lean (:func:`~.reach.leg_swaths`)."""
+    from .reach import leg_swaths
+    swath = leg_swaths([leg], scene.sensor, scene.survey.attitude, beam=False)[0]
+    return float(swath.reach(swath.top - float(terrain.z.min()), scene.sensor.range_max)) + swath.margin
 
 
 def plan_json(plan: Plan) -> str:

@@ -17,6 +17,7 @@ import mitsuba as mi
 import numpy as np
 
 from ..classes import GROUND, SPECIES_CODES
+from ..plan.reach import Swath, leg_swaths, path_distance
 from ..plan.transforms import apply
 from .meshes import face_normals, mitsuba_mesh
 from .proxies import model_cells
@@ -107,26 +108,28 @@ class ScanScene:
         return {name: model_cells(model) for name, model in self.survey_models.items()}
 
 
-def reachable(obj_bounds: np.ndarray, legs, sensor) -> bool:
-    """Whether any pulse of any leg can reach an object's bounding box (2, 3).
+def reachable(obj_bounds: np.ndarray, swaths: list[Swath], sensor) -> np.ndarray:
+    """Whether any pulse of any leg (its :class:`Swath`) can reach each object's bounding box.
 
-    A downward cone of half-angle FOV/2 from a leg reaches height z out to (altitude - z)·tan(FOV/2)
-    horizontally; a field of view of 180° or more reaches everything within ``range_max``.
+    A pulse leaves at most ``half_angle`` from the vertical, so it reaches height z out to
+    (origin height - z)·tan(half_angle) horizontally from its origin, never beyond ``range_max``; a half
+    angle of 90° or more reaches everything within ``range_max``.
+
+    :param obj_bounds: (m, 2, 3) boxes.
+    :returns: (m,) bool.
     """
-    centre = obj_bounds.mean(axis=0)[:2]
-    radius = np.linalg.norm(obj_bounds[1, :2] - obj_bounds[0, :2]) / 2
-    for leg in legs:
-        a, b = np.array(leg.start), np.array(leg.end)
-        ab = b[:2] - a[:2]
-        f = np.clip(np.dot(centre - a[:2], ab) / max(np.dot(ab, ab), 1e-12), 0, 1)
-        distance = np.linalg.norm(a[:2] + f * ab - centre) - radius
-        if distance <= sensor.reach(a[2] - obj_bounds[0, 2]):
-            return True
-    return False
+    obj_bounds = np.asarray(obj_bounds, np.float64).reshape(-1, 2, 3)
+    centre = obj_bounds.mean(axis=1)[:, :2]
+    radius = np.linalg.norm(obj_bounds[:, 1, :2] - obj_bounds[:, 0, :2], axis=1) / 2
+    out = np.zeros(len(obj_bounds), bool)
+    for swath in swaths:
+        reach = swath.reach(swath.top - obj_bounds[:, 0, 2], sensor.range_max)
+        out |= path_distance(centre, np.asarray(swath.path, np.float64)) - radius - swath.margin <= reach
+    return out
 
 
 def build_scene(plan, models: dict, sensor, variant: str, legs: range | None = None,
-                reflectance: np.ndarray | None = None) -> ScanScene:
+                reflectance: np.ndarray | None = None, attitude=None) -> ScanScene:
     """Load the plan's objects and ground into Mitsuba under ``variant`` and build the hit table.
 
     :param sensor: the scene's :class:`~mitsuforest.config.types.Sensor` (objects out of its reach are
@@ -136,10 +139,11 @@ def build_scene(plan, models: dict, sensor, variant: str, legs: range | None = N
         default). The box, counts and triangles stay those of the whole survey, so a scan of these legs
         casts the same pulses and makes the same points as over the whole survey's scene.
     :param reflectance: (256,) reflectance by class; None: ours at the sensor's wavelength.
+    :param attitude: the planned legs' ``survey.attitude`` (None: level), which turns where pulses go.
     """
     variant = select_variant(variant)
     with variant_scope(variant):
-        return _build(plan, models, sensor, variant, legs, reflectance)
+        return _build(plan, models, sensor, variant, legs, reflectance, attitude)
 
 
 def _placed(plan, models) -> list[tuple]:
@@ -154,11 +158,16 @@ def _placed(plan, models) -> list[tuple]:
     return out
 
 
-def _build(plan, models, sensor, variant, legs, reflectance) -> ScanScene:
+def _build(plan, models, sensor, variant, legs, reflectance, attitude) -> ScanScene:
     ground_v, ground_f = plan.terrain.mesh()
     placed = _placed(plan, models)
-    survey = [p for p in placed if reachable(p[2], plan.legs, sensor)]
-    keep = survey if legs is None else [p for p in survey if reachable(p[2], [plan.legs[i] for i in legs], sensor)]
+    swaths = leg_swaths(plan.legs, sensor, attitude)
+    bounds = np.array([b for _, _, b in placed]).reshape(-1, 2, 3)
+    survey = [p for p, near in zip(placed, reachable(bounds, swaths, sensor)) if near]
+    if legs is not None:
+        bounds = np.array([b for _, _, b in survey]).reshape(-1, 2, 3)
+        near = reachable(bounds, [swaths[i] for i in legs], sensor)
+    keep = survey if legs is None else [p for p, n in zip(survey, near) if n]
     used = sorted({obj.model for obj, _, _ in keep})
     d = {"type": "scene"}
     part_meshes = []          # in part-row order, as _hit_table numbers parts
