@@ -353,3 +353,9 @@ def test_learning_curve_benchmark_refuses_bad_arguments_before_any_render(args, 
     proc = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "learning_curve.py"), *args],
                           capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2 and said in proc.stderr.strip().splitlines()[-1], proc.stderr
+
+
+def test_tree_list_benchmark_quick():
+    """Both runs plan the twelve listed trees to the same bytes, one process and two workers."""
+    stdout = _run([str(ROOT / "benchmarks" / "tree_list.py"), "--quick", "--processes", "0", "2"], ROOT)
+    assert "processes 0" in stdout and "processes 2" in stdout and "plans: the same bytes" in stdout, stdout
