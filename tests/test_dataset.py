@@ -442,3 +442,22 @@ def test_tiles_of_a_plot_written_only_as_las_keep_every_field(tmp_path, fmt):
     assert np.isnan(read["height_above_ground"]).all()        # the points written had none
     for name in set(read.dtype.names) - {"height_above_ground"}:
         assert np.allclose(read[name], points[name], atol=1e-4), name
+
+
+def test_a_worker_sets_up_a_rewritten_scene_file_anew_whatever_its_time_stamp(tmp_path):
+    """A worker keeps one plot's scene, plan and models for its next leg tasks. A scene file rewritten with
+    other content (a dataset edited and run again on a scheduler's workers, which live on) is set up
+    anew even where the file keeps its time stamp (a file system that stamps whole seconds, ``cp -p``):
+    the kept plan was that of the other scene (seed 3, 2 trees) under the new file's checksum."""
+    from mitsuforest.dataset import tasks
+    path = tmp_path / "scenes" / "plot_0000.yaml"
+    path.parent.mkdir()
+    path.write_text(tiny_scene(2, 0, 0, 0, 0))
+    scene, plan, _ = tasks._plot_setup(path)
+    assert (scene.seed, len(plan.trees)) == (3, 2)
+    stamp = path.stat().st_mtime_ns
+    path.write_text(tiny_scene(1, 0, 0, 0, 0).replace("seed: 3", "seed: 4"))
+    os.utime(path, ns=(stamp, stamp))
+    scene, plan, models = tasks._plot_setup(path)
+    assert (scene.seed, len(plan.trees)) == (4, 1)
+    assert tasks._plot_setup(path)[2] is models        # the same file again: kept, not set up anew

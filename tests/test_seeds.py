@@ -118,3 +118,49 @@ def test_the_demo_renders_to_the_same_bytes_in_another_process(tmp_path):
     assert {"demo.laz", "demo.pcd", "demo_plan.json"} <= set(names)
     for name in names:
         assert (tmp_path / "a" / name).read_bytes() == (tmp_path / "b" / name).read_bytes(), name
+
+
+@pytest.mark.slow
+def test_a_plot_rendered_after_other_plots_is_the_bytes_of_it_alone_in_a_fresh_process(tmp_path):
+    """One process renders plots that differ in what a kept model, kernel, crown or writer might be keyed
+    on wrongly (sensor, sub-rays and their pattern, point position, terrain, seed, species, formats and
+    profile, georeference, a plot that fails on a bad tree file), then two of them again: each is the
+    bytes a fresh process writes for it alone, with a model cache of its own (the manifest aside: times)."""
+    from helpers import tiny_scene
+
+    from mitsuforest.errors import ConfigError
+    from mitsuforest.pipeline import render
+    base = yaml.safe_load(tiny_scene(2, 2, 1, 1, 1))
+    plots = {
+        "plain": {},
+        "livox": {"sensor": str(ROOT / "sensors" / "livox_mid-70.yaml"), "terrain": {"type": "noise"},
+                  "simulation": {"beam_samples": 3, "beam_pattern": "stratified", "point_position": "surface"}},
+        "other": {"seed": 4, "forest": {"type": "open", "trees": 2, "min_spacing": 4, "archetypes": [{"species": "acacia"}]},
+                  "origin": {"offset": [500000.0, 6000000.0, 100.0], "crs": "EPSG:7855"},
+                  "output": {"formats": ["las", "copc"], "profile": "for-instance", "waveforms": True}},
+    }
+    files = {}
+    for name, changes in plots.items():
+        files[name] = tmp_path / f"{name}.yaml"
+        files[name].write_text(yaml.safe_dump({**base, **changes, "name": "plot"}))
+    broken = tmp_path / "broken.yaml"
+    (tmp_path / "broken.obj").write_text("v 0 0 0\nv 1 0 0\nf 1 2 3\n")
+    broken.write_text(yaml.safe_dump({**base, "forest": {**base["forest"], "models": [{"mesh": "broken.obj"}]}}))
+    for k, name in enumerate(["plain", "livox", "other", "broken", "plain", "livox"]):
+        if name == "broken":
+            with pytest.raises(ConfigError, match="broken.obj"):
+                render(broken, output_dir=tmp_path / "seq" / "broken", progress=False, log=lambda *_: None)
+            continue
+        render(files[name], output_dir=tmp_path / "seq" / f"{k}-{name}", progress=False, log=lambda *_: None)
+    fresh = {**os.environ, "MITSUFOREST_CACHE": str(tmp_path / "fresh-cache")}   # nothing this process stored
+    for k, name in [(1, "livox"), (2, "other"), (4, "plain"), (5, "livox")]:
+        alone = tmp_path / "alone" / name
+        if not alone.exists():
+            subprocess.run([sys.executable, "-m", "mitsuforest", "render", str(files[name]), "-o", str(alone), "--quiet"],
+                           cwd=ROOT, check=True, env=fresh)
+        after = tmp_path / "seq" / f"{k}-{name}"
+        names = sorted(p.name for p in alone.iterdir() if not p.name.endswith("_manifest.json"))
+        assert names == sorted(p.name for p in after.iterdir() if not p.name.endswith("_manifest.json"))
+        assert len(names) >= 9
+        for file in names:
+            assert (after / file).read_bytes() == (alone / file).read_bytes(), (name, file)

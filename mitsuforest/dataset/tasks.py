@@ -258,17 +258,19 @@ def _finish(root, result, tiles, seconds: float) -> dict:
     return record
 
 
-_SETUP: dict = {}   # this worker's plot in memory: {scene file: (scene, plan, models)}
+_SETUP: dict = {}   # this worker's plot in memory: {(scene file, its SHA-256): (scene, plan, models)}
 
 
 def _plot_setup(path, first_leg: int = 0):
     """The plot's scene, plan and models, kept for the next leg tasks of the same plot (one plot at a
-    time: a new plot replaces the last). A worker setting it up for a later leg than the first builds
+    time: a new plot replaces the last). The plot is its scene file's path and content, as for its
+    records (a file rewritten with other content may keep its time stamp: a file system that stamps
+    whole seconds, ``cp -p``). A worker setting it up for a later leg than the first builds
     the models in an order of its own (drawn with the leg's number), so that workers setting up one plot
     at once seldom build the same model together: each reads from the cache what another has stored.
     (Walking the list from points spread along it was tried: a worker that caught up with another then
     built each model beside it.)"""
-    key = (str(path), os.stat(path).st_mtime_ns)
+    key = (str(path), files.sha256(path))
     if key not in _SETUP:
         _SETUP.clear()
         from ..config import load_scene
