@@ -80,8 +80,12 @@ def deferred_signals(ignore: bool = False):
     try:
         yield
     finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
+        # Python runs a pending signal's handler right after any call: a handler put back may act at once
+        # and raise, so each put is in a finally of the one before, SIGINT's (the noting one until then) last.
+        try:
+            signal.signal(signal.SIGTERM, previous[signal.SIGTERM])
+        finally:
+            signal.signal(signal.SIGINT, previous[signal.SIGINT])
     if pending and not ignore:
         raise Terminated() if signal.SIGTERM in pending else KeyboardInterrupt()
 

@@ -480,6 +480,33 @@ def test_interrupts_wait_for_the_heavy_imports():
     assert reached == ["the end of the block"]
 
 
+@pytest.mark.parametrize("caught", ["SIGINT", "SIGTERM"])
+def test_a_signal_handled_as_the_handlers_are_put_back_leaves_both_put_back(monkeypatch, caught):
+    """Python runs a pending signal's handler between any two calls: the moment a held block's handlers are
+    put back one by one, Ctrl-C (or SIGTERM) handled by the handler just put back raised out of the block
+    with the other signal's left holding (a later SIGTERM only noted, never acted on). Here the signal is
+    handled right after its own handler is put back."""
+    import signal
+
+    from mitsuforest import interrupts
+    original = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    put = signal.signal
+    target = getattr(signal, caught)
+
+    def put_then_handle(sig, handler):
+        before = put(sig, handler)
+        if sig == target and handler is original[target]:
+            raise KeyboardInterrupt if sig == signal.SIGINT else interrupts.Terminated()
+        return before
+
+    monkeypatch.setattr(interrupts.signal, "signal", put_then_handle)
+    with pytest.raises((KeyboardInterrupt, interrupts.Terminated)):
+        with interrupts.deferred_signals():
+            pass
+    monkeypatch.undo()
+    assert {s: signal.getsignal(s) for s in original} == original
+
+
 def test_an_interrupt_just_after_a_batch_is_queued_does_not_hang_the_writer():
     """A Ctrl-C whose handler ran just after the scan's put had taken the writer queue's lock (Python's
     ``Condition.__enter__`` is cut between taking the lock and the ``with`` block) left the lock taken;
