@@ -29,6 +29,7 @@ from .labels import label_points
 from .realism import realism_table
 from .scan import ScanResult, scan_batches
 from .scene import HitTable, ScanScene, build_scene
+from .threads import note_native_threads, refuse_forked_render
 from .trees import build_models, tree_shapes
 from .write.manifest import import_report
 from .write import PointWriter, Staging, write_manifest, write_render_outputs
@@ -134,6 +135,7 @@ def prepare(scene: Scene, legs: range | None = None, *, log=_quiet, progress: bo
     :param log: called with a line on the plan and one on the Mitsuba scene.
     :param progress: a bar of the models built, where that takes more than a second.
     """
+    refuse_forked_render()
     timings = Timings()
     plan = make_plan(scene, progress)
     timings.lap("plan")
@@ -167,6 +169,8 @@ def _load(scene, plan, models, legs, reflectance, timings, log) -> PreparedSurve
         raise ValueError(f"legs {legs} are not consecutive legs of the plan's {len(plan.legs)}")
     log(f"plan: {placed_summary(plan)}, canopy cover {plan.canopy_cover:.1%}, {len(plan.objects)} objects, "
         f"{len(plan.legs)} legs")
+    refuse_forked_render()
+    note_native_threads()
     scan_scene = build_scene(plan, models, scene.sensor, scene.simulation.variant,
                              None if len(legs) == len(plan.legs) else legs, reflectance, scene.survey.attitude)
     timings.lap("scene")
@@ -182,6 +186,7 @@ def scan(prepared: PreparedSurvey, legs: range | None = None, *, progress: bool 
     legs = prepared.legs if legs is None else legs
     if len(legs) and (legs.step != 1 or legs.start < prepared.legs.start or legs.stop > prepared.legs.stop):
         raise ValueError(f"legs {legs} were not prepared (the survey holds the objects in reach of {prepared.legs})")
+    refuse_forked_render()
     result = ScanResult()
     batches = Batches(iter(()), result)
     records = prepared.scene.output.waveforms or prepared.scene.output.pulses

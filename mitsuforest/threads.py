@@ -110,6 +110,30 @@ def _forget_shared() -> None:
 os.register_at_fork(after_in_child=_forget_shared)
 
 
+_rendering_process: int | None = None      # the process that loaded a scene into Mitsuba, once one has
+
+
+def note_native_threads() -> None:
+    """Note that this process now runs the native thread pools a render starts (Mitsuba's and Embree's as
+    a scene loads, Dr.Jit's as it scans, lazrs's as it compresses): a process forked from it has none of
+    them, and :func:`refuse_forked_render` refuses to render there."""
+    global _rendering_process
+    _rendering_process = os.getpid()
+
+
+def refuse_forked_render() -> None:
+    """Refuse to render in a process forked from one that had rendered: its render would wait for ever on
+    threads that did not come with the fork (the demo scene did, in Dr.Jit's and lazrs's waits).
+
+    :raises UserError: in such a process.
+    """
+    if _rendering_process is not None and _rendering_process != os.getpid():
+        raise UserError("this process was forked from one that had rendered (multiprocessing's 'fork', the default "
+                        "on Linux before Python 3.14), and a render here would wait for ever on its parent's "
+                        "Dr.Jit and LAZ threads, which a fork does not copy: start the rendering processes with "
+                        "'spawn' (multiprocessing.get_context('spawn'); ProcessPoolExecutor(mp_context=...))")
+
+
 def shared_workers() -> Workers:
     """A process-wide :class:`Workers` of :func:`writer_threads` threads, made on first use."""
     global _shared

@@ -543,3 +543,31 @@ def test_workers_setting_up_one_plot_build_in_their_own_orders_and_read_what_the
     assert len(built) == 6 and list(first) == names
     for name in names:
         assert np.array_equal(first[name].parts[0].vertices, second[name].parts[0].vertices)
+
+
+def test_a_process_forked_from_one_that_rendered_refuses_to_render():
+    """A render in a child forked after its parent had rendered waited for ever on the parent's Dr.Jit and lazrs
+    threads, which a fork does not copy (the demo scene, in a ``fork`` pool): it is refused, naming ``spawn``.
+    The process that rendered renders on."""
+    from mitsuforest import threads
+    from mitsuforest.config import load_scene
+    from mitsuforest.survey import prepare
+    threads.note_native_threads()                     # as loading a scene into Mitsuba does
+    threads.refuse_forked_render()                    # this process renders on
+    read, write = os.pipe()
+    child = os.fork()
+    if child == 0:                                    # pragma: no cover (the child reports through the pipe)
+        try:
+            prepare(load_scene("scenes/demo.yaml"))
+            os.write(write, b"rendered")
+        except UserError as e:
+            os.write(write, str(e).encode()[:4000])
+        finally:
+            os._exit(0)
+    os.close(write)
+    import select
+    if not select.select([read], [], [], 120)[0]:     # the child hangs in the render it should have refused
+        os.kill(child, 9)
+    said = os.read(read, 4096).decode() if select.select([read], [], [], 0)[0] else "no answer in 120 s"
+    os.waitpid(child, 0)
+    assert said.startswith("this process was forked from one that had rendered") and "'spawn'" in said, said
