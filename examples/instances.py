@@ -1,4 +1,4 @@
-"""Tree instances: keep tree points (treeid 1-10), colour them by instance, measure each tree.
+"""Tree instances: keep tree points (tree wood and leaves), colour them by instance, measure each tree.
 
 Writes a per-tree table (points, height, crown diameter) and a side view coloured by instance,
 like the Synthetic Forest paper's Figure 5.
@@ -10,11 +10,13 @@ import numpy as np
 from common import arguments, load_render
 from PIL import Image
 
+from mitsuforest.classes import TREE_LEAVES, TREE_WOOD
 from mitsuforest.write.quicklook import instance_colours
 
 args = arguments(__doc__, "instances")
 points, scene, folder = load_render(args.scene, args.out, args.quick)
-trees = points[(points["treeid"] >= 1) & (points["treeid"] <= 10)]
+# By class, not treeid: tree models are numbered past ten (unique trees, a tree list), deadwood after them.
+trees = points[np.isin(points["classification"], [TREE_WOOD, TREE_LEAVES])]
 ground_z = np.median(points["z"][points["classification"] == 1])
 rows = ["instance,treeid,points,height_m,crown_diameter_m"]
 for inst in np.unique(trees["instance"]):

@@ -105,9 +105,9 @@ class Field:
 CLASS_DESCRIPTION = "mitsuforest class"   # our class dimension's description begins so (readers tell it by this)
 
 FIELDS: tuple[Field, ...] = (
-    Field("treeid", "<u2", "the tree's model number (archetypes from 1, then forest.models); deadwood "
-          "classes.DEADWOOD_TREEID; else 0",
-          las=(extra("treeid", "<u2", "archetype 1-10, deadwood 11", 1),)),
+    Field("treeid", "<u2", "the tree's model number (archetypes from 1, then forest.models; a tree list's rows); "
+          "deadwood classes.DEADWOOD_TREEID, or one past the last of N > 10 tree models; else 0",
+          las=(extra("treeid", "<u2", "tree model; deadwood max(11,N+1)", 1),)),
     Field("x", "<f8", "m east (local frame; files add origin.offset)", pcd_local="<f4",
           las=(LasDimension("X", "coordinate", COORDINATE_SCALE),)),
     Field("y", "<f8", "m north (local frame; files add origin.offset)", pcd_local="<f4",

@@ -68,6 +68,30 @@ def test_an_example_does_not_reuse_the_render_of_the_other_mode(tmp_path, monkey
     assert rendered[0][0] != rendered[1][0]
 
 
+def test_the_instances_example_keeps_trees_numbered_past_ten(tmp_path):
+    """examples/instances.py measures every tree: a tree's points are its wood and leaves, whatever its
+    treeid. Trees are numbered past ten (unique trees, a tree list: deadwood then one past the last), and
+    selecting treeid 1-10 dropped tree 12 here. The render it reads is a hand-made PCD in the quick
+    render's folder: ground at z 0, tree 1 (treeid 3) 10 points up to 9 m, tree 2 (treeid 12) 10 points
+    up to 5.5 m, deadwood (treeid 13) 10 points."""
+    from mitsuforest.fields import RECORD_DTYPE, pcd_dtype
+    from mitsuforest.write.pcd import pcd_header
+    points = np.zeros(40, pcd_dtype(RECORD_DTYPE, local=True))
+    points["classification"] = [1] * 10 + [2] * 5 + [3] * 5 + [3] * 10 + [4] * 10
+    points["instance"] = [0] * 10 + [1] * 10 + [2] * 10 + [3] * 10
+    points["treeid"] = [0] * 10 + [3] * 10 + [12] * 10 + [13] * 10
+    points["x"] = np.tile(np.arange(10.0), 4)
+    points["z"] = np.concatenate([np.zeros(10), np.arange(10.0), np.arange(10.0) / 2 + 1, np.full(10, 0.2)])
+    folder = tmp_path / "render-quick"
+    folder.mkdir()
+    (folder / "demo.pcd").write_bytes(pcd_header(points.dtype, len(points)).encode() + points.tobytes())
+    (folder / "demo_manifest.json").write_text("{}")
+    _run([str(ROOT / "examples" / "instances.py"), "--out", str(tmp_path), "--quick"], ROOT)
+    rows = (tmp_path / "trees.csv").read_text().splitlines()
+    assert rows[0] == "instance,treeid,points,height_m,crown_diameter_m"
+    assert [r.split(",")[:4] for r in rows[1:]] == [["1", "3", "10", "9.00"], ["2", "12", "10", "5.50"]]
+
+
 def test_custom_scene_plans(tmp_path):
     from mitsuforest.cli import main
     assert main(["plan", str(ROOT / "examples" / "custom_scene.yaml"), "-o", str(tmp_path)]) == 0

@@ -3,6 +3,7 @@ fields, the written headers match a golden description, and each field comes bac
 as it was written."""
 
 import importlib.util
+import re
 
 import laspy
 import numpy as np
@@ -27,7 +28,7 @@ GOLDEN_PCD = {
 GOLDEN_PCD_GEOREFERENCED_SIZE = "2 8 8 8 1 4 4 1 1 4 8 4 8 4 1 4 2 4"
 GOLDEN_LAS_EXTRA = [                                        # name, type, description, in file order
     ("label", "u1", "mitsuforest class 1-8"),
-    ("treeid", "<u2", "archetype 1-10, deadwood 11"),
+    ("treeid", "<u2", "tree model; deadwood max(11,N+1)"),   # "archetype 1-10, deadwood 11" until the audit
     ("instance", "<u4", "object instance id"),
     ("object_id", "<u4", "component id"),
     ("amplitude", "<f4", "echo amplitude (white at 1 m=1)"),
@@ -88,6 +89,20 @@ def test_the_schema_is_the_golden_description():
     assert POINT_DTYPE.names == RECORD_DTYPE.names[:-1]            # the scan's fields, then the writer's
     assert [d.slot for d in fields.LAS_EXTRA_DIMENSIONS] == list(range(len(GOLDEN_LAS_EXTRA)))
     assert all(len(d.description) <= 32 and d.description.isascii() for d in fields.LAS_EXTRA_DIMENSIONS)
+
+
+def test_the_las_treeid_description_states_deadwood_s_id_past_ten_tree_models():
+    """The treeid dimension's description in every LAS file must hold for any scene. Deadwood is 11 only
+    up to ten tree models: with twelve (unique trees, a tree list, forest.models) the trees are 1-12 and
+    deadwood 13, so "archetype 1-10, deadwood 11" named tree 11's points deadwood (a 12-unique-tree demo:
+    30,072 wood and leaf points with treeid 11, deadwood 13)."""
+    from mitsuforest.plan import _deadwood_treeid
+    description = fields.FIELD["treeid"].las[0].description
+    rule = re.fullmatch(r"tree model; deadwood max\((\d+),N\+1\)", description)
+    assert rule, description
+    models = (0, 5, 10, 11, 12, 65_534)
+    assert [max(int(rule[1]), n + 1) for n in models] == [_deadwood_treeid(n) for n in models] \
+        == [11, 11, 11, 12, 13, 65_535]
 
 
 @pytest.mark.parametrize("offset", [(0.0, 0.0, 0.0), OFFSET])
