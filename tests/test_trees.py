@@ -357,3 +357,31 @@ def test_crown_exponent_sets_how_blunt_a_pine_crown_is():
         assert np.all(radial <= crown_radius(b, points[:, 2]) + 1e-9)
         k = 2 * e * (1 - lift) + 1      # points a metre ∝ cross-section^(1 - lift) = (1 - u)^(2e(1 - lift))
         assert np.mean(u < 0.5) == pytest.approx(1 - 0.5 ** k, abs=0.015)
+
+
+@pytest.mark.parametrize("family, crown_ratio", [("acacia", None), ("acacia", 0.1), ("eucalyptus", 0.1),
+                                                 ("eucalyptus", 0.3)])
+def test_forked_trees_bear_branches_and_leaves_only_in_the_crown(family, crown_ratio):
+    """The crown starts at H · (1 − crown_ratio) (README, "Archetypes") on a forked tree too: its
+    co-dominant leaders rise from the fork below the crown base as bare stems, and no first-order branch,
+    leader child or leaf stands below it. Acacia 3 forks at 4.5 m under a crown base of 6 m; a crown
+    ratio of 0.1 puts the base of Eucalyptus 1 (fork 13.65 m) at 18.9 m, of Acacia 1 (fork 3.6 m) at
+    10.8 m. A branch starts half a parent radius off its parent's axis and its tube reaches its own radius
+    around it, and blades hang a few centimetres from their petioles: 0.15 m of slack for wood, 0.3 m for
+    leaves."""
+    template = FAMILY_ARCHETYPES[family][2 if crown_ratio is None else 0]
+    a = template if crown_ratio is None else dataclasses.replace(template, crown_ratio=crown_ratio)
+    base = a.height * (1 - a.crown_ratio)
+    assert a.fork_height * a.height < base - 1.0                 # the leaders fork well below the crown
+    branches = grow(a)
+    leaders = [b for b in branches[1:a.forks] if b.order == 1]
+    assert len(leaders) == a.forks - 1 and all(b.points[0, 2] < base - 1.0 for b in leaders)
+    m = tree_model(a, "t")
+    wood, leaves = m.parts
+    on_leaders = np.isin(wood.component, np.arange(1, a.forks))
+    branch_wood = wood.vertices[wood.faces[~on_leaders & (wood.component > 0)].ravel()]
+    assert branch_wood[:, 2].min() > base - 0.15
+    leader_children = [b for b in branches if b.order >= 2 and 1 <= b.component < a.forks]
+    assert min(b.points[:, 2].min() for b in leader_children) > base - 0.15
+    assert leaves.vertices[:, 2].min() > base - 0.3
+
