@@ -385,3 +385,20 @@ def test_forked_trees_bear_branches_and_leaves_only_in_the_crown(family, crown_r
     assert min(b.points[:, 2].min() for b in leader_children) > base - 0.15
     assert leaves.vertices[:, 2].min() > base - 0.3
 
+
+def _one_sided_area(part) -> float:
+    tri = part.vertices[part.faces.astype(np.int64)]
+    return float(0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1).sum())
+
+
+@pytest.mark.parametrize("family, index, fill", [("eucalyptus", 3, 0.0), ("acacia", 1, 0.0), ("pinus_radiata", 2, 0.0),
+                                                 ("pinus_radiata", 2, 0.5)])
+def test_leaf_triangles_hold_the_asked_one_sided_leaf_area(family, index, fill):
+    """The leaf part's one-sided area, summed over its triangles, is the archetype's ``leaf_area`` to
+    within half a blade (the count is rounded), on the twigs and spread through the crown alike. Blade
+    sizes vary by a factor drawn uniformly from 0.8-1.2, whose square averages 1 + 0.4²/12: unnormalised,
+    the leaves held 1.3 % more than asked (53.63 m² for Eucalyptus 4's 53)."""
+    a = dataclasses.replace(FAMILY_ARCHETYPES[family][index], leaf_fill=fill)
+    blade = 0.5 * a.leaf_length * a.leaf_width
+    area = _one_sided_area(tree_model(a, "t").parts[-1])
+    assert abs(area - a.leaf_area) <= (1 if fill else 0.5) * blade + 1e-9, (area, a.leaf_area)

@@ -15,6 +15,8 @@ def leaf_blades(anchors: np.ndarray, length: float, width: float, inclination: f
 
     :param anchors: (k, 3) petiole points on twigs.
     :param inclination: mean blade angle below horizontal (deg); spread ±15°.
+    Blade sizes vary by ±20 % about ``length`` × ``width``, scaled so that the k blades hold exactly k
+    times a blade's area, ``length · width / 2`` (one-sided).
     :returns: vertices (4k, 3) and faces (2k, 3): base, left, tip, right per blade.
     """
     k = len(anchors)
@@ -26,6 +28,7 @@ def leaf_blades(anchors: np.ndarray, length: float, width: float, inclination: f
     roll = rng.normal(0, 0.5, k)[:, None]
     side = side * np.cos(roll) + np.cross(axis, side) * np.sin(roll)
     scale = rng.uniform(0.8, 1.2, k)[:, None]
+    scale /= np.sqrt(np.mean(scale ** 2)) if k else 1.0   # sizes vary, their area sums to k · length · width / 2
     base = anchors + axis * 0.01
     tip = base + axis * length * scale
     mid = base + axis * 0.4 * length * scale
