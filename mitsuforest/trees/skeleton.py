@@ -87,11 +87,15 @@ def _curve(start, direction, length, r0, r1, segments, bend, rng, wobble=0.04):
     return np.array(pts), radii
 
 
+BREAST_HEIGHT = 1.3   # m, where ``dbh`` is the stem's diameter
+
+
 def stem_radius(a: Archetype, z) -> np.ndarray:
-    """Stem radius at height ``z``: the taper profile through dbh at 1.3 m, with a basal flare."""
+    """Stem radius at height ``z``: the taper profile through dbh at 1.3 m, with a basal flare (a quarter
+    wider at the ground, decaying over 0.4 m and gone at 1.3 m, so that the diameter there is ``dbh``)."""
     z = np.asarray(z, float)
-    rel = np.clip((a.height - z) / (a.height - 1.3), 0.0, None) ** a.taper
-    flare = 1.0 + 0.25 * np.exp(-z / 0.4)
+    rel = np.clip((a.height - z) / (a.height - BREAST_HEIGHT), 0.0, None) ** a.taper
+    flare = 1.0 + 0.25 * np.clip(np.exp(-z / 0.4) - np.exp(-BREAST_HEIGHT / 0.4), 0.0, None)
     return np.maximum(0.5 * a.dbh * rel * flare, a.min_radius)
 
 
@@ -230,7 +234,7 @@ def grow(a: Archetype) -> list[Branch]:
     for leader in parents[1:]:
         _children(a, leader, rng, branches, order=2, count=max(a.children // 2, 1),
                   s_lo=_fraction_at_height(leader, crown_base))
-    _fit_height(branches, a.height * (1 - a.crown_ratio), a.height)
+    _fit_height(branches, max(a.height * (1 - a.crown_ratio), BREAST_HEIGHT), a.height)
     return branches
 
 
@@ -248,7 +252,8 @@ def _fit_height(branches: list[Branch], crown_base: float, height: float) -> Non
     """Compress the crown vertically above ``crown_base`` so that the tree's top is ``height``.
 
     Upper branches grow past the stem tip; squeezing only the crown keeps ``height`` the tree's
-    total height without changing the clear bole or the crown's footprint.
+    total height without changing the clear bole or the crown's footprint. (The caller passes breast
+    height where the crown starts below it, so that the stem keeps its ``dbh`` there.)
     """
     top = max(float(b.points[:, 2].max()) for b in branches)
     if top <= height:
