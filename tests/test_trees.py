@@ -432,3 +432,20 @@ def test_stem_diameter_at_breast_height_is_the_archetypes_dbh(family):
     for a, within in ((template, 0.005), (dataclasses.replace(template, crown_ratio=0.95), 0.005), (small, 0.015)):
         wood = tree_model(a, "t").parts[0]
         assert _diameter_at(wood, 1.3) == pytest.approx(a.dbh, rel=within), a
+
+
+@pytest.mark.parametrize("inclination", [75.0, 40.0, 0.0, 90.0])
+def test_leaf_blades_hang_at_the_asked_mean_angle(inclination):
+    """``leaf_inclination`` is the blades' mean angle below horizontal (README: 75° on average, ±15°).
+    Each blade's angle is drawn ±15° about it and kept within 0-90°; clipped about the asked angle, the
+    mean fell short of it near the bounds: 73.8° for 75°, 6.0° for 0°, 84.0° for 90°. Measured on the
+    mesh (base to tip of each blade) over Eucalyptus 4's 32,600 blades, the mean is the asked one to
+    0.3° (its standard error is 0.08°), and the spread stays about 15° away from the bounds."""
+    a = dataclasses.replace(DEFAULT_ARCHETYPES[3], leaf_inclination=inclination)
+    v = tree_model(a, "t").parts[-1].vertices.reshape(-1, 4, 3)
+    axis = v[:, 2] - v[:, 0]
+    dip = np.degrees(np.arcsin(-axis[:, 2] / np.linalg.norm(axis, axis=1)))
+    assert dip.min() >= -1e-9 and dip.max() <= 90 + 1e-9
+    assert dip.mean() == pytest.approx(inclination, abs=0.3)
+    if 30 <= inclination <= 60:
+        assert dip.std() == pytest.approx(15, abs=0.5)
