@@ -62,6 +62,14 @@ def leaf_blades(anchors: np.ndarray, length: float, width: float, inclination: f
     return vertices, faces
 
 
+def lowered_under(vertices: np.ndarray, top: float) -> np.ndarray:
+    """Blades (4 vertices each, as :func:`leaf_blades`) that rise above ``top`` moved down, whole, to reach
+    it: petioles scattered about the highest twig tips lifted blades over the tree's height."""
+    blades = vertices.reshape(-1, 4, 3).copy()
+    blades[:, :, 2] -= np.maximum(blades[:, :, 2].max(axis=1) - top, 0.0)[:, None]
+    return blades.reshape(-1, 3)
+
+
 def leaves_on_twigs(twigs, leaf_area: float, length: float, width: float, inclination: float, clumping: float,
                     rng) -> tuple[np.ndarray, np.ndarray]:
     """Blades for a one-sided ``leaf_area`` spread over twigs, denser toward their tips.
