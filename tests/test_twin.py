@@ -539,6 +539,25 @@ def test_tree_list_crown_ratio_column_sets_each_trees_crown(tmp_path):
         make_plan(load_scene(tmp_path / "s.yaml"))
 
 
+def test_tree_list_refuses_a_leaf_area_beyond_what_a_procedural_tree_carries(tmp_path):
+    """A listed leaf area above the archetypes' 2,000 m² was cut to 2,000 m² without a word (a tree asked
+    to carry 3,000 m² carried two thirds of it); it is refused in one line, as a crown ratio out of range
+    is. 2,000 m² itself is kept."""
+    from mitsuforest.config import load_scene
+    from mitsuforest.errors import UserError
+    from mitsuforest.survey import make_plan
+    (tmp_path / "s.yaml").write_text(
+        "area: {size: [20, 20]}\nforest: {trees_file: trees.csv}\nunderstory: {bushes: 0, rocks: 0, deadwood: 0, "
+        f"stumps: 0}}\nsensor: {ROOT / 'sensors' / 'ideal.yaml'}\nsurvey: {{lines: [[[10, -5], [10, 25]]]}}\n")
+    (tmp_path / "trees.csv").write_text("x,y,height,crown_radius,leaf_area\n5,5,22,2.5,2000\n")
+    plan = make_plan(load_scene(tmp_path / "s.yaml"))
+    assert [plan.models[t.model].archetype.leaf_area for t in plan.trees] == [2000.0]
+    (tmp_path / "trees.csv").write_text("x,y,height,crown_radius,leaf_area\n5,5,22,2.5,40\n9,9,30,4,3000\n")
+    with pytest.raises(UserError, match=r"trees.csv: line 3: leaf_area 3,000 m² is more than a procedural tree "
+                                        r"carries \(at most 2,000 m²\)"):
+        make_plan(load_scene(tmp_path / "s.yaml"))
+
+
 def test_an_oscillating_sensor_gets_half_the_scans_lines_per_second(tmp_path):
     """The scan's bursts come one a scan line. A turning mirror draws one line a turn, an oscillating one
     two a sweep there and back (its scan_frequency, as HELIOS++'s): 80 lines/s are 80 Hz and 40 Hz."""

@@ -23,6 +23,7 @@ from ..textfiles import SEMICOLONS, NotTextError, read_text, repeated, semicolon
 COLUMNS = ("x", "y", "height", "crown_radius")
 CROWN_RATIO = (FIELDS["crown_ratio"].metadata["lo"], FIELDS["crown_ratio"].metadata["hi"])
 MAX_HEIGHT = FIELDS["height"].metadata["hi"]   # m: the procedural trees grow no taller (shorter ones are raised)
+MAX_LEAF_AREA = FIELDS["leaf_area"].metadata["hi"]   # m², one-sided: the most a procedural tree carries
 
 
 @dataclass(frozen=True)
@@ -81,6 +82,9 @@ def read_tree_list(path, offset=(0.0, 0.0, 0.0)) -> list[ListedTree]:
             leaf_area = _number(row[at["leaf_area"]], path, line, "leaf_area")
             if leaf_area < 0:
                 raise UserError(f"{path}: line {line}: leaf_area must be >= 0")
+            if leaf_area > MAX_LEAF_AREA:   # was cut to MAX_LEAF_AREA without a word
+                raise UserError(f"{path}: line {line}: leaf_area {leaf_area:,g} m² is more than a procedural tree "
+                                f"carries (at most {MAX_LEAF_AREA:,g} m²)")
         crown_ratio = None
         if "crown_ratio" in at and row[at["crown_ratio"]].strip():
             crown_ratio = _number(row[at["crown_ratio"]], path, line, "crown_ratio")

@@ -15,7 +15,7 @@ import numpy as np
 from .. import seeds
 from ..classes import TREE_LEAVES, TREE_WOOD
 from ..specs.archetypes import Archetype
-from .leaves import leaf_blades, leaf_count, leaves_on_twigs
+from .leaves import leaf_blades, leaf_count, leaves_on_twigs, lowered_under
 from .skeleton import crown_volume_points, grow, terminal_branches
 from .tubes import frustum_volume, tube
 from .volume import WoodVolume, wood_volume
@@ -133,6 +133,7 @@ def tree_model(archetype: Archetype, name: str) -> Model:
     parts = [wood]
     if leaves is not None:
         v, f = leaves
+        v = lowered_under(v, archetype.height)   # the tree's height is its top, leaves included
         parts.append(Part("leaves", v, f.astype(np.uint32), np.full(len(f), len(components) - 1, np.uint16)))
     return Model(name, parts, components, volume,
                  meta={"height": archetype.height, "dbh": archetype.dbh, "species": archetype.species})

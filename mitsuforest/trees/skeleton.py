@@ -87,11 +87,15 @@ def _curve(start, direction, length, r0, r1, segments, bend, rng, wobble=0.04):
     return np.array(pts), radii
 
 
+BREAST_HEIGHT = 1.3   # m, where ``dbh`` is the stem's diameter
+
+
 def stem_radius(a: Archetype, z) -> np.ndarray:
-    """Stem radius at height ``z``: the taper profile through dbh at 1.3 m, with a basal flare."""
+    """Stem radius at height ``z``: the taper profile through dbh at 1.3 m, with a basal flare (a quarter
+    wider at the ground, decaying over 0.4 m and gone at 1.3 m, so that the diameter there is ``dbh``)."""
     z = np.asarray(z, float)
-    rel = np.clip((a.height - z) / (a.height - 1.3), 0.0, None) ** a.taper
-    flare = 1.0 + 0.25 * np.exp(-z / 0.4)
+    rel = np.clip((a.height - z) / (a.height - BREAST_HEIGHT), 0.0, None) ** a.taper
+    flare = 1.0 + 0.25 * np.clip(np.exp(-z / 0.4) - np.exp(-BREAST_HEIGHT / 0.4), 0.0, None)
     return np.maximum(0.5 * a.dbh * rel * flare, a.min_radius)
 
 
@@ -164,14 +168,16 @@ def _lifted_crown_points(a: Archetype, stem: Branch, count: int, rng) -> np.ndar
 
 def _branch_site(a: Archetype, i: int, s_lo: float, rng) -> tuple[float, float]:
     """Arc-length fraction along the parent and roll increment of first-order branch ``i``: spread
-    evenly (a golden-angle spiral), or in whorls of BRANCHES_PER_WHORL for Pinus radiata."""
+    evenly (a golden-angle spiral), or in whorls of BRANCHES_PER_WHORL for Pinus radiata, from ``s_lo`` up
+    to 93 % (95 %) of the parent, or half-way from ``s_lo`` to its tip where that is higher (a leader
+    that just reaches the crown base)."""
     if a.species == "pinus_radiata":
         whorls = -(-a.branches // BRANCHES_PER_WHORL)
         w, k = divmod(i, BRANCHES_PER_WHORL)
-        s = s_lo + (0.95 - s_lo) * (w + 0.5 + rng.uniform(-0.08, 0.08)) / whorls
+        s = s_lo + (max(0.95, (1 + s_lo) / 2) - s_lo) * (w + 0.5 + rng.uniform(-0.08, 0.08)) / whorls
         turn = (GOLDEN_ANGLE if k == 0 else 2 * np.pi / BRANCHES_PER_WHORL) + rng.normal(0, 0.15)
         return s, turn
-    s = s_lo + (0.93 - s_lo) * (i + rng.uniform(0.2, 0.8)) / a.branches
+    s = s_lo + (max(0.93, (1 + s_lo) / 2) - s_lo) * (i + rng.uniform(0.2, 0.8)) / a.branches
     return s, GOLDEN_ANGLE + rng.normal(0, 0.3)
 
 
@@ -202,12 +208,14 @@ def grow(a: Archetype) -> list[Branch]:
             component += 1
             branches.append(leader)
             parents.append(leader)
-    # First-order branches in the live crown, spread over the stem and leaders by length in the crown.
+    # First-order branches in the live crown, spread over the stem and the leaders that reach it, each
+    # bare below the crown base.
     crown_base = a.height * (1 - a.crown_ratio)
+    parents = [p for p in parents if p.points[-1, 2] > crown_base]
     roll = rng.uniform(0, 2 * np.pi)
     for i in range(a.branches):
         parent = parents[i % len(parents)]
-        s_lo = 0.0 if parent.order else crown_base / a.height
+        s_lo = _fraction_at_height(parent, crown_base) if parent.order else crown_base / a.height
         s, turn = _branch_site(a, i, s_lo, rng)
         p, d, r = parent.at(s)
         roll += turn
@@ -224,16 +232,28 @@ def grow(a: Archetype) -> list[Branch]:
         _children(a, first, rng, branches, order=2)
         component += 1
     for leader in parents[1:]:
-        _children(a, leader, rng, branches, order=2, count=max(a.children // 2, 1))
-    _fit_height(branches, a.height * (1 - a.crown_ratio), a.height)
+        _children(a, leader, rng, branches, order=2, count=max(a.children // 2, 1),
+                  s_lo=_fraction_at_height(leader, crown_base))
+    _fit_height(branches, max(a.height * (1 - a.crown_ratio), BREAST_HEIGHT), a.height)
     return branches
+
+
+def _fraction_at_height(branch: Branch, z: float) -> float:
+    """Arc-length fraction along ``branch`` (rising, a leader) at which it reaches height ``z``: 0 where
+    it starts at or above it. A leader forking below the crown base is bare up to it, as the stem is."""
+    if branch.points[0, 2] >= z:
+        return 0.0
+    seg = np.linalg.norm(np.diff(branch.points, axis=0), axis=1)
+    cum = np.concatenate([[0.0], np.cumsum(seg)]) / seg.sum()
+    return float(np.interp(z, np.maximum.accumulate(branch.points[:, 2]), cum))
 
 
 def _fit_height(branches: list[Branch], crown_base: float, height: float) -> None:
     """Compress the crown vertically above ``crown_base`` so that the tree's top is ``height``.
 
     Upper branches grow past the stem tip; squeezing only the crown keeps ``height`` the tree's
-    total height without changing the clear bole or the crown's footprint.
+    total height without changing the clear bole or the crown's footprint. (The caller passes breast
+    height where the crown starts below it, so that the stem keeps its ``dbh`` there.)
     """
     top = max(float(b.points[:, 2].max()) for b in branches)
     if top <= height:
@@ -245,13 +265,18 @@ def _fit_height(branches: list[Branch], crown_base: float, height: float) -> Non
         z[above] = crown_base + (z[above] - crown_base) * factor
 
 
-def _children(a: Archetype, parent: Branch, rng, out: list[Branch], order: int, count: int | None = None):
+def _children(a: Archetype, parent: Branch, rng, out: list[Branch], order: int, count: int | None = None,
+              s_lo: float = 0.0):
+    """``count`` branches of ``order`` along ``parent`` between 25 % and 95 % of its length, or from ``s_lo``
+    (an arc-length fraction: a leader's crown base) where that is higher."""
     count = (a.children if order == 2 else a.twigs) if count is None else count
     if count == 0 or order > 3:
         return
     roll = rng.uniform(0, 2 * np.pi)
+    lo = max(s_lo, 0.25)
     for j in range(count):
-        s = 0.25 + 0.7 * (j + rng.uniform(0.1, 0.9)) / count
+        x = j + rng.uniform(0.1, 0.9)
+        s = 0.25 + 0.7 * x / count if lo == 0.25 else lo + (0.95 - lo) * x / count
         p, d, r = parent.at(s)
         roll += GOLDEN_ANGLE * 2 + rng.normal(0, 0.4)
         direction = _direction(d, np.deg2rad(rng.uniform(30, 50)), roll)
