@@ -112,8 +112,7 @@ def make_plan(scene: Scene, progress: bool = False) -> Plan:
     where that takes more than a second (a long tree list's, grown anew)."""
     if not progress:
         return plan_scene(scene, tree_shapes)
-    from tqdm import tqdm
-    with tqdm(desc="crowns", unit=" crowns", leave=False, delay=1.0, dynamic_ncols=True) as bar:
+    with _slow_work_bar("crowns") as bar:
         return plan_scene(scene, functools.partial(tree_shapes, progress=bar.update))
 
 
@@ -147,9 +146,14 @@ def prepare(scene: Scene, legs: range | None = None, *, log=_quiet, progress: bo
 def _built_models(plan: Plan, progress: bool) -> dict:
     if not progress:
         return build_models(plan)
-    from tqdm import tqdm
-    with tqdm(total=len(plan.models), desc="models", unit=" models", leave=False, delay=1.0, dynamic_ncols=True) as bar:
+    with _slow_work_bar("models", len(plan.models)) as bar:
         return build_models(plan, progress=lambda name: bar.update())
+
+
+def _slow_work_bar(what: str, total: int | None = None):
+    """A progress bar of ``what`` (crowns, models) that shows only once the work has taken a second."""
+    from tqdm import tqdm
+    return tqdm(total=total, desc=what, unit=f" {what}", leave=False, delay=1.0, dynamic_ncols=True)
 
 
 def prepare_plan(scene: Scene, plan: Plan, models: dict, legs: range | None = None, *,
@@ -159,6 +163,7 @@ def prepare_plan(scene: Scene, plan: Plan, models: dict, legs: range | None = No
 
     :param reflectance: (256,) reflectance by class; None: ours at the sensor's wavelength.
     """
+    refuse_forked_render()
     timings = Timings({"plan": 0.0, "trees": 0.0})
     return _load(scene, plan, models, legs, reflectance, timings, log)
 
@@ -169,7 +174,6 @@ def _load(scene, plan, models, legs, reflectance, timings, log) -> PreparedSurve
         raise ValueError(f"legs {legs} are not consecutive legs of the plan's {len(plan.legs)}")
     log(f"plan: {placed_summary(plan)}, canopy cover {plan.canopy_cover:.1%}, {len(plan.objects)} objects, "
         f"{len(plan.legs)} legs")
-    refuse_forked_render()
     note_native_threads()
     scan_scene = build_scene(plan, models, scene.sensor, scene.simulation.variant,
                              None if len(legs) == len(plan.legs) else legs, reflectance, scene.survey.attitude)
